@@ -1,0 +1,181 @@
+"""Command line: ``volmc render``, ``volmc convert``.
+
+Bad input (scene files, grids, flag values) prints one line
+``volmc: error: <file>: <key>: <what is wrong>`` and exits with status 2, no traceback.
+Ctrl-C during a render writes what was accumulated (marked partial) and exits 130.
+"""
+
+import argparse
+import os
+import sys
+
+from .scene.errors import SceneError
+
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (no usage dump) and exit status 2."""
+
+    def error(self, message):
+        raise SceneError("command line", "", message)
+
+
+def _positive_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {v}")
+    return v
+
+
+def _seed(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2^64), got {text!r}") \
+            from None
+    if not 0 <= v < 2**64:
+        raise argparse.ArgumentTypeError(f"must be in [0, 2^64), got {v}")
+    return v
+
+
+def _finite_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return v
+
+
+def build_parser():
+    from .render import BACKENDS
+    p = _Parser(prog="volmc", description="Monte Carlo volume path tracer")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    r = sub.add_parser("render", help="render a scene to EXR (and PNG)")
+    r.add_argument("scene", nargs="?", help="scene .toml (default: the bundled cloud scene)")
+    r.add_argument("-o", "--output", help="EXR path (default: <scene name>.exr here)")
+    r.add_argument("--spp", type=_positive_int, help="samples per pixel (overrides render.spp)")
+    r.add_argument("--seed", type=_seed, help="random seed (overrides render.seed)")
+    r.add_argument("--backend", choices=BACKENDS, default=BACKENDS[0], help="render backend")
+    r.add_argument("-D", dest="defines", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a scene key (repeatable), e.g. -D medium.albedo=0.9")
+    r.add_argument("--png", nargs="?", const="", default=None, metavar="PATH",
+                   help="also write a tonemapped sRGB PNG preview (default path: EXR name with "
+                        ".png); on by default when no scene is given")
+    r.add_argument("--exposure", type=_finite_float, default=0.0,
+                   help="PNG exposure in stops (default 0)")
+    r.add_argument("--tonemap", choices=("filmic", "clamp"), default="filmic",
+                   help="PNG tone curve (default filmic)")
+    r.add_argument("--variance", action="store_true",
+                   help="also write <output>.var.exr: per-pixel variance of the mean")
+    r.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+    r.add_argument("--stats", action="store_true",
+                   help="print samples/s, path length, lookups and guard counters")
+
+    c = sub.add_parser("convert", help="convert a density grid between .npy, .npz and .vol")
+    c.add_argument("input")
+    c.add_argument("output")
+    c.add_argument("--bounds", type=_finite_float, nargs=6,
+                   metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                   help="bounding box written into .vol headers (default: the input .vol's "
+                        "box, else the unit cube)")
+    return p
+
+
+def _check_writable(path, flag):
+    d = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(d):
+        raise SceneError("command line", flag, f"directory does not exist: {d}")
+    if not os.access(d, os.W_OK):
+        raise SceneError("command line", flag, f"directory is not writable: {d}")
+
+
+def cmd_render(args):
+    from .film import write_exr, write_png
+    from .render import render
+    from .resources import default_scene
+    from .scene import load_scene
+
+    use_default = args.scene is None
+    scene_path = str(default_scene()) if use_default else args.scene
+    stem = os.path.splitext(os.path.basename(scene_path))[0]
+    out = args.output or f"{stem}.exr"
+    png = args.png
+    if png is None and use_default:
+        png = ""
+    if png == "":
+        png = os.path.splitext(out)[0] + ".png"
+    _check_writable(out, "-o")
+    if png:
+        _check_writable(png, "--png")
+
+    defines = list(args.defines)
+    if args.spp is not None:
+        defines.append(f"render.spp={args.spp}")
+    if args.seed is not None:
+        defines.append(f"render.seed={args.seed}")
+    scene = load_scene(scene_path, defines)
+
+    res = render(scene, backend=args.backend, progress=False if args.quiet else None)
+    meta = res.metadata()
+    meta["scene"] = os.path.abspath(scene_path)
+    write_exr(out, res.image, meta)
+    if args.variance:
+        write_exr(os.path.splitext(out)[0] + ".var.exr", res.film.variance_of_mean(), meta)
+    if png:
+        write_png(png, res.image, args.exposure, args.tonemap)
+
+    if not args.quiet:
+        w, h = scene.camera.resolution
+        state = "interrupted, partial image" if res.partial else "done"
+        print(f"volmc: {state}: {out}{' + ' + png if png else ''} ({w}x{h}, {res.film.spp} spp, "
+              f"{res.backend}, {res.seconds:.2f} s)", file=sys.stderr)
+    if args.stats:
+        for k, v in res.stats().items():
+            print(f"  {k:24s} {v:.6g}" if isinstance(v, float) else f"  {k:24s} {v}")
+    return EXIT_INTERRUPTED if res.partial else 0
+
+
+def cmd_convert(args):
+    from .scene.grids import load_grid, read_vol, save_grid
+    grid = load_grid(args.input, "input")
+    bounds = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    if args.bounds is not None:
+        b = args.bounds
+        bounds = (tuple(b[:3]), tuple(b[3:]))
+    elif args.input.lower().endswith(".vol"):
+        bb = read_vol(args.input)[1]
+        bounds = (tuple(bb[:3]), tuple(bb[3:]))
+    _check_writable(args.output, "output")
+    save_grid(args.output, grid, bounds)
+    nz, ny, nx = grid.shape
+    print(f"volmc: wrote {args.output} ({nx}x{ny}x{nz} [x, y, z])", file=sys.stderr)
+    return 0
+
+
+def main(argv=None):
+    """Entry point of the ``volmc`` console script; returns the exit status."""
+    try:
+        args = build_parser().parse_args(argv)
+        if args.command == "render":
+            return cmd_render(args)
+        if args.command == "convert":
+            return cmd_convert(args)
+    except SceneError as e:
+        print(f"volmc: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("volmc: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

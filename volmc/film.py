@@ -1,0 +1,107 @@
+"""Film: per-pixel accumulation, variance of the mean, EXR and PNG output, image metrics.
+
+Every render accumulates, per pixel and channel, the sum of its sample values and the sum
+of their squares, so it knows its own noise: the variance of the pixel mean is
+``(sum_sq / n - mean^2) / (n - 1)`` (unbiased sample variance divided by n).
+
+Images are float arrays [height, width, 3] of linear RGB, row 0 at the top.
+"""
+
+import math
+
+import numpy as np
+
+#: Metadata attribute prefix in EXR headers.
+META_PREFIX = "volmc:"
+
+
+class Film:
+    """Running per-pixel sums for a width x height RGB image."""
+
+    def __init__(self, width, height):
+        self.width = int(width)
+        self.height = int(height)
+        self.sum = np.zeros((self.height, self.width, 3), np.float64)
+        self.sum_sq = np.zeros((self.height, self.width, 3), np.float64)
+        self.spp = 0
+
+    def mean(self):
+        """Per-pixel mean radiance [h, w, 3] (zeros before the first sample)."""
+        return self.sum / max(self.spp, 1)
+
+    def variance_of_mean(self):
+        """Per-pixel variance of the mean [h, w, 3]; inf with fewer than 2 samples."""
+        n = self.spp
+        if n < 2:
+            return np.full_like(self.sum, np.inf)
+        m = self.sum / n
+        var = np.maximum(self.sum_sq / n - m * m, 0.0) * (n / (n - 1))
+        return var / n
+
+
+def write_exr(path, image, metadata=None):
+    """Write a float32 RGB EXR (channels R, G, B; ZIP compression) with string/number metadata.
+
+    Each channel is passed to OpenEXR as its own C-contiguous array: OpenEXR 3.5's bindings
+    write wrong pixels for strided views such as ``image[..., 0]``.
+    """
+    import OpenEXR
+    image = np.asarray(image, dtype=np.float32)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"expected an [h, w, 3] image, got shape {image.shape}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for k, v in (metadata or {}).items():
+        if isinstance(v, bool):
+            v = int(v)
+        elif not isinstance(v, (int, float, str)):
+            v = str(v)
+        header[META_PREFIX + k] = v
+    channels = {c: np.ascontiguousarray(image[..., i]) for i, c in enumerate("RGB")}
+    with OpenEXR.File(header, channels) as f:
+        f.write(str(path))
+
+
+def read_exr(path):
+    """Read an RGB EXR. Returns (image float32 [h, w, 3], metadata dict without the prefix)."""
+    import OpenEXR
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        ch = f.channels()
+        img = np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGB"], axis=-1)
+        meta = {k[len(META_PREFIX):]: v for k, v in f.header().items()
+                if k.startswith(META_PREFIX)}
+    return img, meta
+
+
+def srgb_encode(x):
+    """Linear [0, 1] -> sRGB-encoded [0, 1] (IEC 61966-2-1 transfer function)."""
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+
+
+def tonemap(image, exposure=0.0, operator="filmic"):
+    """Linear radiance -> display [0, 1]: scale by 2^exposure, then a tone curve, then sRGB.
+
+    ``operator``: "filmic" (Narkowicz's fit of the ACES curve, gentle highlight roll-off),
+    or "clamp" (plain clipping, for scenes whose values are already in [0, 1]).
+    """
+    x = np.asarray(image, np.float64) * (2.0 ** exposure)
+    x = np.where(np.isfinite(x), np.maximum(x, 0.0), 0.0)
+    if operator == "filmic":
+        a, b, c, d, e = 2.51, 0.03, 2.43, 0.59, 0.14
+        x = (x * (a * x + b)) / (x * (c * x + d) + e)
+    elif operator != "clamp":
+        raise ValueError(f"unknown tone operator {operator!r}")
+    return srgb_encode(x)
+
+
+def write_png(path, image, exposure=0.0, operator="filmic"):
+    """Write a tonemapped 8-bit sRGB PNG preview of a linear image."""
+    from matplotlib import image as mpimg
+    rgb = (tonemap(image, exposure, operator) * 255.0 + 0.5).astype(np.uint8)
+    mpimg.imsave(str(path), rgb)
+
+
+def rmse(image, reference):
+    """Root-mean-square error between two images (all pixels and channels)."""
+    d = np.asarray(image, np.float64) - np.asarray(reference, np.float64)
+    return math.sqrt(float(np.mean(d * d)))

@@ -1,0 +1,90 @@
+"""Pack a Scene into the parameter record, light array and grid every backend consumes."""
+
+import math
+
+import numpy as np
+
+from .params import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, LIGHT_DIRECTIONAL, LIGHT_POINT,
+                     light_dtype, params_dtype)
+from .reference.phase import PHASE_HG, PHASE_ISOTROPIC
+from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
+
+
+def _normalize(v):
+    n = math.sqrt(sum(x * x for x in v))
+    return tuple(x / n for x in v)
+
+
+def camera_basis(camera):
+    """(forward, right, up) unit vectors of a camera. +x of the image is ``right``."""
+    f = _normalize([camera.target[i] - camera.eye[i] for i in range(3)])
+    u0 = camera.up
+    r = _normalize((f[1] * u0[2] - f[2] * u0[1], f[2] * u0[0] - f[0] * u0[2],
+                    f[0] * u0[1] - f[1] * u0[0]))
+    u = (r[1] * f[2] - r[2] * f[1], r[2] * f[0] - r[0] * f[2], r[0] * f[1] - r[1] * f[0])
+    return f, r, u
+
+
+def pack_scene(scene, real=np.float64, spp_seed=None):
+    """Return (params[1], lights[n], grid) for a Scene.
+
+    ``params`` is a one-element array of ``params_dtype(real)``; ``lights`` holds the
+    directional and point lights (environment lights are summed into params.env);
+    ``grid`` is a C-contiguous [z, y, x] array of ``real`` (a 1x1x1 dummy when homogeneous).
+    """
+    cam, med, rnd = scene.camera, scene.medium, scene.render
+    p = np.zeros(1, params_dtype(real))[0]
+    w, h = cam.resolution
+    p["width"], p["height"] = w, h
+    f, r, u = camera_basis(cam)
+    p["forward"], p["right"], p["up"] = f, r, u
+    p["eye"] = cam.eye
+    if cam.type == "orthographic":
+        p["cam_type"] = CAMERA_ORTHOGRAPHIC
+        p["half_height"] = 0.5 * cam.size
+    else:
+        p["cam_type"] = CAMERA_PERSPECTIVE
+        p["half_height"] = math.tan(math.radians(cam.fov) * 0.5)
+    p["aspect"] = w / h
+    lo, hi = med.bounds
+    p["bmin"], p["bmax"] = lo, hi
+    p["inv_extent"] = [1.0 / (hi[i] - lo[i]) for i in range(3)]
+    p["scale"] = med.scale
+    if scene.grid is None:
+        p["has_grid"] = 0
+        p["density"] = med.density.value
+        p["majorant"] = med.scale * med.density.value
+        grid = np.zeros((1, 1, 1), real)
+    else:
+        p["has_grid"] = 1
+        grid = np.ascontiguousarray(scene.grid, dtype=real)
+        # Trilinear interpolation never exceeds the largest voxel: a true global bound.
+        p["majorant"] = med.scale * float(scene.grid.max())
+        p["density"] = 0.0
+    p["albedo"] = med.albedo
+    p["phase_kind"] = PHASE_HG if med.phase.type == "hg" else PHASE_ISOTROPIC
+    p["g"] = med.phase.g
+    env = [0.0, 0.0, 0.0]
+    lights = []
+    for lt in scene.lights:
+        if isinstance(lt, EnvironmentLight):
+            p["has_env"] = 1
+            env = [env[i] + lt.radiance[i] for i in range(3)]
+        elif isinstance(lt, DirectionalLight):
+            lights.append((LIGHT_DIRECTIONAL, lt.direction, lt.irradiance))
+        elif isinstance(lt, PointLight):
+            lights.append((LIGHT_POINT, lt.position, lt.intensity))
+    p["env"] = env
+    larr = np.zeros(len(lights), light_dtype(real))
+    for i, (t, v, c) in enumerate(lights):
+        larr[i]["type"], larr[i]["vec"], larr[i]["color"] = t, v, c
+    p["n_lights"] = len(lights)
+    p["max_depth"] = rnd.max_depth
+    p["rr_depth"] = rnd.rr_depth
+    p["max_steps"] = rnd.max_steps
+    seed = rnd.seed if spp_seed is None else spp_seed
+    p["seed_lo"] = seed & 0xFFFFFFFF
+    p["seed_hi"] = seed >> 32
+    params = np.zeros(1, params_dtype(real))
+    params[0] = p
+    return params, larr, grid

@@ -1,0 +1,84 @@
+"""The render parameter record: defined once here, used by every backend.
+
+The Numba reference receives a one-element numpy structured array of ``params_dtype(np.float64)``
+and reads its fields by name; the OpenCL host derives the C struct of the kernels from the same
+field list (with ``np.float32`` reals), so the layout is never written twice by hand.
+
+Units: lengths in world units, extinction in 1/world unit, angles as cosines or tangents,
+radiance/irradiance/intensity in the scene's linear RGB units.
+"""
+
+import numpy as np
+
+CAMERA_PERSPECTIVE = 0
+CAMERA_ORTHOGRAPHIC = 1
+
+LIGHT_DIRECTIONAL = 0
+LIGHT_POINT = 1
+
+#: (name, kind, count, meaning). kind "real" becomes float64 (reference) or float32 (kernels).
+PARAM_FIELDS = (
+    ("width", "i4", 1, "image width in pixels"),
+    ("height", "i4", 1, "image height in pixels"),
+    ("cam_type", "i4", 1, "CAMERA_PERSPECTIVE or CAMERA_ORTHOGRAPHIC"),
+    ("eye", "real", 3, "camera position (perspective) or image-plane centre (orthographic)"),
+    ("forward", "real", 3, "unit viewing direction"),
+    ("right", "real", 3, "unit vector along the image's +x (left to right)"),
+    ("up", "real", 3, "unit vector along the image's up direction (bottom to top)"),
+    ("half_height", "real", 1, "tan(fov / 2) (perspective) or size / 2 (orthographic)"),
+    ("aspect", "real", 1, "width / height"),
+    ("bmin", "real", 3, "medium box minimum corner"),
+    ("bmax", "real", 3, "medium box maximum corner"),
+    ("inv_extent", "real", 3, "1 / (bmax - bmin) per axis"),
+    ("has_grid", "i4", 1, "1: density from the grid buffer; 0: homogeneous"),
+    ("density", "real", 1, "homogeneous density (unused with a grid)"),
+    ("scale", "real", 1, "extinction = scale * density, 1/world unit"),
+    ("majorant", "real", 1, "global extinction majorant (scale * max density)"),
+    ("albedo", "real", 3, "single-scattering albedo per channel"),
+    ("phase_kind", "i4", 1, "PHASE_ISOTROPIC or PHASE_HG"),
+    ("g", "real", 1, "Henyey-Greenstein asymmetry"),
+    ("has_env", "i4", 1, "1 if an environment light is present"),
+    ("env", "real", 3, "environment radiance (sum of all environment lights)"),
+    ("n_lights", "i4", 1, "number of directional and point lights in the light array"),
+    ("max_depth", "i4", 1, "scattering events per path; -1 = unbounded"),
+    ("rr_depth", "i4", 1, "Russian roulette applies from this many scattering events on"),
+    ("max_steps", "i4", 1, "step cap per free-flight walk and per transmittance estimate"),
+    ("seed_lo", "u4", 1, "low 32 bits of the seed"),
+    ("seed_hi", "u4", 1, "high 32 bits of the seed"),
+)
+
+LIGHT_FIELDS = (
+    ("type", "i4", 1, "LIGHT_DIRECTIONAL or LIGHT_POINT"),
+    ("vec", "real", 3, "directional: unit propagation direction; point: position"),
+    ("color", "real", 3, "directional: irradiance; point: intensity (per steradian)"),
+)
+
+#: Counter slots accumulated per pixel by every backend.
+COUNTER_NAMES = (
+    "lookups",          # density lookups
+    "scatter_events",   # real scattering events (sum of path lengths)
+    "capped",           # walks cut by the step cap (max_steps)
+    "dropped",          # NaN/Inf/negative sample contributions caught and dropped
+    "over_majorant",    # lookups whose extinction exceeded the majorant
+    "shadow_rays",      # transmittance estimates for next-event estimation
+)
+C_LOOKUPS, C_SCATTER, C_CAPPED, C_DROPPED, C_OVER_MAJORANT, C_SHADOW = range(len(COUNTER_NAMES))
+N_COUNTERS = len(COUNTER_NAMES)
+
+
+def _dtype(fields, real):
+    spec = []
+    for name, kind, count, _ in fields:
+        base = np.dtype(real) if kind == "real" else np.dtype(kind)
+        spec.append((name, base, (count,)) if count > 1 else (name, base))
+    return np.dtype(spec, align=True)
+
+
+def params_dtype(real=np.float64):
+    """Structured dtype of the parameter record with reals of type ``real``."""
+    return _dtype(PARAM_FIELDS, real)
+
+
+def light_dtype(real=np.float64):
+    """Structured dtype of one directional/point light with reals of type ``real``."""
+    return _dtype(LIGHT_FIELDS, real)

@@ -1,0 +1,84 @@
+"""Phase functions: isotropic and Henyey-Greenstein, evaluation and importance sampling.
+
+Convention (shared with ``kernels/phase.h``; written once here, tested in test_phase.py):
+
+* Both directions are *propagation* directions of the path: ``d_in`` is the direction the
+  path travelled to reach the scattering point, ``d_out`` the direction it leaves in (for
+  next-event estimation: towards the light). cos(theta) = dot(d_in, d_out).
+* Henyey-Greenstein: p(cos) = (1 - g^2) / (4 pi (1 + g^2 - 2 g cos)^(3/2)) per steradian.
+  g > 0 scatters forward (peak at cos = 1, d_out = d_in), g < 0 backward; E[cos] = g.
+  Because light transport is reciprocal and p depends only on the angle between the two
+  propagation directions, tracing from the camera uses the same formula as from the light.
+* Phase kinds: PHASE_ISOTROPIC = 0, PHASE_HG = 1 (``g`` is ignored for isotropic).
+
+The HG inversion is written in terms of 1 - cos and 1 + cos (derived below) so that it
+has no cancellation for g near 0 or near +-1 and never leaves [-1, 1]: with
+t = 1 - g + 2 g u (the inverted CDF's denominator, always in [1 - |g|, 1 + |g|]):
+
+    1 - cos = (1 - g)^2 (1 - u) (1 + g + t) / t^2
+    1 + cos = (1 + g)^2  u      (1 - g + t) / t^2
+
+and the density of the sample is p = t^3 / (4 pi (1 - g^2)^2). No division by g appears, so
+g = 0 needs no special case (t = 1, cos = 2u - 1).
+"""
+
+import math
+
+from numba import njit
+
+from .sampling import INV_4PI, TWO_PI, from_frame, sample_uniform_sphere
+
+PHASE_ISOTROPIC = 0
+PHASE_HG = 1
+
+
+@njit(cache=True, inline="always")
+def hg_eval(cos_theta, g):
+    """Henyey-Greenstein phase function value (1/sr) at cos(theta) between propagation directions."""
+    # 1 + g^2 - 2 g cos written as a sum of two non-negative terms (no cancellation).
+    if g >= 0.0:
+        denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - cos_theta)
+    else:
+        denom = (1.0 + g) * (1.0 + g) - 2.0 * g * (1.0 + cos_theta)
+    return INV_4PI * (1.0 - g) * (1.0 + g) / (denom * math.sqrt(denom))
+
+
+@njit(cache=True, inline="always")
+def hg_sample_cos(u, g):
+    """Invert the HG CDF of cos(theta). Returns (cos, sin, pdf): pdf in 1/sr."""
+    t = 1.0 - g + 2.0 * g * u
+    inv_t2 = 1.0 / (t * t)
+    omc = (1.0 - g) * (1.0 - g) * (1.0 - u) * (1.0 + g + t) * inv_t2
+    opc = (1.0 + g) * (1.0 + g) * u * (1.0 - g + t) * inv_t2
+    if omc < opc:
+        cos_theta = 1.0 - omc
+    else:
+        cos_theta = opc - 1.0
+    cos_theta = min(1.0, max(-1.0, cos_theta))
+    sin_theta = math.sqrt(max(0.0, omc * opc))
+    one_m_g2 = (1.0 - g) * (1.0 + g)
+    pdf = INV_4PI * t * t * t / (one_m_g2 * one_m_g2)
+    return cos_theta, sin_theta, pdf
+
+
+@njit(cache=True, inline="always")
+def hg_sample(u1, u2, d_in, g):
+    """Sample d_out about propagation direction d_in from HG(g). Returns (d_out, pdf)."""
+    cos_theta, sin_theta, pdf = hg_sample_cos(u1, g)
+    return from_frame(d_in, cos_theta, sin_theta, TWO_PI * u2), pdf
+
+
+@njit(cache=True, inline="always")
+def phase_eval(kind, g, cos_theta):
+    """Phase function value (1/sr) of kind PHASE_ISOTROPIC or PHASE_HG."""
+    if kind == PHASE_HG:
+        return hg_eval(cos_theta, g)
+    return INV_4PI
+
+
+@njit(cache=True, inline="always")
+def phase_sample(kind, g, u1, u2, d_in):
+    """Importance-sample d_out for a phase function. Returns (d_out, pdf); pdf == phase value."""
+    if kind == PHASE_HG:
+        return hg_sample(u1, u2, d_in, g)
+    return sample_uniform_sphere(u1, u2)

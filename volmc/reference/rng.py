@@ -1,0 +1,123 @@
+"""Counter-based random numbers: Philox4x32-10 keyed by (seed, pixel, sample, stream).
+
+Convention (shared with ``kernels/rng.h``; tests depend on it):
+
+* The generator is Philox4x32 with 10 rounds (Salmon et al. 2011, "Parallel random
+  numbers: as easy as 1, 2, 3"). It maps a 128-bit counter and a 64-bit key to 128 random
+  bits with a handful of 32x32->64 multiplications, so it is cheap on CPUs and GPUs alike
+  and needs no state in memory beyond the counter.
+* key = (seed & 0xffffffff, seed >> 32); counter = (n >> 2, pixel, sample, stream), where
+  ``n`` is the index of the draw within the stream. Draw ``n`` is word ``n & 3`` of the
+  block for counter ``n >> 2``, so four consecutive draws cost one Philox call.
+* A uniform is the top 24 bits of a word times 2^-24: it lies in [0, 1 - 2^-24], is exactly
+  representable in float32 and float64 (both backends see bit-identical values) and is
+  never 1.0, so ``-log(1 - u)`` is always finite (at most 16.64).
+* ``pixel`` = y * width + x with y = 0 the top row; ``sample`` is the global sample index
+  (independent of how a render is split into batches); ``stream`` separates independent
+  decision sequences of one path (see the STREAM_* constants), so that changing how many
+  numbers one technique consumes does not shift the numbers another one sees.
+
+The state of one stream lives in a small uint32 array (RNG_STATE_SIZE words):
+``[key0, key1, pixel, sample, stream, n, w0, w1, w2, w3]`` where w* caches the current block.
+"""
+
+import numpy as np
+from numba import njit
+
+PHILOX_M0 = np.uint64(0xD2511F53)
+PHILOX_M1 = np.uint64(0xCD9E8D57)
+PHILOX_W0 = np.uint64(0x9E3779B9)
+PHILOX_W1 = np.uint64(0xBB67AE85)
+MASK32 = np.uint64(0xFFFFFFFF)
+SHIFT32 = np.uint64(32)
+
+#: Number of Philox rounds; 10 is the count Random123 recommends (passes BigCrush with margin).
+PHILOX_ROUNDS = 10
+RNG_STATE_SIZE = 10
+#: 2^-24: one unit of the 24-bit uniform grid.
+UNIFORM_SCALE = 1.0 / 16777216.0
+
+#: Stream ids: path decisions (camera jitter, free flight, phase, roulette, light choice).
+STREAM_PATH = 0
+#: Stream ids: transmittance estimates along shadow rays (next-event estimation).
+STREAM_SHADOW = 1
+#: Stream ids: free tests and benchmarks that drive a single technique.
+STREAM_TEST = 2
+
+
+@njit(cache=True, inline="always")
+def philox4x32_10(c0, c1, c2, c3, k0, k1):
+    """Philox4x32-10 block function: four uint32 counter words and two key words in,
+    four uint32 random words out (returned as uint64 holding 32-bit values)."""
+    c0 = np.uint64(c0) & MASK32
+    c1 = np.uint64(c1) & MASK32
+    c2 = np.uint64(c2) & MASK32
+    c3 = np.uint64(c3) & MASK32
+    k0 = np.uint64(k0) & MASK32
+    k1 = np.uint64(k1) & MASK32
+    for r in range(PHILOX_ROUNDS):
+        if r > 0:
+            k0 = (k0 + PHILOX_W0) & MASK32
+            k1 = (k1 + PHILOX_W1) & MASK32
+        p0 = PHILOX_M0 * c0
+        p1 = PHILOX_M1 * c2
+        hi0 = p0 >> SHIFT32
+        lo0 = p0 & MASK32
+        hi1 = p1 >> SHIFT32
+        lo1 = p1 & MASK32
+        c0 = hi1 ^ c1 ^ k0
+        c1 = lo1
+        c2 = hi0 ^ c3 ^ k1
+        c3 = lo0
+    return c0, c1, c2, c3
+
+
+@njit(cache=True)
+def rng_init(rng, seed, pixel, sample, stream):
+    """Start stream ``stream`` of sample ``sample`` of pixel ``pixel`` for ``seed`` (< 2^64)."""
+    s = np.uint64(seed)
+    rng[0] = np.uint32(s & MASK32)
+    rng[1] = np.uint32(s >> SHIFT32)
+    rng[2] = np.uint32(pixel)
+    rng[3] = np.uint32(sample)
+    rng[4] = np.uint32(stream)
+    rng[5] = np.uint32(0)
+
+
+@njit(cache=True)
+def rng_next_u32(rng):
+    """Next 32-bit word of the stream (advances the draw index by one)."""
+    n = np.uint64(rng[5])
+    lane = n & np.uint64(3)
+    if lane == 0:
+        w0, w1, w2, w3 = philox4x32_10(n >> np.uint64(2), rng[2], rng[3], rng[4], rng[0], rng[1])
+        rng[6] = np.uint32(w0)
+        rng[7] = np.uint32(w1)
+        rng[8] = np.uint32(w2)
+        rng[9] = np.uint32(w3)
+    rng[5] = np.uint32((n + np.uint64(1)) & MASK32)
+    return rng[6 + lane]
+
+
+@njit(cache=True)
+def rng_next(rng):
+    """Next uniform in [0, 1 - 2^-24] (float64 holding an exact 24-bit value)."""
+    return float(np.uint64(rng_next_u32(rng)) >> np.uint64(8)) * UNIFORM_SCALE
+
+
+@njit(cache=True)
+def rng_new(seed, pixel, sample, stream):
+    """Allocate and initialise a stream state (convenience for tests and host code)."""
+    rng = np.empty(RNG_STATE_SIZE, np.uint32)
+    rng_init(rng, seed, pixel, sample, stream)
+    return rng
+
+
+@njit(cache=True)
+def uniforms(seed, pixel, sample, stream, count):
+    """The first ``count`` uniforms of one stream, as a float64 array."""
+    rng = rng_new(seed, pixel, sample, stream)
+    out = np.empty(count, np.float64)
+    for i in range(count):
+        out[i] = rng_next(rng)
+    return out

@@ -1,0 +1,90 @@
+"""Sampling warps: pure functions of explicit uniforms returning (sample, pdf).
+
+Conventions (shared with ``kernels/sampling.h``):
+
+* Directions are 3-tuples of floats; they are unit vectors unless a docstring says otherwise.
+* Every warp ``sample_X(u...)`` has a density twin ``X_pdf(...)`` with the same measure:
+  distances in 1 / world unit, directions per steradian.
+* Uniforms are in [0, 1) (see ``rng.py``: never 1.0), so logarithms of ``1 - u`` are finite.
+"""
+
+import math
+
+from numba import njit
+
+INV_4PI = 1.0 / (4.0 * math.pi)
+TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True, inline="always")
+def sample_exponential(u, a):
+    """Distance t >= 0 from the density a e^{-a t} (a in 1/world unit), by inversion.
+
+    Returns (t, pdf). For a <= 0 there is no collision: (inf, 0).
+    """
+    if a <= 0.0:
+        return math.inf, 0.0
+    t = -math.log1p(-u) / a
+    return t, a * math.exp(-a * t)
+
+
+@njit(cache=True, inline="always")
+def exponential_pdf(t, a):
+    """Density a e^{-a t} of ``sample_exponential`` at distance t."""
+    if a <= 0.0 or t < 0.0:
+        return 0.0
+    return a * math.exp(-a * t)
+
+
+@njit(cache=True, inline="always")
+def sample_uniform_sphere(u1, u2):
+    """Uniform direction on the unit sphere: z = 1 - 2 u1, phi = 2 pi u2. Returns (w, pdf)."""
+    z = 1.0 - 2.0 * u1
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    phi = TWO_PI * u2
+    return (r * math.cos(phi), r * math.sin(phi), z), INV_4PI
+
+
+@njit(cache=True, inline="always")
+def uniform_sphere_pdf():
+    """Density of ``sample_uniform_sphere``: 1 / (4 pi) per steradian."""
+    return INV_4PI
+
+
+@njit(cache=True, inline="always")
+def coordinate_system(n):
+    """Two unit vectors (s, t) completing unit vector n to a right-handed orthonormal frame.
+
+    Branch-free construction of Duff et al. 2017 ("Building an orthonormal basis,
+    revisited"): continuous except at n.z = -0, and exact for n = +-z.
+    """
+    sign = math.copysign(1.0, n[2])
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    s = (1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
+    t = (b, sign + n[1] * n[1] * a, -n[1])
+    return s, t
+
+
+@njit(cache=True, inline="always")
+def from_frame(n, cos_theta, sin_theta, phi):
+    """Direction with polar angle theta about unit n and azimuth phi in n's frame."""
+    s, t = coordinate_system(n)
+    cp = math.cos(phi) * sin_theta
+    sp = math.sin(phi) * sin_theta
+    return (cp * s[0] + sp * t[0] + cos_theta * n[0],
+            cp * s[1] + sp * t[1] + cos_theta * n[1],
+            cp * s[2] + sp * t[2] + cos_theta * n[2])
+
+
+@njit(cache=True, inline="always")
+def dot(a, b):
+    """Dot product of two 3-tuples."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True, inline="always")
+def normalize(a):
+    """a / |a| for a non-zero 3-tuple."""
+    inv = 1.0 / math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    return (a[0] * inv, a[1] * inv, a[2] * inv)

@@ -1,0 +1,100 @@
+"""Tracking through the medium: free-flight sampling and transmittance estimators.
+
+All functions work on a ray o + t d restricted to [t0, t1] (world units along a unit d)
+inside the medium box, with extinction mu(x) = scale * density(x) and a global majorant
+``mbar`` >= mu. Every density lookup is counted in ``counters[C_LOOKUPS]``; lookups with
+mu > mbar in ``counters[C_OVER_MAJORANT]``; walks that reach ``max_steps`` tentative
+collisions are cut and counted in ``counters[C_CAPPED]`` (never silently).
+Random numbers come from the caller's stream (``rng.py``), one per tentative collision
+for the distance plus, for delta tracking, one per collision for the accept test.
+"""
+
+import math
+
+from numba import njit
+
+from ..params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT
+from .grid import grid_lookup
+from .rng import rng_next
+
+#: Free-flight outcomes.
+EVENT_ESCAPE = 0    # the walk passed t1 without a real collision
+EVENT_SCATTER = 1   # real collision at the returned t
+EVENT_CAPPED = 2    # step cap reached; the caller must end the path and it is counted
+
+
+@njit(cache=True, inline="always")
+def sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, mbar):
+    """Extinction (1/world unit) at o + t d, counting the lookup and majorant violations."""
+    p = (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2])
+    mu = scale * grid_lookup(grid, bmin, inv_extent, p)
+    counters[C_LOOKUPS] += 1
+    if mu > mbar:
+        counters[C_OVER_MAJORANT] += 1
+    return mu
+
+
+@njit(cache=True)
+def free_flight_homogeneous(sigma_t, t0, t1, rng):
+    """Analytic free flight in a homogeneous segment: t = t0 - ln(1 - u) / sigma_t.
+
+    Returns (event, t): EVENT_SCATTER with t < t1, or EVENT_ESCAPE (t = t1).
+    """
+    if sigma_t <= 0.0:
+        return EVENT_ESCAPE, t1
+    t = t0 - math.log1p(-rng_next(rng)) / sigma_t
+    if t >= t1:
+        return EVENT_ESCAPE, t1
+    return EVENT_SCATTER, t
+
+
+@njit(cache=True)
+def free_flight_delta(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, counters, max_steps):
+    """Delta (Woodcock) tracking: tentative collisions at rate mbar, each accepted as real
+    with probability mu(x) / mbar. Unbiased for mbar >= mu. Returns (event, t)."""
+    if mbar <= 0.0:
+        return EVENT_ESCAPE, t1
+    t = t0
+    for _ in range(max_steps):
+        t -= math.log1p(-rng_next(rng)) / mbar
+        if t >= t1:
+            return EVENT_ESCAPE, t1
+        mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, mbar)
+        if rng_next(rng) * mbar < mu:
+            return EVENT_SCATTER, t
+    counters[C_CAPPED] += 1
+    return EVENT_CAPPED, t
+
+
+@njit(cache=True)
+def transmittance_homogeneous(sigma_t, t0, t1):
+    """Exact transmittance exp(-sigma_t (t1 - t0)) of a homogeneous segment (0 lookups)."""
+    return math.exp(-sigma_t * max(t1 - t0, 0.0))
+
+
+@njit(cache=True)
+def transmittance_ratio(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, counters, max_steps):
+    """Ratio tracking (Cramer 1978; Novak et al. 2014): T = prod_i (1 - mu(x_i) / mbar) over
+    tentative collisions x_i sampled at rate mbar. Unbiased for mbar >= mu; mean lookups
+    = mbar (t1 - t0). Returns the estimate of T."""
+    if mbar <= 0.0:
+        return 1.0
+    T = 1.0
+    t = t0
+    for _ in range(max_steps):
+        t -= math.log1p(-rng_next(rng)) / mbar
+        if t >= t1:
+            return T
+        mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, mbar)
+        T *= 1.0 - mu / mbar
+    counters[C_CAPPED] += 1
+    return T
+
+
+@njit(cache=True)
+def transmittance_track_length(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, counters,
+                               max_steps):
+    """Track-length estimator: delta tracking from t0; 1 if it passes t1, else 0."""
+    event, _ = free_flight_delta(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, counters,
+                                 max_steps)
+    return 1.0 if event == EVENT_ESCAPE else 0.0

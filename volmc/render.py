@@ -1,0 +1,147 @@
+"""Render driver: batches of samples, progress bar, Ctrl-C, statistics.
+
+Samples are indexed globally (sample s of pixel p always uses the same random numbers), so
+an image does not depend on how it was split into batches. Batches grow until one takes
+about ``BATCH_SECONDS`` so the progress bar moves and Ctrl-C is honoured between batches.
+"""
+
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .film import Film
+from .params import COUNTER_NAMES
+
+#: Target wall time of one batch (seconds): short enough for a responsive Ctrl-C.
+BATCH_SECONDS = 0.5
+
+BACKENDS = ("numba",)
+
+
+def make_backend(name, scene):
+    """Instantiate a render backend by name."""
+    if name == "numba":
+        from .reference.backend import NumbaBackend
+        return NumbaBackend(scene)
+    raise ValueError(f"unknown backend {name!r} (available: {', '.join(BACKENDS)})")
+
+
+@dataclass
+class RenderResult:
+    """A finished (or interrupted) render."""
+    film: Film
+    backend: str
+    seconds: float
+    partial: bool
+    counters: dict
+    techniques: dict
+    spp_requested: int
+    seed: int
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def image(self):
+        return self.film.mean()
+
+    def stats(self):
+        """Derived statistics: samples/s, mean path length, lookups per sample, counters."""
+        n = self.film.width * self.film.height * self.film.spp
+        c = self.counters
+        return {
+            "samples": n,
+            "samples_per_second": n / self.seconds if self.seconds > 0 else float("nan"),
+            "mean_path_length": c["scatter_events"] / max(n, 1),
+            "lookups_per_sample": c["lookups"] / max(n, 1),
+            "shadow_rays_per_sample": c["shadow_rays"] / max(n, 1),
+            "paths_capped": c["capped"],
+            "dropped_contributions": c["dropped"],
+            "lookups_over_majorant": c["over_majorant"],
+        }
+
+    def metadata(self):
+        """EXR header metadata: spp, seed, backend, time, techniques, partial flag, counters."""
+        meta = {
+            "spp": self.film.spp,
+            "spp_requested": self.spp_requested,
+            "seed": str(self.seed),
+            "backend": self.backend,
+            "render_time_s": float(self.seconds),
+            "partial": int(self.partial),
+        }
+        meta.update({f"technique.{k}": v for k, v in self.techniques.items()})
+        meta.update({f"count.{k}": str(v) for k, v in self.counters.items()})
+        meta.update(self.extra)
+        return meta
+
+
+class _StopFlag:
+    """SIGINT handler that asks the loop to stop after the current batch."""
+
+    def __init__(self):
+        self.stop = False
+        self._old = None
+
+    def __enter__(self):
+        try:
+            self._old = signal.signal(signal.SIGINT, self._handle)
+        except ValueError:  # not the main thread: leave signals alone
+            self._old = None
+        return self
+
+    def _handle(self, signum, frame):
+        if self.stop:  # second Ctrl-C: give up on the current batch too
+            raise KeyboardInterrupt
+        self.stop = True
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+        return False
+
+
+def render(scene, backend="numba", spp=None, progress=None, batch_seconds=BATCH_SECONDS):
+    """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
+
+    spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
+    when stderr is a terminal).
+    """
+    from tqdm import tqdm
+    spp = scene.render.spp if spp is None else int(spp)
+    be = make_backend(backend, scene) if isinstance(backend, str) else backend
+    be.warm_up()
+    w, h = scene.camera.resolution
+    film = Film(w, h)
+    if progress is None:
+        progress = sys.stderr.isatty()
+    bar = tqdm(total=spp, unit="spp", disable=not progress, leave=False, file=sys.stderr)
+    elapsed = 0.0
+    batch = 1
+    with _StopFlag() as flag:
+        while film.spp < spp and not flag.stop:
+            n = min(batch, spp - film.spp)
+            t = time.perf_counter()
+            be.render(film.spp, n, film)
+            dt = time.perf_counter() - t
+            elapsed += dt
+            film.spp += n
+            bar.update(n)
+            # Grow (or shrink) the batch towards the target time per batch.
+            per = dt / n
+            batch = int(max(1, min(4 * n, batch_seconds / max(per, 1e-9))))
+        stopped = flag.stop and film.spp < spp
+    bar.close()
+    totals = be.counter_totals()
+    counters = {name: int(totals[i]) for i, name in enumerate(COUNTER_NAMES)}
+    return RenderResult(film, be.name, elapsed, stopped, counters, be.techniques, spp,
+                        scene.render.seed)
+
+
+def mean_and_stderr(result):
+    """(image mean over pixels per channel, its standard error) of a render."""
+    img = result.film.mean()
+    var = result.film.variance_of_mean()
+    n_pix = img.shape[0] * img.shape[1]
+    return img.mean(axis=(0, 1)), np.sqrt(var.sum(axis=(0, 1))) / n_pix

@@ -1,0 +1,12 @@
+"""Scenes: the TOML format of SCENE_FORMAT.md, validation, grids and procedural generators."""
+
+from .errors import SceneError
+from .loading import Scene, apply_overrides, load_scene, scene_from_dict
+from .schema import (Camera, ConstantDensity, DirectionalLight, EnvironmentLight, FileDensity,
+                     GeneratedDensity, Medium, Phase, PointLight, Render, SceneSpec, validate)
+
+__all__ = [
+    "SceneError", "Scene", "load_scene", "scene_from_dict", "apply_overrides", "validate",
+    "Camera", "Medium", "Phase", "Render", "SceneSpec", "ConstantDensity", "FileDensity",
+    "GeneratedDensity", "EnvironmentLight", "DirectionalLight", "PointLight",
+]

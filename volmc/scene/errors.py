@@ -1,0 +1,15 @@
+"""The one error type for bad input: it carries the file and the key it is about."""
+
+
+class SceneError(Exception):
+    """Bad scene, grid or command-line value.
+
+    ``str(err)`` is the one-line message ``<file>: <key>: <what is wrong>`` that the CLI
+    prints after ``volmc: error: `` before exiting with status 2.
+    """
+
+    def __init__(self, file, key, message):
+        self.file = str(file)
+        self.key = key
+        self.message = message
+        super().__init__(f"{self.file}: {key}: {message}" if key else f"{self.file}: {message}")

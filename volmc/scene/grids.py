@@ -1,0 +1,125 @@
+"""Density grids: reading, writing and validating .npy, .npz and Mitsuba .vol files.
+
+Arrays are indexed [z, y, x] (x fastest), the order of Mitsuba's .vol and pbrt's uniformgrid.
+
+Mitsuba .vol layout (little-endian): bytes b"VOL", version byte 3, int32 encoding
+(1 = float32), int32 xres, yres, zres, channels, six float32 bounding-box values
+(xmin, ymin, zmin, xmax, ymax, zmax), then float32 data indexed
+((z * yres + y) * xres + x) * channels + c. volmc reads one-channel (density) volumes.
+"""
+
+import os
+import struct
+import zipfile
+
+import numpy as np
+
+from .errors import SceneError
+
+VOL_MAGIC = b"VOL"
+VOL_VERSION = 3
+VOL_ENCODING_FLOAT32 = 1
+VOL_HEADER = struct.Struct("<3sBiiiii6f")
+GRID_SUFFIXES = (".npy", ".npz", ".vol")
+
+
+def read_vol(path, key="density"):
+    """Read a one-channel Mitsuba .vol file. Returns (float32 array [z, y, x], bbox (6,))."""
+    with open(path, "rb") as f:
+        head = f.read(VOL_HEADER.size)
+        if len(head) < VOL_HEADER.size:
+            raise SceneError(path, key, f"truncated .vol header ({len(head)} bytes)")
+        magic, version, enc, nx, ny, nz, ch, *bbox = VOL_HEADER.unpack(head)
+        if magic != VOL_MAGIC:
+            raise SceneError(path, key, "not a Mitsuba .vol file (missing 'VOL' magic)")
+        if version != VOL_VERSION:
+            raise SceneError(path, key, f".vol version {version} unsupported (need 3)")
+        if enc != VOL_ENCODING_FLOAT32:
+            raise SceneError(path, key, f".vol encoding {enc} unsupported (need 1 = float32)")
+        if ch != 1:
+            raise SceneError(path, key, f".vol has {ch} channels; a density grid needs 1")
+        if min(nx, ny, nz) < 0:
+            raise SceneError(path, key, f".vol has negative resolution {nx}x{ny}x{nz}")
+        count = nx * ny * nz * ch
+        data = np.fromfile(f, dtype="<f4", count=count)
+    if data.size != count:
+        raise SceneError(path, key, f"truncated .vol data: {data.size} of {count} values")
+    return data.reshape(nz, ny, nx).astype(np.float32), np.array(bbox, np.float32)
+
+
+def write_vol(path, grid, bounds=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))):
+    """Write a [z, y, x] array as a one-channel float32 Mitsuba .vol file."""
+    grid = np.ascontiguousarray(grid, dtype="<f4")
+    if grid.ndim != 3:
+        raise ValueError(f"grid must be 3-D, got shape {grid.shape}")
+    nz, ny, nx = grid.shape
+    lo, hi = bounds
+    with open(path, "wb") as f:
+        f.write(VOL_HEADER.pack(VOL_MAGIC, VOL_VERSION, VOL_ENCODING_FLOAT32, nx, ny, nz, 1,
+                                *[float(v) for v in lo], *[float(v) for v in hi]))
+        f.write(grid.tobytes())
+
+
+def read_grid_file(path, key="density"):
+    """Read a density array from .npy, .npz (array "density") or .vol, without validation."""
+    suffix = os.path.splitext(path)[1].lower()
+    if suffix not in GRID_SUFFIXES:
+        raise SceneError(path, key, f"unknown grid format '{suffix}' (use .npy, .npz or .vol)")
+    if not os.path.isfile(path):
+        raise SceneError(path, key, "grid file not found")
+    try:
+        if suffix == ".vol":
+            return read_vol(path, key)[0]
+        if suffix == ".npy":
+            return np.load(path, allow_pickle=False)
+        with np.load(path, allow_pickle=False) as z:
+            if "density" not in z.files:
+                raise SceneError(path, key, f".npz has no array 'density' (has: "
+                                 f"{', '.join(z.files) or 'nothing'})")
+            return z["density"]
+    except SceneError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise SceneError(path, key, f"cannot read grid: {str(e).splitlines()[0]}") from None
+
+
+def validate_grid(arr, file, key="density"):
+    """Check a density array (3-D, non-empty, real, finite, >= 0). Returns float32 C-order."""
+    arr = np.asarray(arr)
+    if arr.dtype.kind not in "fiu":
+        raise SceneError(file, key, f"grid must hold real numbers, got dtype {arr.dtype}")
+    if arr.ndim != 3:
+        raise SceneError(file, key, f"grid must be 3-D [z, y, x], got shape {arr.shape}")
+    if arr.size == 0:
+        raise SceneError(file, key, f"grid is empty (shape {arr.shape})")
+    n_nan = int(np.isnan(arr).sum()) if arr.dtype.kind == "f" else 0
+    n_inf = int(np.isinf(arr).sum()) if arr.dtype.kind == "f" else 0
+    if n_nan or n_inf:
+        raise SceneError(file, key, f"grid contains {n_nan} NaN and {n_inf} infinite values")
+    n_neg = int((arr < 0).sum())
+    if n_neg:
+        raise SceneError(file, key, f"grid contains {n_neg} negative values "
+                                    f"(minimum {float(arr.min()):g})")
+    if float(arr.max()) > float(np.finfo(np.float32).max):
+        raise SceneError(file, key, "grid values overflow float32")
+    out = np.ascontiguousarray(arr, dtype=np.float32)
+    return out
+
+
+def load_grid(path, key="density"):
+    """Read and validate a grid file; errors name the file and ``key``."""
+    return validate_grid(read_grid_file(path, key), path, key)
+
+
+def save_grid(path, grid, bounds=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))):
+    """Write a [z, y, x] grid as .npy, .npz (array "density") or .vol by the path's suffix."""
+    suffix = os.path.splitext(path)[1].lower()
+    if suffix == ".vol":
+        write_vol(path, grid, bounds)
+    elif suffix == ".npy":
+        np.save(path, np.ascontiguousarray(grid, np.float32))
+    elif suffix == ".npz":
+        np.savez_compressed(path, density=np.ascontiguousarray(grid, np.float32))
+    else:
+        raise SceneError(path, "output", f"unknown grid format '{suffix}' (use .npy, .npz "
+                                         "or .vol)")
