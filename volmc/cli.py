@@ -97,11 +97,18 @@ def _check_writable(path, flag):
         raise SceneError("command line", flag, f"directory is not writable: {d}")
 
 
+def _announce_start():
+    # Printed once the backend is ready and Ctrl-C keeps the samples rendered so far.
+    print("volmc: started (Ctrl-C stops after the current batch and writes the partial image)",
+          file=sys.stderr, flush=True)
+
+
 def cmd_render(args):
     from .film import write_exr, write_png
     from .render import render
     from .resources import default_scene
     from .scene import load_scene
+    from .scene.serialize import to_toml
 
     use_default = args.scene is None
     scene_path = str(default_scene()) if use_default else args.scene
@@ -123,9 +130,15 @@ def cmd_render(args):
         defines.append(f"render.seed={args.seed}")
     scene = load_scene(scene_path, defines)
 
-    res = render(scene, backend=args.backend, progress=False if args.quiet else None)
+    if not args.quiet:
+        w, h = scene.camera.resolution
+        print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "
+              f"backend {args.backend})", file=sys.stderr, flush=True)
+    res = render(scene, backend=args.backend, progress=False if args.quiet else None,
+                 on_start=None if args.quiet else _announce_start)
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
+    meta["scene_toml"] = to_toml(scene.spec)
     write_exr(out, res.image, meta)
     if args.variance:
         write_exr(os.path.splitext(out)[0] + ".var.exr", res.film.variance_of_mean(), meta)

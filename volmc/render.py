@@ -102,11 +102,13 @@ class _StopFlag:
         return False
 
 
-def render(scene, backend="numba", spp=None, progress=None, batch_seconds=BATCH_SECONDS):
+def render(scene, backend="numba", spp=None, progress=None, batch_seconds=BATCH_SECONDS,
+           on_start=None):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
-    when stderr is a terminal).
+    when stderr is a terminal). on_start: called once the backend is compiled and the
+    Ctrl-C handler is installed, just before the first batch.
     """
     from tqdm import tqdm
     spp = scene.render.spp if spp is None else int(spp)
@@ -120,6 +122,8 @@ def render(scene, backend="numba", spp=None, progress=None, batch_seconds=BATCH_
     elapsed = 0.0
     batch = 1
     with _StopFlag() as flag:
+        if on_start is not None:
+            on_start()
         while film.spp < spp and not flag.stop:
             n = min(batch, spp - film.spp)
             t = time.perf_counter()

@@ -1,0 +1,148 @@
+"""The command line end to end: render, convert, errors, Ctrl-C."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from volmc.film import read_exr
+from volmc.scene.grids import read_vol
+from volmc.scene.serialize import dict_to_toml
+
+TINY = {
+    "camera": {"eye": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0], "fov": 40.0,
+               "resolution": [10, 8]},
+    "medium": {"bounds": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], "density": 1.0,
+               "scale": 1.5, "albedo": 0.0},
+    "lights": [{"type": "environment", "radiance": 0.5}],
+    "render": {"spp": 4, "seed": 1},
+}
+
+
+def run(args, cwd, **kw):
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(__file__)),
+                                         env.get("PYTHONPATH", "")])
+    return subprocess.run([sys.executable, "-m", "volmc.cli", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600, **kw)
+
+
+@pytest.fixture
+def tiny(tmp_path):
+    p = tmp_path / "tiny.toml"
+    p.write_text(dict_to_toml(TINY))
+    return p
+
+
+def test_render_writes_exr_png_and_metadata(tmp_path, tiny):
+    r = run(["render", str(tiny), "-o", "out.exr", "--png", "--spp", "3", "--seed", "9",
+             "--stats", "--variance", "-D", "medium.scale=1.0"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    img, meta = read_exr(tmp_path / "out.exr")
+    assert img.shape == (8, 10, 3) and img.dtype == np.float32
+    assert meta["spp"] == 3 and meta["seed"] == "9" and meta["backend"] == "numba"
+    assert meta["partial"] == 0 and float(meta["render_time_s"]) > 0
+    assert "technique.free_flight" in meta and "scale = 1.0" in meta["scene_toml"]
+    # Pure absorber, homogeneous: every pixel is exactly 0.5 exp(-tau) along its ray.
+    assert np.all(img > 0) and np.all(img <= 0.5)
+    assert (tmp_path / "out.png").stat().st_size > 0
+    var, _ = read_exr(tmp_path / "out.var.exr")
+    assert np.all(var >= 0)
+    for word in ("samples_per_second", "mean_path_length", "lookups_per_sample", "paths_capped"):
+        assert word in r.stdout
+
+
+def test_render_default_names_and_quiet(tmp_path, tiny):
+    r = run(["render", str(tiny), "--quiet"], tmp_path)
+    assert r.returncode == 0 and r.stderr == "" and r.stdout == ""
+    assert (tmp_path / "tiny.exr").exists() and not (tmp_path / "tiny.png").exists()
+
+
+def test_seed_and_batching_reproducible(tmp_path, tiny):
+    a = run(["render", str(tiny), "-o", "a.exr", "--quiet", "-D", "medium.albedo=0.9"], tmp_path)
+    b = run(["render", str(tiny), "-o", "b.exr", "--quiet", "-D", "medium.albedo=0.9"], tmp_path)
+    c = run(["render", str(tiny), "-o", "c.exr", "--quiet", "-D", "medium.albedo=0.9",
+             "--seed", "2"], tmp_path)
+    assert a.returncode == b.returncode == c.returncode == 0
+    ia, ib, ic = (read_exr(tmp_path / f"{n}.exr")[0] for n in "abc")
+    assert np.array_equal(ia, ib) and not np.array_equal(ia, ic)
+
+
+@pytest.mark.parametrize("args,words", [
+    (["render", "{tiny}", "--spp", "0"], "--spp"),
+    (["render", "{tiny}", "--spp", "many"], "--spp"),
+    (["render", "{tiny}", "--seed", "-1"], "--seed"),
+    (["render", "{tiny}", "--backend", "gpu"], "--backend"),
+    (["render", "{tiny}", "-D", "render.spp"], "section.key=value"),
+    (["render", "{tiny}", "-D", "medium.albedo=2"], "medium.albedo"),
+    (["render", "{tiny}", "-o", "/nonexistent/dir/x.exr"], "-o"),
+    (["render", "missing.toml"], "missing.toml"),
+    (["render", "{tiny}", "--exposure", "nan"], "--exposure"),
+    (["frobnicate"], "invalid choice"),
+    (["convert", "missing.npy", "x.vol"], "missing.npy"),
+])
+def test_bad_command_lines_one_line_exit_2(tmp_path, tiny, args, words):
+    r = run([a.replace("{tiny}", str(tiny)) for a in args], tmp_path)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("volmc: error: "), r.stderr
+    assert words in lines[0]
+    assert "Traceback" not in r.stderr
+
+
+def test_bad_grid_via_cli(tmp_path):
+    g = np.ones((3, 3, 3), np.float32)
+    g[0, 0, 0] = np.nan
+    np.save(tmp_path / "g.npy", g)
+    raw = dict(TINY, medium=dict(TINY["medium"], density={"file": "g.npy"}))
+    (tmp_path / "s.toml").write_text(dict_to_toml(raw))
+    r = run(["render", "s.toml"], tmp_path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.strip() == f"volmc: error: {tmp_path / 'g.npy'}: medium.density: grid " \
+                               "contains 1 NaN and 0 infinite values"
+
+
+def test_convert_round_trip(tmp_path):
+    g = np.random.default_rng(1).random((3, 4, 5)).astype(np.float32)
+    np.save(tmp_path / "a.npy", g)
+    assert run(["convert", "a.npy", "b.vol", "--bounds", "-1", "-2", "-3", "1", "2", "3"],
+               tmp_path).returncode == 0
+    vol, bbox = read_vol(tmp_path / "b.vol")
+    assert np.array_equal(vol, g) and np.allclose(bbox, [-1, -2, -3, 1, 2, 3])
+    assert run(["convert", "b.vol", "c.npz"], tmp_path).returncode == 0
+    assert run(["convert", "c.npz", "d.npy"], tmp_path).returncode == 0
+    assert np.array_equal(np.load(tmp_path / "d.npy"), g)
+    assert run(["convert", "d.npy", "e.vol"], tmp_path).returncode == 0
+    # A .vol written from a .vol keeps its bounding box.
+    assert run(["convert", "b.vol", "f.vol"], tmp_path).returncode == 0
+    assert np.allclose(read_vol(tmp_path / "f.vol")[1], [-1, -2, -3, 1, 2, 3])
+
+
+def test_ctrl_c_writes_partial_image(tmp_path):
+    raw = dict(TINY, medium=dict(TINY["medium"], albedo=0.9, scale=3.0),
+               render={"spp": 10_000_000, "max_depth": -1})
+    (tmp_path / "long.toml").write_text(dict_to_toml(raw))
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(__file__)),
+                                         env.get("PYTHONPATH", "")])
+    p = subprocess.Popen([sys.executable, "-m", "volmc.cli", "render", "long.toml", "-o",
+                          "long.exr"], cwd=tmp_path, env=env, stderr=subprocess.PIPE, text=True)
+    seen = []
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        line = p.stderr.readline()
+        seen.append(line)
+        if line.startswith("volmc: started") or not line:
+            break
+    time.sleep(1.5)
+    p.send_signal(signal.SIGINT)
+    rest = p.communicate(timeout=120)[1]
+    assert p.returncode == 130, "".join(seen) + rest
+    img, meta = read_exr(tmp_path / "long.exr")
+    assert meta["partial"] == 1 and 0 < meta["spp"] < 10_000_000
+    assert np.all(np.isfinite(img)) and img.mean() > 0
+    assert "partial" in rest and "Traceback" not in rest

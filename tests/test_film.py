@@ -1,0 +1,70 @@
+"""Film accumulation, variance of the mean, EXR round trip, PNG preview."""
+
+import numpy as np
+import pytest
+
+from volmc.film import Film, read_exr, rmse, srgb_encode, tonemap, write_exr, write_png
+
+
+def test_variance_of_mean_matches_numpy():
+    rng = np.random.default_rng(0)
+    samples = rng.exponential(size=(37, 5, 4, 3))
+    f = Film(4, 5)
+    for s in samples:
+        f.sum += s
+        f.sum_sq += s * s
+        f.spp += 1
+    assert np.allclose(f.mean(), samples.mean(axis=0))
+    assert np.allclose(f.variance_of_mean(), samples.var(axis=0, ddof=1) / 37)
+
+
+def test_variance_undefined_below_two_samples():
+    f = Film(2, 2)
+    f.spp = 1
+    assert np.all(np.isinf(f.variance_of_mean()))
+
+
+def test_exr_round_trip_exact_and_from_strided_views(tmp_path):
+    rng = np.random.default_rng(1)
+    big = rng.random((9, 13, 4)).astype(np.float32) * 100
+    img = big[:, :, 1:]          # a non-contiguous view: the OpenEXR trap
+    assert not img.flags["C_CONTIGUOUS"]
+    write_exr(tmp_path / "a.exr", img, {"spp": 7, "backend": "numba", "partial": True,
+                                       "render_time_s": 1.25})
+    back, meta = read_exr(tmp_path / "a.exr")
+    assert back.dtype == np.float32 and np.array_equal(back, img)
+    assert meta["spp"] == 7 and meta["backend"] == "numba" and meta["partial"] == 1
+    assert meta["render_time_s"] == pytest.approx(1.25)
+    # Channels are not swapped and rows are not flipped.
+    t = np.zeros((3, 2, 3), np.float32)
+    t[0, 1, 0] = 1.0
+    t[2, 0, 2] = 2.0
+    write_exr(tmp_path / "b.exr", t)
+    back, _ = read_exr(tmp_path / "b.exr")
+    assert back[0, 1, 0] == 1.0 and back[2, 0, 2] == 2.0 and back.sum() == 3.0
+
+
+def test_srgb_and_tonemap():
+    assert srgb_encode(np.array([0.0]))[0] == 0.0
+    assert srgb_encode(np.array([1.0]))[0] == pytest.approx(1.0)
+    assert srgb_encode(np.array([0.18]))[0] == pytest.approx(0.4614, abs=1e-3)
+    x = np.linspace(0, 50, 101)[:, None, None] * np.ones((1, 1, 3))
+    y = tonemap(x)
+    assert np.all(np.diff(y[:, 0, 0]) >= 0) and y.max() <= 1.0 and y.min() == 0.0
+    assert tonemap(np.array([[[0.25, 0.25, 0.25]]]), exposure=1, operator="clamp")[0, 0, 0] == \
+        pytest.approx(srgb_encode(np.array([0.5]))[0])
+    assert np.all(tonemap(np.array([[[np.nan, np.inf, -1.0]]])) == 0.0)
+
+
+def test_png_written(tmp_path):
+    from matplotlib import image as mpimg
+    img = np.zeros((4, 6, 3))
+    img[0, :, 0] = 1.0
+    write_png(tmp_path / "p.png", img, operator="clamp")
+    back = mpimg.imread(tmp_path / "p.png")
+    assert back.shape[:2] == (4, 6)
+    assert back[0, 0, 0] == pytest.approx(1.0) and back[3, 0, 0] == 0.0
+
+
+def test_rmse():
+    assert rmse(np.ones((2, 2, 3)), np.zeros((2, 2, 3))) == 1.0

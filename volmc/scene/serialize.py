@@ -1,0 +1,85 @@
+"""Write a validated scene back as a dictionary or TOML text (the inverse of ``validate``).
+
+``validate(to_dict(spec), ...) == spec`` for every valid scene: tests check the round trip,
+and renders store the fully resolved scene in their EXR metadata for reproducibility.
+"""
+
+from .schema import (ConstantDensity, DirectionalLight, EnvironmentLight, FileDensity,
+                     GeneratedDensity, PointLight, SceneSpec)
+
+
+def to_dict(spec: SceneSpec) -> dict:
+    """Plain dictionary in the TOML layout of SCENE_FORMAT.md, every key explicit."""
+    c, m, r = spec.camera, spec.medium, spec.render
+    d = m.density
+    if isinstance(d, ConstantDensity):
+        density = d.value
+    elif isinstance(d, FileDensity):
+        density = {"file": d.resolved}
+    elif isinstance(d, GeneratedDensity):
+        density = {"generator": d.generator, "resolution": d.resolution, "seed": d.seed}
+    else:
+        raise TypeError(d)
+    phase = {"type": m.phase.type}
+    if m.phase.type == "hg":
+        phase["g"] = m.phase.g
+    lights = []
+    for lt in spec.lights:
+        if isinstance(lt, EnvironmentLight):
+            lights.append({"type": "environment", "radiance": list(lt.radiance)})
+        elif isinstance(lt, DirectionalLight):
+            lights.append({"type": "directional", "direction": list(lt.direction),
+                           "irradiance": list(lt.irradiance)})
+        elif isinstance(lt, PointLight):
+            lights.append({"type": "point", "position": list(lt.position),
+                           "intensity": list(lt.intensity)})
+    return {
+        "camera": {"type": c.type, "eye": list(c.eye), "target": list(c.target),
+                   "up": list(c.up), "fov": c.fov, "size": c.size,
+                   "resolution": list(c.resolution)},
+        "medium": {"bounds": [list(m.bounds[0]), list(m.bounds[1])], "density": density,
+                   "scale": m.scale, "albedo": list(m.albedo), "phase": phase},
+        "lights": lights,
+        "render": {"spp": r.spp, "max_depth": r.max_depth, "rr_depth": r.rr_depth,
+                   "seed": r.seed, "max_steps": r.max_steps},
+    }
+
+
+def _value(v):
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v)  # shortest repr that round-trips exactly
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(type(v))
+
+
+def dict_to_toml(d: dict) -> str:
+    """TOML text of a scene-shaped dictionary: top-level tables become sections, lists of
+    tables become arrays of tables ([[lights]]); values are written inline."""
+    out = []
+    for key, val in d.items():
+        if isinstance(val, dict):
+            out.append(f"[{key}]")
+            out += [f"{k} = {_value(v)}" for k, v in val.items()]
+            out.append("")
+        elif isinstance(val, list) and val and all(isinstance(x, dict) for x in val):
+            for item in val:
+                out.append(f"[[{key}]]")
+                out += [f"{k} = {_value(v)}" for k, v in item.items()]
+                out.append("")
+        else:
+            out.insert(0, f"{key} = {_value(val)}")
+    return "\n".join(out) + "\n"
+
+
+def to_toml(spec: SceneSpec) -> str:
+    """TOML text of a scene (tables for sections, [[lights]] for lights)."""
+    return dict_to_toml(to_dict(spec))
