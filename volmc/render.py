@@ -18,14 +18,17 @@ from .params import COUNTER_NAMES
 #: Target wall time of one batch (seconds): short enough for a responsive Ctrl-C.
 BATCH_SECONDS = 0.5
 
-BACKENDS = ("numba",)
+BACKENDS = ("opencl", "numba")
 
 
-def make_backend(name, scene):
-    """Instantiate a render backend by name."""
+def make_backend(name, scene, device=None):
+    """Instantiate a render backend by name ("opencl" on ``device``, or "numba")."""
     if name == "numba":
         from .reference.backend import NumbaBackend
         return NumbaBackend(scene)
+    if name == "opencl":
+        from .cl.backend import OpenCLBackend
+        return OpenCLBackend(scene, device=device)
     raise ValueError(f"unknown backend {name!r} (available: {', '.join(BACKENDS)})")
 
 

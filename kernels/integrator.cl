@@ -1,0 +1,214 @@
+/* Volumetric path tracer kernel. Twin of volmc/reference/integrator.py: the algorithm, the
+ * order of random numbers and the Russian-roulette policy are described there.
+ *
+ * Built with -D flags derived from the scene (volmc/scene/features.py), so a scene pays
+ * only for what it uses:
+ *   FEATURE_GRID          density from the grid (else homogeneous, analytic tracking)
+ *   FEATURE_PHASE_HG      Henyey-Greenstein phase function (else isotropic)
+ *   FEATURE_ENV           an environment light (NEE by sphere sampling + MIS, escape term)
+ *   FEATURE_DELTA_LIGHTS  directional and/or point lights in the light array
+ *   FEATURE_POINT         point lights among them (else all directional)
+ *   FEATURE_RR            Russian roulette can trigger (rr_depth below max_depth)
+ *   FEATURE_ORTHO         orthographic camera (else perspective)
+ *   FEATURE_SCATTER       scattering can reach the image (albedo > 0 and max_depth != 0);
+ *                         without it a pixel is environment x transmittance
+ * params.h (generated from volmc/params.py) defines Params, Light and the constants. */
+
+#include "params.h"
+#include "rng.h"
+#include "sampling.h"
+#include "phase.h"
+#include "grid.h"
+#include "transmittance.h"
+
+#define RR_MAX_SURVIVAL 0.95f
+
+inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
+inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2]); }
+
+/* Returns t_enter, writes t_exit; no hit when t_enter >= t_exit. Zero direction components
+ * (including -0.0) are handled without 0 * inf. */
+inline float ray_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t_exit) {
+    float t0 = -INFINITY, t1 = INFINITY;
+    float oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
+    float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
+    for (int a = 0; a < 3; ++a) {
+        if (da[a] == 0.0f) {
+            if (oa[a] < lo[a] || oa[a] > hi[a]) {
+                *t_exit = -INFINITY;
+                return INFINITY;
+            }
+        } else {
+            float inv = 1.0f / da[a];
+            float ta = (lo[a] - oa[a]) * inv;
+            float tb = (hi[a] - oa[a]) * inv;
+            t0 = fmax(t0, fmin(ta, tb));
+            t1 = fmin(t1, fmax(ta, tb));
+        }
+    }
+    *t_exit = t1;
+    return t0;
+}
+
+inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, float3 *dir) {
+    float sx = (2.0f * ((float)px + u1) / (float)prm->width - 1.0f) * prm->half_height * prm->aspect;
+    float sy = (1.0f - 2.0f * ((float)py + u2) / (float)prm->height) * prm->half_height;
+    float3 f = vec3(prm->forward), r = vec3(prm->right), u = vec3(prm->up), e = vec3(prm->eye);
+#ifdef FEATURE_ORTHO
+    *dir = f;
+    return e + sx * r + sy * u;
+#else
+    *dir = normalize(f + sx * r + sy * u);
+    return e;
+#endif
+}
+
+inline float shadow_transmittance(const Params *prm, global const float *grid, int3 dims,
+                                  float3 o, float3 d, float t_max, Rng *rng_s, ulong *counters) {
+    float3 bmin = vec3(prm->bmin), bmax = vec3(prm->bmax);
+    float t1;
+    float t0 = fmax(ray_box(o, d, bmin, bmax, &t1), 0.0f);
+    t1 = fmin(t1, t_max);
+    if (t1 <= t0) return 1.0f;
+    counters[C_SHADOW] += 1;
+#ifdef FEATURE_GRID
+    return transmittance_ratio(grid, dims, bmin, vec3(prm->inv_extent), prm->scale,
+                               prm->majorant, o, d, t0, t1, rng_s, counters, prm->max_steps);
+#else
+    return transmittance_homogeneous(prm->scale * prm->density, t0, t1);
+#endif
+}
+
+inline float3 trace_path(const Params *prm, global const Light *lights, global const float *grid,
+                         int3 dims, int px, int py, Rng *rng, Rng *rng_s, ulong *counters) {
+    float3 bmin = vec3(prm->bmin), bmax = vec3(prm->bmax), inv_ext = vec3(prm->inv_extent);
+    float3 env = vec3(prm->env);
+    float3 L = (float3)(0.0f);
+    float u1 = rng_next(rng);
+    float u2 = rng_next(rng);
+    float3 d;
+    float3 o = camera_ray(prm, px, py, u1, u2, &d);
+#ifndef FEATURE_SCATTER
+#ifdef FEATURE_ENV
+    return env * shadow_transmittance(prm, grid, dims, o, d, INFINITY, rng_s, counters);
+#else
+    return L;
+#endif
+#else
+    float3 beta = (float3)(1.0f);
+    float3 albedo = vec3(prm->albedo);
+    int depth = 0;
+    float pdf_phase = 0.0f;
+    while (true) {
+        float t1;
+        float t0 = fmax(ray_box(o, d, bmin, bmax, &t1), 0.0f);
+        int event = EVENT_ESCAPE;
+        float t = t1;
+        if (t1 > t0) {
+#ifdef FEATURE_GRID
+            event = free_flight_delta(grid, dims, bmin, inv_ext, prm->scale, prm->majorant, o, d,
+                                      t0, t1, rng, counters, prm->max_steps, &t);
+#else
+            event = free_flight_homogeneous(prm->scale * prm->density, t0, t1, rng, &t);
+#endif
+        }
+        if (event == EVENT_CAPPED) break;
+        if (event == EVENT_ESCAPE) {
+#ifdef FEATURE_ENV
+            float w = depth > 0 ? pdf_phase / (pdf_phase + INV_4PI) : 1.0f;
+            L += beta * env * w;
+#endif
+            break;
+        }
+        depth += 1;
+        if (prm->max_depth >= 0 && depth > prm->max_depth) break;
+        counters[C_SCATTER] += 1;
+        beta *= albedo;
+        if (fmax(beta.x, fmax(beta.y, beta.z)) <= 0.0f) break;
+        float3 p = o + t * d;
+#ifdef FEATURE_DELTA_LIGHTS
+        for (int i = 0; i < prm->n_lights; ++i) {
+            float3 wl;
+            float dist = INFINITY, falloff = 1.0f;
+#ifdef FEATURE_POINT
+            if (lights[i].type == LIGHT_DIRECTIONAL) {
+                wl = -vec3g(lights[i].vec);
+            } else {
+                float3 v = vec3g(lights[i].vec) - p;
+                float dist2 = dot(v, v);
+                if (dist2 <= 0.0f) continue;
+                dist = sqrt(dist2);
+                wl = v / dist;
+                falloff = 1.0f / dist2;
+            }
+#else
+            wl = -vec3g(lights[i].vec);
+#endif
+            float f = phase_eval(prm->phase_kind, prm->g, dot(d, wl)) * falloff;
+            float tr = shadow_transmittance(prm, grid, dims, p, wl, dist, rng_s, counters);
+            L += beta * (f * tr) * vec3g(lights[i].color);
+        }
+#endif
+#ifdef FEATURE_ENV
+        {
+            float ua = rng_next(rng);
+            float ub = rng_next(rng);
+            float pdf_l;
+            float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
+            float f = phase_eval(prm->phase_kind, prm->g, dot(d, wl));
+            float tr = shadow_transmittance(prm, grid, dims, p, wl, INFINITY, rng_s, counters);
+            L += beta * (f * tr / (pdf_l + f)) * env;
+        }
+#endif
+#ifdef FEATURE_RR
+        if (depth >= prm->rr_depth) {
+            float q = fmin(fmax(beta.x, fmax(beta.y, beta.z)), RR_MAX_SURVIVAL);
+            if (rng_next(rng) >= q) break;
+            beta /= q;
+        }
+#endif
+        u1 = rng_next(rng);
+        u2 = rng_next(rng);
+        d = phase_sample(prm->phase_kind, prm->g, u1, u2, d, &pdf_phase);
+        o = p;
+    }
+    return L;
+#endif
+}
+
+/* One work item per pixel: samples [sample_start, sample_start + n_samples). Writes the
+ * batch's per-pixel sums of sample values and of their squares (the host accumulates them
+ * in float64) and adds to the pixel's counters. */
+kernel void render_batch(const Params prm, global const Light *lights, global const float *grid,
+                         int3 dims, uint sample_start, uint n_samples, global float *out_sum,
+                         global float *out_sq, global ulong *counters_out) {
+    int pix = get_global_id(0);
+    if (pix >= prm.width * prm.height) return;
+    int py = pix / prm.width;
+    int px = pix - py * prm.width;
+    ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
+    ulong cnt[N_COUNTERS];
+    for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
+    float3 s = (float3)(0.0f), q = (float3)(0.0f);
+    Rng rng, rng_s;
+    for (uint i = 0; i < n_samples; ++i) {
+        rng_init(&rng, seed, (uint)pix, sample_start + i, STREAM_PATH);
+        rng_init(&rng_s, seed, (uint)pix, sample_start + i, STREAM_SHADOW);
+        float3 c = trace_path(&prm, lights, grid, dims, px, py, &rng, &rng_s, cnt);
+        /* isfinite() survives -cl-fast-relaxed-math only if the build keeps it; see docs. */
+        if (!(isfinite(c.x) && isfinite(c.y) && isfinite(c.z)) || c.x < 0.0f || c.y < 0.0f ||
+            c.z < 0.0f) {
+            cnt[C_DROPPED] += 1;
+            continue;
+        }
+        s += c;
+        q += c * c;
+    }
+    out_sum[3 * pix + 0] = s.x;
+    out_sum[3 * pix + 1] = s.y;
+    out_sum[3 * pix + 2] = s.z;
+    out_sq[3 * pix + 0] = q.x;
+    out_sq[3 * pix + 1] = q.y;
+    out_sq[3 * pix + 2] = q.z;
+    for (int k = 0; k < N_COUNTERS; ++k) counters_out[(size_t)pix * N_COUNTERS + k] += cnt[k];
+}

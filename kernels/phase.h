@@ -1,0 +1,51 @@
+/* Phase functions: isotropic and Henyey-Greenstein. Twin of volmc/reference/phase.py, where
+ * the convention (propagation directions, g > 0 forward) and the cancellation-free
+ * inversion are derived. With FEATURE_PHASE_HG undefined only the isotropic code is built. */
+#ifndef VOLMC_PHASE_H
+#define VOLMC_PHASE_H
+
+#include "sampling.h"
+
+/* PHASE_ISOTROPIC and PHASE_HG come from the generated params.h. */
+
+inline float hg_eval(float cos_theta, float g) {
+    float denom = g >= 0.0f ? (1.0f - g) * (1.0f - g) + 2.0f * g * (1.0f - cos_theta)
+                            : (1.0f + g) * (1.0f + g) - 2.0f * g * (1.0f + cos_theta);
+    return INV_4PI * (1.0f - g) * (1.0f + g) / (denom * sqrt(denom));
+}
+
+/* Returns cos(theta); writes sin(theta) and the pdf (1/sr). */
+inline float hg_sample_cos(float u, float g, float *sin_theta, float *pdf) {
+    float t = 1.0f - g + 2.0f * g * u;
+    float inv_t2 = 1.0f / (t * t);
+    float omc = (1.0f - g) * (1.0f - g) * (1.0f - u) * (1.0f + g + t) * inv_t2;
+    float opc = (1.0f + g) * (1.0f + g) * u * (1.0f - g + t) * inv_t2;
+    float c = omc < opc ? 1.0f - omc : opc - 1.0f;
+    c = clamp(c, -1.0f, 1.0f);
+    *sin_theta = sqrt(fmax(0.0f, omc * opc));
+    float one_m_g2 = (1.0f - g) * (1.0f + g);
+    *pdf = INV_4PI * t * t * t / (one_m_g2 * one_m_g2);
+    return c;
+}
+
+inline float3 hg_sample(float u1, float u2, float3 d_in, float g, float *pdf) {
+    float sin_theta;
+    float c = hg_sample_cos(u1, g, &sin_theta, pdf);
+    return from_frame(d_in, c, sin_theta, TWO_PI * u2);
+}
+
+inline float phase_eval(int kind, float g, float cos_theta) {
+#ifdef FEATURE_PHASE_HG
+    if (kind == PHASE_HG) return hg_eval(cos_theta, g);
+#endif
+    return INV_4PI;
+}
+
+inline float3 phase_sample(int kind, float g, float u1, float u2, float3 d_in, float *pdf) {
+#ifdef FEATURE_PHASE_HG
+    if (kind == PHASE_HG) return hg_sample(u1, u2, d_in, g, pdf);
+#endif
+    return sample_uniform_sphere(u1, u2, pdf);
+}
+
+#endif

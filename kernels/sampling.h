@@ -1,0 +1,50 @@
+/* Sampling warps: pure functions of explicit uniforms. Twin of volmc/reference/sampling.py.
+ * Where the reference returns (sample, pdf), the kernel returns the sample and writes the
+ * pdf through the last argument. Directions are float3 unit vectors. */
+#ifndef VOLMC_SAMPLING_H
+#define VOLMC_SAMPLING_H
+
+#define INV_4PI 0.07957747154594767f
+#define TWO_PI 6.283185307179586f
+
+inline float sample_exponential(float u, float a, float *pdf) {
+    if (a <= 0.0f) {
+        *pdf = 0.0f;
+        return INFINITY;
+    }
+    float t = -log1p(-u) / a;
+    *pdf = a * exp(-a * t);
+    return t;
+}
+
+inline float exponential_pdf(float t, float a) {
+    if (a <= 0.0f || t < 0.0f) return 0.0f;
+    return a * exp(-a * t);
+}
+
+inline float3 sample_uniform_sphere(float u1, float u2, float *pdf) {
+    float z = 1.0f - 2.0f * u1;
+    float r = sqrt(fmax(0.0f, 1.0f - z * z));
+    float phi = TWO_PI * u2;
+    *pdf = INV_4PI;
+    return (float3)(r * cos(phi), r * sin(phi), z);
+}
+
+inline float uniform_sphere_pdf(void) { return INV_4PI; }
+
+/* Duff et al. 2017 orthonormal basis; s and t written through the pointers. */
+inline void coordinate_system(float3 n, float3 *s, float3 *t) {
+    float sign = copysign(1.0f, n.z);
+    float a = -1.0f / (sign + n.z);
+    float b = n.x * n.y * a;
+    *s = (float3)(1.0f + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    *t = (float3)(b, sign + n.y * n.y * a, -n.y);
+}
+
+inline float3 from_frame(float3 n, float cos_theta, float sin_theta, float phi) {
+    float3 s, t;
+    coordinate_system(n, &s, &t);
+    return (cos(phi) * sin_theta) * s + (sin(phi) * sin_theta) * t + cos_theta * n;
+}
+
+#endif

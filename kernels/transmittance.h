@@ -1,0 +1,83 @@
+/* Tracking through the medium: free-flight sampling and transmittance estimators.
+ * Twin of volmc/reference/transmittance.py (conventions, counters and step caps there).
+ * A ray is o + t d on [t0, t1] inside the box, extinction mu = scale * density, global
+ * majorant mbar. Counters are a private ulong array indexed by the C_* constants. */
+#ifndef VOLMC_TRANSMITTANCE_H
+#define VOLMC_TRANSMITTANCE_H
+
+#include "rng.h"
+#include "grid.h"
+
+#define EVENT_ESCAPE 0
+#define EVENT_SCATTER 1
+#define EVENT_CAPPED 2
+
+inline float sigma_t_at(global const float *grid, int3 dims, float3 bmin, float3 inv_extent,
+                        float scale, float3 o, float3 d, float t, ulong *counters, float mbar) {
+    float mu = scale * grid_lookup(grid, dims, bmin, inv_extent, o + t * d);
+    counters[C_LOOKUPS] += 1;
+    if (mu > mbar) counters[C_OVER_MAJORANT] += 1;
+    return mu;
+}
+
+/* Returns the event; writes the collision distance (t1 on escape) to *t_out. */
+inline int free_flight_homogeneous(float sigma_t, float t0, float t1, Rng *rng, float *t_out) {
+    *t_out = t1;
+    if (sigma_t <= 0.0f) return EVENT_ESCAPE;
+    float t = t0 - log1p(-rng_next(rng)) / sigma_t;
+    if (t >= t1) return EVENT_ESCAPE;
+    *t_out = t;
+    return EVENT_SCATTER;
+}
+
+inline int free_flight_delta(global const float *grid, int3 dims, float3 bmin, float3 inv_extent,
+                             float scale, float mbar, float3 o, float3 d, float t0, float t1,
+                             Rng *rng, ulong *counters, int max_steps, float *t_out) {
+    *t_out = t1;
+    if (mbar <= 0.0f) return EVENT_ESCAPE;
+    float t = t0;
+    for (int i = 0; i < max_steps; ++i) {
+        t -= log1p(-rng_next(rng)) / mbar;
+        if (t >= t1) return EVENT_ESCAPE;
+        float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, mbar);
+        if (rng_next(rng) * mbar < mu) {
+            *t_out = t;
+            return EVENT_SCATTER;
+        }
+    }
+    counters[C_CAPPED] += 1;
+    *t_out = t;
+    return EVENT_CAPPED;
+}
+
+inline float transmittance_homogeneous(float sigma_t, float t0, float t1) {
+    return exp(-sigma_t * fmax(t1 - t0, 0.0f));
+}
+
+inline float transmittance_ratio(global const float *grid, int3 dims, float3 bmin,
+                                 float3 inv_extent, float scale, float mbar, float3 o, float3 d,
+                                 float t0, float t1, Rng *rng, ulong *counters, int max_steps) {
+    if (mbar <= 0.0f) return 1.0f;
+    float T = 1.0f;
+    float t = t0;
+    for (int i = 0; i < max_steps; ++i) {
+        t -= log1p(-rng_next(rng)) / mbar;
+        if (t >= t1) return T;
+        float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, mbar);
+        T *= 1.0f - mu / mbar;
+    }
+    counters[C_CAPPED] += 1;
+    return T;
+}
+
+inline float transmittance_track_length(global const float *grid, int3 dims, float3 bmin,
+                                        float3 inv_extent, float scale, float mbar, float3 o,
+                                        float3 d, float t0, float t1, Rng *rng, ulong *counters,
+                                        int max_steps) {
+    float t;
+    int ev = free_flight_delta(grid, dims, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng,
+                               counters, max_steps, &t);
+    return ev == EVENT_ESCAPE ? 1.0f : 0.0f;
+}
+
+#endif

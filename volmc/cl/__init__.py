@@ -1,0 +1,1 @@
+"""OpenCL host side: device choice, program build and cache, parameter structs, launches."""
