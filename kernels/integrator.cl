@@ -177,11 +177,13 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
 }
 
 /* One work item per pixel: samples [sample_start, sample_start + n_samples). Writes the
- * batch's per-pixel sums of sample values and of their squares (the host accumulates them
- * in float64) and adds to the pixel's counters. */
+ * batch's per-pixel mean and sum of squared deviations (Welford's update, so a float32
+ * batch keeps the variance accurate even when it is tiny next to the mean); the host turns
+ * them into float64 sums. A NaN, infinite or negative sample counts as 0 and is counted
+ * as dropped, exactly as in the reference. */
 kernel void render_batch(const Params prm, global const Light *lights, global const float *grid,
-                         int3 dims, uint sample_start, uint n_samples, global float *out_sum,
-                         global float *out_sq, global ulong *counters_out) {
+                         int3 dims, uint sample_start, uint n_samples, global float *out_mean,
+                         global float *out_m2, global ulong *counters_out) {
     int pix = get_global_id(0);
     if (pix >= prm.width * prm.height) return;
     int py = pix / prm.width;
@@ -189,26 +191,22 @@ kernel void render_batch(const Params prm, global const Light *lights, global co
     ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
-    float3 s = (float3)(0.0f), q = (float3)(0.0f);
+    float3 mean = (float3)(0.0f), m2 = (float3)(0.0f);
     Rng rng, rng_s;
     for (uint i = 0; i < n_samples; ++i) {
         rng_init(&rng, seed, (uint)pix, sample_start + i, STREAM_PATH);
         rng_init(&rng_s, seed, (uint)pix, sample_start + i, STREAM_SHADOW);
         float3 c = trace_path(&prm, lights, grid, dims, px, py, &rng, &rng_s, cnt);
-        /* isfinite() survives -cl-fast-relaxed-math only if the build keeps it; see docs. */
         if (!(isfinite(c.x) && isfinite(c.y) && isfinite(c.z)) || c.x < 0.0f || c.y < 0.0f ||
             c.z < 0.0f) {
             cnt[C_DROPPED] += 1;
-            continue;
+            c = (float3)(0.0f);
         }
-        s += c;
-        q += c * c;
+        float3 delta = c - mean;
+        mean += delta / (float)(i + 1);
+        m2 += delta * (c - mean);
     }
-    out_sum[3 * pix + 0] = s.x;
-    out_sum[3 * pix + 1] = s.y;
-    out_sum[3 * pix + 2] = s.z;
-    out_sq[3 * pix + 0] = q.x;
-    out_sq[3 * pix + 1] = q.y;
-    out_sq[3 * pix + 2] = q.z;
+    vstore3(mean, pix, out_mean);
+    vstore3(m2, pix, out_m2);
     for (int k = 0; k < N_COUNTERS; ++k) counters_out[(size_t)pix * N_COUNTERS + k] += cnt[k];
 }

@@ -16,7 +16,7 @@ inline float hg_eval(float cos_theta, float g) {
 
 /* Returns cos(theta); writes sin(theta) and the pdf (1/sr). */
 inline float hg_sample_cos(float u, float g, float *sin_theta, float *pdf) {
-    float t = 1.0f - g + 2.0f * g * u;
+    float t = g >= 0.0f ? (1.0f - g) + 2.0f * g * u : (1.0f + g) - 2.0f * g * (1.0f - u);
     float inv_t2 = 1.0f / (t * t);
     float omc = (1.0f - g) * (1.0f - g) * (1.0f - u) * (1.0f + g + t) * inv_t2;
     float opc = (1.0f + g) * (1.0f + g) * u * (1.0f - g + t) * inv_t2;

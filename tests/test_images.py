@@ -16,17 +16,25 @@ from volmc.resources import scenes_dir
 from volmc.scene import load_scene, scene_from_dict
 
 
+BACKENDS = ["numba", "opencl"]
+
+
+@pytest.fixture(params=BACKENDS)
+def backend(request):
+    return request.param
+
+
 def _z(res, expected):
     m = res.film.mean()
     se = np.sqrt(res.film.variance_of_mean())
     return (m - expected) / np.where(se > 0, se, np.inf), m, se
 
 
-def test_white_furnace_every_pixel_equals_L():
+def test_white_furnace_every_pixel_equals_L(backend):
     """HARD_CASES 14: albedo 1, heterogeneous grid, HG g = 0.6, max_depth -1: pixel = L."""
     scene = load_scene(scenes_dir() / "tests" / "white_furnace.toml", ["render.spp=256"])
     L = scene.lights[0].radiance[0]
-    res = render(scene, progress=False)
+    res = render(scene, progress=False, backend=backend)
     z, m, _ = _z(res, L)
     assert np.abs(z).max() < z_bound(ALPHA, z.size + 3)
     mean, se = mean_and_stderr(res)
@@ -37,26 +45,27 @@ def test_white_furnace_every_pixel_equals_L():
 
 
 @pytest.mark.parametrize("g", [-0.9, 0.0, 0.99])
-def test_white_furnace_phase_and_depth(g):
+def test_white_furnace_phase_and_depth(g, backend):
     """Furnace with other phase functions and a dense medium (many scattering events)."""
     scene = load_scene(scenes_dir() / "tests" / "white_furnace.toml",
                        [f"medium.phase.g={g}" if g else "medium.phase={type='isotropic'}",
                         "medium.scale=12", "render.spp=128", "camera.resolution=[8, 8]"])
-    res = render(scene, progress=False)
+    res = render(scene, progress=False, backend=backend)
     z, _, _ = _z(res, 0.5)
     assert np.abs(z).max() < z_bound(ALPHA, 3 * z.size)
 
 
-def test_pure_absorber_exact():
+def test_pure_absorber_exact(backend):
     """HARD_CASES 15: albedo 0 homogeneous slab, orthographic: pixel = L exp(-tau) exactly."""
     scene = load_scene(scenes_dir() / "tests" / "absorber.toml")
-    res = render(scene, progress=False)
+    res = render(scene, progress=False, backend=backend)
     expected = 0.8 * math.exp(-0.75 * 2.0)
-    assert np.allclose(res.film.mean(), expected, rtol=1e-12, atol=0)
-    assert np.all(res.film.variance_of_mean() < 1e-20)
+    exact = 1e-12 if backend == "numba" else 2e-6   # float64 vs float32 arithmetic
+    assert np.allclose(res.film.mean(), expected, rtol=exact, atol=0)
+    assert np.all(res.film.variance_of_mean() < (exact * expected) ** 2)
 
 
-def test_pure_absorber_grid_ratio_tracking(tmp_path):
+def test_pure_absorber_grid_ratio_tracking(tmp_path, backend):
     """Absorbing grid: each pixel is L times the exact transmittance of its ray (z-test)."""
     from volmc.reference.optical_depth import optical_depth_exact
     rng = np.random.default_rng(3)
@@ -69,7 +78,7 @@ def test_pure_absorber_grid_ratio_tracking(tmp_path):
            "lights": [{"type": "environment", "radiance": 1.0}],
            "render": {"spp": 4096}}
     scene = scene_from_dict(raw)
-    res = render(scene, progress=False)
+    res = render(scene, progress=False, backend=backend)
     # Pixel value averaged over its footprint: integrate the exact transmittance over x, y.
     h = 1.6 / 6
     exp_img = np.zeros((6, 6))
@@ -125,7 +134,7 @@ def _single_scatter_expected(sigma_t, sigma_s, g, E, light_dir, width, height, s
 
 
 @pytest.mark.parametrize("g", [0.0, 0.6, -0.6])
-def test_single_scattering_closed_form(g):
+def test_single_scattering_closed_form(g, backend):
     """HARD_CASES 16: max_depth 1, homogeneous cube, directional light: the NEE estimate
     matches the single-scattering integral per pixel (checks light units and the HG sign)."""
     sigma_t, albedo, E = 1.2, 0.7, 2.0
@@ -137,13 +146,13 @@ def test_single_scattering_closed_form(g):
                       "phase": {"type": "hg", "g": g} if g else {"type": "isotropic"}},
            "lights": [{"type": "directional", "direction": light.tolist(), "irradiance": E}],
            "render": {"spp": 2048, "max_depth": 1}}
-    res = render(scene_from_dict(raw), progress=False)
+    res = render(scene_from_dict(raw), progress=False, backend=backend)
     expected = _single_scatter_expected(sigma_t, albedo * sigma_t, g, E, light, 5, 5, 1.8)
     z, m, _ = _z(res, expected[..., None])
     assert np.abs(z).max() < z_bound(ALPHA, z.size * 3), (m[..., 0], expected)
 
 
-def test_constant_grid_equals_homogeneous(tmp_path):
+def test_constant_grid_equals_homogeneous(tmp_path, backend):
     """HARD_CASES 17: a constant grid renders like the homogeneous medium (two-sample z)."""
     np.save(tmp_path / "c.npy", np.full((3, 4, 5), 0.5, np.float32))
     base = {"camera": {"eye": [0.3, 0.2, 3.0], "target": [0, 0, 0], "fov": 50,
@@ -154,31 +163,31 @@ def test_constant_grid_equals_homogeneous(tmp_path):
                        {"type": "directional", "direction": [-1, -1, -0.5], "irradiance": 2.0},
                        {"type": "point", "position": [0.5, 1.5, 0.5], "intensity": 1.5}],
             "render": {"spp": 512}}
-    a = render(scene_from_dict(base), progress=False)
+    a = render(scene_from_dict(base), progress=False, backend=backend)
     grid = dict(base, medium=dict(base["medium"], density={"file": str(tmp_path / "c.npy")}))
-    b = render(scene_from_dict(grid), progress=False)
+    b = render(scene_from_dict(grid), progress=False, backend=backend)
     d = a.film.mean() - b.film.mean()
     se = np.sqrt(a.film.variance_of_mean() + b.film.variance_of_mean())
     assert np.abs(d / se).max() < z_bound(ALPHA, d.size)
 
 
-def test_russian_roulette_unbiased():
+def test_russian_roulette_unbiased(backend):
     """HARD_CASES 18: Russian roulette from depth 0 vs (effectively) never: same image."""
     base = load_scene(scenes_dir() / "tests" / "white_furnace.toml",
                       ["medium.albedo=[0.9, 0.7, 0.5]", "render.spp=256", "render.max_depth=40",
                        "camera.resolution=[8, 8]", "render.rr_depth=0"])
-    a = render(base, progress=False)
+    a = render(base, progress=False, backend=backend)
     off = load_scene(scenes_dir() / "tests" / "white_furnace.toml",
                      ["medium.albedo=[0.9, 0.7, 0.5]", "render.spp=256", "render.max_depth=40",
                       "camera.resolution=[8, 8]", "render.rr_depth=1000"])
-    b = render(off, progress=False)
+    b = render(off, progress=False, backend=backend)
     d = a.film.mean() - b.film.mean()
     se = np.sqrt(a.film.variance_of_mean() + b.film.variance_of_mean())
     assert np.abs(d / se).max() < z_bound(ALPHA, d.size)
     assert a.counters["scatter_events"] < b.counters["scatter_events"]
 
 
-def test_camera_orientation(tmp_path):
+def test_camera_orientation(tmp_path, backend):
     """Looking from +z at the origin with up = +y, +x is on the right and +y at the top:
     an absorber filling only the x > 0, y > 0 quarter darkens the top-right of the image."""
     g = np.zeros((2, 2, 2), np.float32)
@@ -189,6 +198,6 @@ def test_camera_orientation(tmp_path):
            "medium": {"bounds": [[-1, -1, -1], [1, 1, 1]], "scale": 5.0, "albedo": 0.0,
                       "density": {"file": str(tmp_path / "q.npy")}},
            "lights": [{"type": "environment", "radiance": 1.0}], "render": {"spp": 16}}
-    img = render(scene_from_dict(raw), progress=False).film.mean()[..., 0]
+    img = render(scene_from_dict(raw), progress=False, backend=backend).film.mean()[..., 0]
     assert img[:2, -2:].mean() < 0.01 and img[-2:, :2].mean() > 0.99
     assert img[:2, :2].mean() > 0.99 and img[-2:, -2:].mean() > 0.99

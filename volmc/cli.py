@@ -1,4 +1,4 @@
-"""Command line: ``volmc render``, ``volmc convert``.
+"""Command line: ``volmc render``, ``check``, ``convert``, ``info``.
 
 Bad input (scene files, grids, flag values) prints one line
 ``volmc: error: <file>: <key>: <what is wrong>`` and exits with status 2, no traceback.
@@ -63,7 +63,10 @@ def build_parser():
     r.add_argument("-o", "--output", help="EXR path (default: <scene name>.exr here)")
     r.add_argument("--spp", type=_positive_int, help="samples per pixel (overrides render.spp)")
     r.add_argument("--seed", type=_seed, help="random seed (overrides render.seed)")
-    r.add_argument("--backend", choices=BACKENDS, default=BACKENDS[0], help="render backend")
+    r.add_argument("--backend", choices=BACKENDS, default=BACKENDS[0],
+                   help="render backend (default opencl; numba is the float64 reference)")
+    r.add_argument("--device", help="OpenCL device as PLATFORM[:DEVICE] (index or name "
+                                    "substring; default: $VOLMC_CL_DEVICE, else PoCL)")
     r.add_argument("-D", dest="defines", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a scene key (repeatable), e.g. -D medium.albedo=0.9")
     r.add_argument("--png", nargs="?", const="", default=None, metavar="PATH",
@@ -78,6 +81,18 @@ def build_parser():
     r.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
     r.add_argument("--stats", action="store_true",
                    help="print samples/s, path length, lookups and guard counters")
+
+    k = sub.add_parser("check", help="render a scene with two backends and compare the images "
+                                     "(per-pixel z-test)")
+    k.add_argument("scene", nargs="?", help="scene .toml (default: the bundled cloud scene)")
+    k.add_argument("--spp", type=_positive_int, help="samples per pixel for both renders")
+    k.add_argument("--backends", default="opencl,numba", help="two backends (default "
+                                                               "opencl,numba)")
+    k.add_argument("--device", help="OpenCL device (as for render)")
+    k.add_argument("-D", dest="defines", action="append", default=[],
+                   metavar="SECTION.KEY=VALUE", help="override a scene key (repeatable)")
+
+    sub.add_parser("info", help="list OpenCL platforms and devices and the kernel cache")
 
     c = sub.add_parser("convert", help="convert a density grid between .npy, .npz and .vol")
     c.add_argument("input")
@@ -134,7 +149,9 @@ def cmd_render(args):
         w, h = scene.camera.resolution
         print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "
               f"backend {args.backend})", file=sys.stderr, flush=True)
-    res = render(scene, backend=args.backend, progress=False if args.quiet else None,
+    from .render import make_backend
+    backend = make_backend(args.backend, scene, args.device)
+    res = render(scene, backend=backend, progress=False if args.quiet else None,
                  on_start=None if args.quiet else _announce_start)
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
@@ -154,6 +171,55 @@ def cmd_render(args):
         for k, v in res.stats().items():
             print(f"  {k:24s} {v:.6g}" if isinstance(v, float) else f"  {k:24s} {v}")
     return EXIT_INTERRUPTED if res.partial else 0
+
+
+def cmd_check(args):
+    from .check import check_scene
+    from .render import BACKENDS
+    from .resources import default_scene
+    from .scene import load_scene
+    names = [b.strip() for b in args.backends.split(",")]
+    if len(names) != 2 or any(b not in BACKENDS for b in names):
+        raise SceneError("command line", "--backends",
+                         f"expected two of {', '.join(BACKENDS)} separated by a comma, "
+                         f"got {args.backends!r}")
+    scene_path = str(default_scene()) if args.scene is None else args.scene
+    scene = load_scene(scene_path, args.defines)
+    w, h = scene.camera.resolution
+    spp = args.spp or scene.render.spp
+    print(f"volmc check: {scene_path}: {w}x{h}, {spp} spp, {names[0]} (seed s) vs {names[1]} "
+          f"(seed s + 1)", flush=True)
+    cmp, ra, rb = check_scene(scene, names, spp=args.spp, device=args.device)
+    print(f"  {names[0]}: {ra.seconds:.2f} s, mean {_rgb(cmp.mean_a)}")
+    print(f"  {names[1]}: {rb.seconds:.2f} s, mean {_rgb(cmp.mean_b)}")
+    print("  " + cmp.summary(names[0], names[1]))
+    return 0 if cmp.passed else 1
+
+
+def _rgb(v):
+    return "(" + ", ".join(f"{x:.5g}" for x in v) + ")"
+
+
+def cmd_info(args):
+    from .cl.build import cache_dir
+    from .cl.device import ENV_VAR, describe, list_devices, select_device
+    plats = list_devices()
+    if not plats:
+        print("no OpenCL platforms found")
+    for i, p, devs in plats:
+        print(f"platform {i}: {p.name} ({p.version})")
+        for j, d in enumerate(devs):
+            print(f"  device {i}:{j}: {d.name} ({d.version}, driver {d.driver_version}, "
+                  f"{d.max_compute_units} compute units, {d.global_mem_size >> 20} MiB)")
+    try:
+        print(f"default device: {describe(select_device())}")
+    except SceneError as e:
+        print(f"default device: none ({e})")
+    print(f"select another with --device PLATFORM[:DEVICE] or ${ENV_VAR}")
+    cdir = cache_dir()
+    n = len(list(cdir.glob("*.bin"))) if cdir.is_dir() else 0
+    print(f"kernel cache: {cdir} ({n} programs; set VOLMC_CACHE_DIR to move it)")
+    return 0
 
 
 def cmd_convert(args):
@@ -181,6 +247,10 @@ def main(argv=None):
             return cmd_render(args)
         if args.command == "convert":
             return cmd_convert(args)
+        if args.command == "check":
+            return cmd_check(args)
+        if args.command == "info":
+            return cmd_info(args)
     except SceneError as e:
         print(f"volmc: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

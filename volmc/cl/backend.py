@@ -42,10 +42,11 @@ class OpenCLBackend:
         self.grid_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=grid)
         nz, ny, nx = grid.shape
         self.dims = np.array([nx, ny, nz, 0], np.int32)
-        self.sum_host = np.empty((h, w, 3), np.float32)
-        self.sq_host = np.empty((h, w, 3), np.float32)
-        self.sum_buf = cl.Buffer(self.ctx, mf.WRITE_ONLY, self.sum_host.nbytes)
-        self.sq_buf = cl.Buffer(self.ctx, mf.WRITE_ONLY, self.sq_host.nbytes)
+        # Batch outputs: per-pixel mean and sum of squared deviations (Welford).
+        self.mean_host = np.empty((h, w, 3), np.float32)
+        self.m2_host = np.empty((h, w, 3), np.float32)
+        self.mean_buf = cl.Buffer(self.ctx, mf.WRITE_ONLY, self.mean_host.nbytes)
+        self.m2_buf = cl.Buffer(self.ctx, mf.WRITE_ONLY, self.m2_host.nbytes)
         self.counters = np.zeros((self.n_pix, N_COUNTERS), np.uint64)
         self.cnt_buf = cl.Buffer(self.ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
                                  hostbuf=self.counters)
@@ -71,13 +72,14 @@ class OpenCLBackend:
         cl = self.cl
         gsize, lsize = self._global_size()
         self.kernel(self.queue, gsize, lsize, self.params[0], self.lights_buf, self.grid_buf,
-                    self.dims, np.uint32(sample_start), np.uint32(n_samples), self.sum_buf,
-                    self.sq_buf, self.cnt_buf)
-        cl.enqueue_copy(self.queue, self.sum_host, self.sum_buf)
-        cl.enqueue_copy(self.queue, self.sq_host, self.sq_buf)
+                    self.dims, np.uint32(sample_start), np.uint32(n_samples), self.mean_buf,
+                    self.m2_buf, self.cnt_buf)
+        cl.enqueue_copy(self.queue, self.mean_host, self.mean_buf)
+        cl.enqueue_copy(self.queue, self.m2_host, self.m2_buf)
         self.queue.finish()
-        film.sum += self.sum_host
-        film.sum_sq += self.sq_host
+        mean = self.mean_host.astype(np.float64)
+        film.sum += n_samples * mean
+        film.sum_sq += self.m2_host.astype(np.float64) + n_samples * mean * mean
 
     def counter_totals(self):
         """Counters summed over pixels (see params.COUNTER_NAMES)."""

@@ -21,7 +21,8 @@ One sample of pixel (x, y) (y = 0 is the top row) is one path:
 
 Random numbers: stream STREAM_PATH for all decisions of the path (in the order above),
 stream STREAM_SHADOW for all shadow-ray transmittance estimates of the sample.
-A sample whose contribution is NaN, infinite or negative is dropped and counted.
+A sample whose contribution is NaN, infinite or negative is dropped (it counts as a sample
+of value 0) and counted.
 """
 
 import math
@@ -222,7 +223,7 @@ def render_pixel(params, lights, grid, pix, sample_start, n_samples, film_sum, f
         r, g, b = trace_path(prm, lights, grid, px, py, rng, rng_s, cnt)
         if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)) or \
                 r < 0.0 or g < 0.0 or b < 0.0:
-            cnt[C_DROPPED] += 1
+            cnt[C_DROPPED] += 1  # the sample counts as 0
             continue
         sr += r
         sg += g

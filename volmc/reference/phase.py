@@ -19,7 +19,8 @@ t = 1 - g + 2 g u (the inverted CDF's denominator, always in [1 - |g|, 1 + |g|])
     1 + cos = (1 + g)^2  u      (1 - g + t) / t^2
 
 and the density of the sample is p = t^3 / (4 pi (1 - g^2)^2). No division by g appears, so
-g = 0 needs no special case (t = 1, cos = 2u - 1).
+g = 0 needs no special case (t = 1, cos = 2u - 1). t itself is computed as
+(1 - |g|) + 2 |g| u' with u' = u (g >= 0) or 1 - u (g < 0): a sum of non-negative terms.
 """
 
 import math
@@ -46,7 +47,11 @@ def hg_eval(cos_theta, g):
 @njit(cache=True, inline="always")
 def hg_sample_cos(u, g):
     """Invert the HG CDF of cos(theta). Returns (cos, sin, pdf): pdf in 1/sr."""
-    t = 1.0 - g + 2.0 * g * u
+    # t = 1 - g + 2 g u written as a sum of non-negative terms (no cancellation near |g| = 1).
+    if g >= 0.0:
+        t = (1.0 - g) + 2.0 * g * u
+    else:
+        t = (1.0 + g) - 2.0 * g * (1.0 - u)
     inv_t2 = 1.0 / (t * t)
     omc = (1.0 - g) * (1.0 - g) * (1.0 - u) * (1.0 + g + t) * inv_t2
     opc = (1.0 + g) * (1.0 + g) * u * (1.0 - g + t) * inv_t2

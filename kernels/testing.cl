@@ -1,0 +1,102 @@
+/* Test kernels: thin wrappers that feed explicit inputs to the kernel functions so tests can
+ * compare them with their Numba twins value by value (tests/test_kernels.py). */
+
+#include "params.h"
+#include "rng.h"
+#include "sampling.h"
+#include "phase.h"
+#include "grid.h"
+#include "transmittance.h"
+
+kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out) {
+    int i = get_global_id(0);
+    uint4 w = philox4x32_10(vload4(i, ctr), vload2(i, key));
+    vstore4(w, i, out);
+}
+
+kernel void t_uniforms(ulong seed, uint pixel, uint sample, uint stream, uint n,
+                       global float *out) {
+    Rng rng;
+    rng_init(&rng, seed, pixel, sample, stream);
+    for (uint i = 0; i < n; ++i) out[i] = rng_next(&rng);
+}
+
+kernel void t_exponential(global const float *u, float a, global float *out) {
+    int i = get_global_id(0);
+    float pdf;
+    float t = sample_exponential(u[i], a, &pdf);
+    out[2 * i] = t;
+    out[2 * i + 1] = pdf;
+}
+
+kernel void t_uniform_sphere(global const float *u, global float *out) {
+    int i = get_global_id(0);
+    float pdf;
+    float3 w = sample_uniform_sphere(u[2 * i], u[2 * i + 1], &pdf);
+    vstore4((float4)(w, pdf), i, out);
+}
+
+kernel void t_hg_sample(global const float *u, global const float *g, float3 d_in,
+                        global float *out) {
+    int i = get_global_id(0);
+    float pdf;
+    float3 w = hg_sample(u[2 * i], u[2 * i + 1], d_in, g[i], &pdf);
+    vstore4((float4)(w, pdf), i, out);
+}
+
+kernel void t_hg_sample_cos(global const float *u, global const float *g, global float *out) {
+    int i = get_global_id(0);
+    float s, pdf;
+    float c = hg_sample_cos(u[i], g[i], &s, &pdf);
+    out[3 * i] = c;
+    out[3 * i + 1] = s;
+    out[3 * i + 2] = pdf;
+}
+
+kernel void t_hg_eval(global const float *mu, global const float *g, global float *out) {
+    int i = get_global_id(0);
+    out[i] = hg_eval(mu[i], g[i]);
+}
+
+kernel void t_coordinate_system(global const float *n, global float *out) {
+    int i = get_global_id(0);
+    float3 s, t;
+    coordinate_system(vload3(i, n), &s, &t);
+    vstore3(s, 2 * i, out);
+    vstore3(t, 2 * i + 1, out);
+}
+
+kernel void t_grid_lookup(global const float *grid, int3 dims, float3 bmin, float3 inv_extent,
+                          global const float *p, global float *out) {
+    int i = get_global_id(0);
+    out[i] = grid_lookup(grid, dims, bmin, inv_extent, vload3(i, p));
+}
+
+/* kind: 0 ratio tracking, 1 track length, 2 delta-tracking free flight (writes t or -1).
+ * One work item per estimate; ray r = i / n_per_ray uses sample index i % n_per_ray. */
+kernel void t_tracking(int kind, global const float *grid, int3 dims, float3 bmin,
+                       float3 inv_extent, float scale, float mbar, global const float *rays,
+                       int n_per_ray, ulong seed, int max_steps, global float *out,
+                       global ulong *lookups) {
+    int i = get_global_id(0);
+    int r = i / n_per_ray;
+    float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
+    float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
+    Rng rng;
+    rng_init(&rng, seed, (uint)r, (uint)(i % n_per_ray), STREAM_TEST);
+    ulong cnt[N_COUNTERS];
+    for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
+    if (kind == 0) {
+        out[i] = transmittance_ratio(grid, dims, bmin, inv_extent, scale, mbar, o, d, t0, t1,
+                                     &rng, cnt, max_steps);
+    } else if (kind == 1) {
+        out[i] = transmittance_track_length(grid, dims, bmin, inv_extent, scale, mbar, o, d, t0,
+                                            t1, &rng, cnt, max_steps);
+    } else {
+        float t;
+        int ev = free_flight_delta(grid, dims, bmin, inv_extent, scale, mbar, o, d, t0, t1,
+                                   &rng, cnt, max_steps, &t);
+        out[i] = ev == EVENT_SCATTER ? t : -1.0f;
+    }
+    lookups[i] = cnt[C_LOOKUPS];
+}

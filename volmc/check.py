@@ -1,0 +1,88 @@
+"""Image-level comparison of two renders (kernel against reference, or any two backends).
+
+Both renders use independent seeds (seed and seed + 1), so their per-pixel difference has
+variance var_a + var_b (each render's own variance of the mean) and the z-test below has
+its stated false-failure rate: a pixel fails when |z| exceeds the two-sided Sidak bound
+for ALPHA over all pixels and channels; the image means are compared the same way.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Family-wise false-failure rate of one comparison.
+ALPHA = 0.01
+
+
+def sidak_z(alpha, m):
+    """Two-sided normal bound for m hypotheses at family level alpha (Sidak correction)."""
+    from statistics import NormalDist
+    per = 1.0 - (1.0 - alpha) ** (1.0 / m)
+    return NormalDist().inv_cdf(1.0 - per / 2.0)
+
+
+@dataclass
+class Comparison:
+    """Outcome of comparing image A with image B."""
+    z_bound: float
+    max_abs_z: float
+    frac_outside: float
+    mean_a: tuple
+    mean_b: tuple
+    mean_z: tuple
+    n_tests: int
+
+    @property
+    def passed(self):
+        return self.max_abs_z <= self.z_bound and max(abs(z) for z in self.mean_z) <= \
+            sidak_z(ALPHA, 3)
+
+    def summary(self, name_a="A", name_b="B"):
+        verdict = "AGREE" if self.passed else "DIFFER"
+        mz = ", ".join(f"{z:+.2f}" for z in self.mean_z)
+        return (f"{verdict}: image mean {name_a} - {name_b} in standard errors (R, G, B): {mz}; "
+                f"max |z| per pixel {self.max_abs_z:.2f} (bound {self.z_bound:.2f}); "
+                f"{100 * self.frac_outside:.3f} % of pixel channels outside the bound")
+
+
+def compare_images(mean_a, var_a, mean_b, var_b, alpha=ALPHA):
+    """Per-pixel and image-mean z-tests of two images with their variances of the mean."""
+    mean_a, mean_b = np.asarray(mean_a, np.float64), np.asarray(mean_b, np.float64)
+    var = np.asarray(var_a, np.float64) + np.asarray(var_b, np.float64)
+    diff = mean_a - mean_b
+    # Pixels with zero variance on both sides are exact: they must agree to float32 rounding.
+    exact = var <= 0
+    tol = 1e-5 * np.maximum(np.abs(mean_a), np.abs(mean_b)) + 1e-7
+    z = np.where(exact, np.where(np.abs(diff) <= tol, 0.0, np.inf), diff / np.sqrt(
+        np.where(exact, 1.0, var)))
+    bound = sidak_z(alpha, z.size)
+    n_pix = diff.shape[0] * diff.shape[1]
+    mz = []
+    for c in range(3):
+        se = math.sqrt(float(var[..., c].sum())) / n_pix
+        d = float(diff[..., c].mean())
+        mz.append(0.0 if se == 0 and abs(d) <= 1e-6 else (d / se if se > 0 else math.inf))
+    return Comparison(bound, float(np.abs(z).max()), float(np.mean(np.abs(z) > bound)),
+                      tuple(mean_a.mean(axis=(0, 1))), tuple(mean_b.mean(axis=(0, 1))),
+                      tuple(mz), int(z.size))
+
+
+def check_scene(scene, backends=("opencl", "numba"), spp=None, device=None):
+    """Render ``scene`` with two backends (independent seeds) and compare the images.
+
+    Returns (Comparison, result_a, result_b)."""
+    from dataclasses import replace
+
+    from .render import make_backend, render
+    from .scene.loading import Scene
+    spec = scene.spec
+    if spp is not None:
+        spec = replace(spec, render=replace(spec.render, spp=spp))
+    sa = Scene(spec, scene.grid)
+    sb = Scene(replace(spec, render=replace(spec.render, seed=(spec.render.seed + 1) % 2**64)), scene.grid)
+    ra = render(sa, backend=make_backend(backends[0], sa, device), progress=False)
+    rb = render(sb, backend=make_backend(backends[1], sb, device), progress=False)
+    cmp = compare_images(ra.film.mean(), ra.film.variance_of_mean(), rb.film.mean(),
+                         rb.film.variance_of_mean())
+    return cmp, ra, rb
