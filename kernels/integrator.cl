@@ -2,7 +2,9 @@
  * order of random numbers and the Russian-roulette policy are described there.
  *
  * Built with -D flags derived from the scene (volmc/scene/features.py), so a scene pays
- * only for what it uses:
+ * only for what it uses. A flag compiles a code path in; the parameters still decide at run
+ * time whether it is taken, so a build with every flag on renders any scene (the "generic"
+ * build the specialisation benchmark compares against). The flags:
  *   FEATURE_GRID          density from the grid (else homogeneous, analytic tracking)
  *   FEATURE_PHASE_HG      Henyey-Greenstein phase function (else isotropic)
  *   FEATURE_ENV           an environment light (NEE by sphere sampling + MIS, escape term)
@@ -55,12 +57,13 @@ inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, 
     float sy = (1.0f - 2.0f * ((float)py + u2) / (float)prm->height) * prm->half_height;
     float3 f = vec3(prm->forward), r = vec3(prm->right), u = vec3(prm->up), e = vec3(prm->eye);
 #ifdef FEATURE_ORTHO
-    *dir = f;
-    return e + sx * r + sy * u;
-#else
+    if (prm->cam_type == CAMERA_ORTHOGRAPHIC) {
+        *dir = f;
+        return e + sx * r + sy * u;
+    }
+#endif
     *dir = normalize(f + sx * r + sy * u);
     return e;
-#endif
 }
 
 inline float shadow_transmittance(const Params *prm, global const float *grid, int3 dims,
@@ -72,11 +75,11 @@ inline float shadow_transmittance(const Params *prm, global const float *grid, i
     if (t1 <= t0) return 1.0f;
     counters[C_SHADOW] += 1;
 #ifdef FEATURE_GRID
-    return transmittance_ratio(grid, dims, bmin, vec3(prm->inv_extent), prm->scale,
-                               prm->majorant, o, d, t0, t1, rng_s, counters, prm->max_steps);
-#else
-    return transmittance_homogeneous(prm->scale * prm->density, t0, t1);
+    if (prm->has_grid)
+        return transmittance_ratio(grid, dims, bmin, vec3(prm->inv_extent), prm->scale,
+                                   prm->majorant, o, d, t0, t1, rng_s, counters, prm->max_steps);
 #endif
+    return transmittance_homogeneous(prm->scale * prm->density, t0, t1);
 }
 
 inline float3 trace_path(const Params *prm, global const Light *lights, global const float *grid,
@@ -88,15 +91,19 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
     float u2 = rng_next(rng);
     float3 d;
     float3 o = camera_ray(prm, px, py, u1, u2, &d);
-#ifndef FEATURE_SCATTER
-#ifdef FEATURE_ENV
-    return env * shadow_transmittance(prm, grid, dims, o, d, INFINITY, rng_s, counters);
-#else
-    return L;
-#endif
-#else
-    float3 beta = (float3)(1.0f);
     float3 albedo = vec3(prm->albedo);
+#ifdef FEATURE_SCATTER
+    if (prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f)
+#endif
+    {
+#ifdef FEATURE_ENV
+        if (prm->has_env)
+            return env * shadow_transmittance(prm, grid, dims, o, d, INFINITY, rng_s, counters);
+#endif
+        return L;
+    }
+#ifdef FEATURE_SCATTER
+    float3 beta = (float3)(1.0f);
     int depth = 0;
     float pdf_phase = 0.0f;
     while (true) {
@@ -106,17 +113,20 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
         float t = t1;
         if (t1 > t0) {
 #ifdef FEATURE_GRID
-            event = free_flight_delta(grid, dims, bmin, inv_ext, prm->scale, prm->majorant, o, d,
-                                      t0, t1, rng, counters, prm->max_steps, &t);
-#else
-            event = free_flight_homogeneous(prm->scale * prm->density, t0, t1, rng, &t);
+            if (prm->has_grid)
+                event = free_flight_delta(grid, dims, bmin, inv_ext, prm->scale, prm->majorant,
+                                          o, d, t0, t1, rng, counters, prm->max_steps, &t);
+            else
 #endif
+                event = free_flight_homogeneous(prm->scale * prm->density, t0, t1, rng, &t);
         }
         if (event == EVENT_CAPPED) break;
         if (event == EVENT_ESCAPE) {
 #ifdef FEATURE_ENV
-            float w = depth > 0 ? pdf_phase / (pdf_phase + INV_4PI) : 1.0f;
-            L += beta * env * w;
+            if (prm->has_env) {
+                float w = depth > 0 ? pdf_phase / (pdf_phase + INV_4PI) : 1.0f;
+                L += beta * env * w;
+            }
 #endif
             break;
         }
@@ -150,7 +160,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
         }
 #endif
 #ifdef FEATURE_ENV
-        {
+        if (prm->has_env) {
             float ua = rng_next(rng);
             float ub = rng_next(rng);
             float pdf_l;

@@ -28,7 +28,11 @@ class OpenCLBackend:
             else select_device(device)
         self.ctx = cl.Context([self.device])
         self.queue = cl.CommandQueue(self.ctx)
-        self.features = features(scene) if feature_set is None else frozenset(feature_set)
+        needed = features(scene)
+        self.features = needed if feature_set is None else frozenset(feature_set)
+        if not needed <= self.features:
+            raise ValueError(f"a build without {', '.join(sorted(needed - self.features))} "
+                             "cannot render this scene")
         self.options = define_flags(self.features) + list(options)
         self.local_size = local_size
         params, lights, grid = pack_scene(scene, np.float32)

@@ -502,7 +502,9 @@ def cloud(resolution, seed: int = 0) -> np.ndarray:
         interior, falling to 0 over a thin wispy shell.  The grid spans the
         unit cube with +y up (flat base at low y, billowing tops at high y);
         voxel (i, j, k) samples the point ((i+0.5)/nx, (j+0.5)/ny,
-        (k+0.5)/nz), so grids of any resolution describe the same cloud.
+        (k+0.5)/nz), so grids of any resolution describe the same cloud
+        (a non-cubic resolution only changes the sampling density; the
+        cloud stretches with whatever box the grid is mapped to).
         Voxels whose centre lies within 5 % of the extent of any face are
         exactly 0.
     """
