@@ -22,22 +22,32 @@ typedef struct {
     uint key[2];
     uint ctr[3]; /* pixel, sample, stream */
     uint n;      /* index of the next draw */
-    uint buf[4]; /* current block */
+    uint4 buf;   /* current block */
 } Rng;
 
+/* One Philox round on scalar words: a 32x32->64 multiplication gives hi and lo at once. */
+#define PHILOX_ROUND(c0, c1, c2, c3, k0, k1)                      \
+    do {                                                          \
+        ulong p0_ = (ulong)PHILOX_M0 * (ulong)(c0);               \
+        ulong p1_ = (ulong)PHILOX_M1 * (ulong)(c2);               \
+        uint n0_ = (uint)(p1_ >> 32) ^ (c1) ^ (k0);               \
+        uint n2_ = (uint)(p0_ >> 32) ^ (c3) ^ (k1);               \
+        (c1) = (uint)p1_;                                         \
+        (c3) = (uint)p0_;                                         \
+        (c0) = n0_;                                               \
+        (c2) = n2_;                                               \
+    } while (0)
+
 inline uint4 philox4x32_10(uint4 c, uint2 k) {
-    for (int r = 0; r < PHILOX_ROUNDS; ++r) {
-        if (r > 0) {
-            k.x += PHILOX_W0;
-            k.y += PHILOX_W1;
-        }
-        uint hi0 = mul_hi(PHILOX_M0, c.x);
-        uint lo0 = PHILOX_M0 * c.x;
-        uint hi1 = mul_hi(PHILOX_M1, c.z);
-        uint lo1 = PHILOX_M1 * c.z;
-        c = (uint4)(hi1 ^ c.y ^ k.x, lo1, hi0 ^ c.w ^ k.y, lo0);
+    uint c0 = c.x, c1 = c.y, c2 = c.z, c3 = c.w, k0 = k.x, k1 = k.y;
+    PHILOX_ROUND(c0, c1, c2, c3, k0, k1);
+#pragma unroll
+    for (int r = 1; r < PHILOX_ROUNDS; ++r) {
+        k0 += PHILOX_W0;
+        k1 += PHILOX_W1;
+        PHILOX_ROUND(c0, c1, c2, c3, k0, k1);
     }
-    return c;
+    return (uint4)(c0, c1, c2, c3);
 }
 
 inline void rng_init(Rng *rng, ulong seed, uint pixel, uint sample, uint stream) {
@@ -52,15 +62,13 @@ inline void rng_init(Rng *rng, ulong seed, uint pixel, uint sample, uint stream)
 inline uint rng_next_u32(Rng *rng) {
     uint lane = rng->n & 3u;
     if (lane == 0u) {
-        uint4 w = philox4x32_10((uint4)(rng->n >> 2, rng->ctr[0], rng->ctr[1], rng->ctr[2]),
-                                (uint2)(rng->key[0], rng->key[1]));
-        rng->buf[0] = w.x;
-        rng->buf[1] = w.y;
-        rng->buf[2] = w.z;
-        rng->buf[3] = w.w;
+        rng->buf = philox4x32_10((uint4)(rng->n >> 2, rng->ctr[0], rng->ctr[1], rng->ctr[2]),
+                                 (uint2)(rng->key[0], rng->key[1]));
     }
     rng->n += 1u;
-    return rng->buf[lane];
+    /* Select the lane without indexing private memory dynamically (keeps Rng in registers). */
+    uint4 b = rng->buf;
+    return lane < 2u ? (lane == 0u ? b.x : b.y) : (lane == 2u ? b.z : b.w);
 }
 
 inline float rng_next(Rng *rng) {

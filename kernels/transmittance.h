@@ -35,9 +35,10 @@ inline int free_flight_delta(global const float *grid, int3 dims, float3 bmin, f
                              Rng *rng, ulong *counters, int max_steps, float *t_out) {
     *t_out = t1;
     if (mbar <= 0.0f) return EVENT_ESCAPE;
+    float inv_mbar = 1.0f / mbar;
     float t = t0;
     for (int i = 0; i < max_steps; ++i) {
-        t -= log1p(-rng_next(rng)) / mbar;
+        t -= log1p(-rng_next(rng)) * inv_mbar;
         if (t >= t1) return EVENT_ESCAPE;
         float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, mbar);
         if (rng_next(rng) * mbar < mu) {
@@ -58,13 +59,14 @@ inline float transmittance_ratio(global const float *grid, int3 dims, float3 bmi
                                  float3 inv_extent, float scale, float mbar, float3 o, float3 d,
                                  float t0, float t1, Rng *rng, ulong *counters, int max_steps) {
     if (mbar <= 0.0f) return 1.0f;
+    float inv_mbar = 1.0f / mbar;
     float T = 1.0f;
     float t = t0;
     for (int i = 0; i < max_steps; ++i) {
-        t -= log1p(-rng_next(rng)) / mbar;
+        t -= log1p(-rng_next(rng)) * inv_mbar;
         if (t >= t1) return T;
         float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, mbar);
-        T *= 1.0f - mu / mbar;
+        T *= 1.0f - mu * inv_mbar;
     }
     counters[C_CAPPED] += 1;
     return T;

@@ -44,7 +44,7 @@ def test_render_writes_exr_png_and_metadata(tmp_path, tiny):
     assert r.returncode == 0, r.stderr
     img, meta = read_exr(tmp_path / "out.exr")
     assert img.shape == (8, 10, 3) and img.dtype == np.float32
-    assert meta["spp"] == 3 and meta["seed"] == "9" and meta["backend"] == "numba"
+    assert meta["spp"] == 3 and meta["seed"] == "9" and meta["backend"] == "opencl"
     assert meta["partial"] == 0 and float(meta["render_time_s"]) > 0
     assert "technique.free_flight" in meta and "scale = 1.0" in meta["scene_toml"]
     # Pure absorber, homogeneous: every pixel is exactly 0.5 exp(-tau) along its ray.

@@ -68,3 +68,12 @@ def test_png_written(tmp_path):
 
 def test_rmse():
     assert rmse(np.ones((2, 2, 3)), np.zeros((2, 2, 3))) == 1.0
+
+
+def test_batch_schedule_is_fixed_and_complete():
+    from volmc.render import BATCH_SAMPLES, batch_schedule
+    s = batch_schedule(100, 1000)
+    assert sum(s) == 1000 and s[:4] == [1, 2, 4, 8]
+    assert max(s) <= BATCH_SAMPLES // 100
+    assert batch_schedule(10**6, 5) == [1, 1, 1, 1, 1]
+    assert batch_schedule(100, 1000) == s      # depends on nothing but its arguments

@@ -94,6 +94,30 @@ def build_parser():
 
     sub.add_parser("info", help="list OpenCL platforms and devices and the kernel cache")
 
+    b = sub.add_parser("bench", help="benchmarks (speed of backends, builds, work-group sizes)")
+    bsub = b.add_subparsers(dest="bench", required=True, parser_class=_Parser)
+    for name, helptext in (
+            ("render", "samples/s of each backend on a scene (same paths on both)"),
+            ("specialise", "samples/s of the scene-specialised build vs every feature on"),
+            ("workgroup", "samples/s of the OpenCL kernel per work-group size")):
+        bb = bsub.add_parser(name, help=helptext)
+        bb.add_argument("scenes", nargs="*", help="scene files (default: the cloud scene"
+                        + (" and scenes/homogeneous.toml)" if name == "specialise" else ")"))
+        bb.add_argument("--spp", type=_positive_int, default=4,
+                        help="samples per pixel per timed batch (default 4)")
+        bb.add_argument("--repeats", type=_positive_int, default=3,
+                        help="timed batches per configuration; the median is reported")
+        bb.add_argument("--device", help="OpenCL device (as for render)")
+        bb.add_argument("-D", dest="defines", action="append", default=[],
+                        metavar="SECTION.KEY=VALUE", help="override a scene key (repeatable)")
+        bb.add_argument("--json", help="also write the figures to this JSON file")
+        if name == "render":
+            bb.add_argument("--backends", default="opencl,numba",
+                            help="comma-separated backends (default opencl,numba)")
+        if name == "workgroup":
+            bb.add_argument("--sizes", default="driver,1,2,4,8,16,32,64",
+                            help="comma-separated work-group sizes ('driver' = driver's choice)")
+
     c = sub.add_parser("convert", help="convert a density grid between .npy, .npz and .vol")
     c.add_argument("input")
     c.add_argument("output")
@@ -200,6 +224,51 @@ def _rgb(v):
     return "(" + ", ".join(f"{x:.5g}" for x in v) + ")"
 
 
+def cmd_bench(args):
+    from .bench import render as rb
+    from .render import BACKENDS
+    from .resources import default_scene, scenes_dir
+    from .scene import load_scene
+    paths = args.scenes or ([str(default_scene())] + ([str(scenes_dir() / "homogeneous.toml")]
+                                                       if args.bench == "specialise" else []))
+    if args.json:
+        _check_writable(args.json, "--json")
+    report = {}
+    for path in paths:
+        scene = load_scene(path, args.defines)
+        w, h = scene.camera.resolution
+        print(f"{path}: {w}x{h}, {args.spp} spp per batch, {args.repeats} repeats", flush=True)
+        if args.bench == "render":
+            names = [x.strip() for x in args.backends.split(",")]
+            if any(n not in BACKENDS for n in names):
+                raise SceneError("command line", "--backends",
+                                 f"unknown backend in {args.backends!r} (have "
+                                 f"{', '.join(BACKENDS)})")
+            res = rb.bench_backends(scene, names, args.spp, args.repeats, args.device)
+            rb.print_table("samples per second:", res, baseline=names[-1])
+        elif args.bench == "specialise":
+            res = rb.bench_specialisation(scene, args.spp, args.repeats, args.device)
+            rb.print_table("samples per second:", res, baseline="all features")
+        else:
+            sizes = []
+            for x in args.sizes.split(","):
+                x = x.strip()
+                if x == "driver":
+                    sizes.append(None)
+                elif x.isdigit() and int(x) > 0:
+                    sizes.append(int(x))
+                else:
+                    raise SceneError("command line", "--sizes", f"not a work-group size: {x!r}")
+            res = rb.bench_workgroup(scene, sizes, args.spp, args.repeats, args.device)
+            rb.print_table("samples per second:", res,
+                           baseline="driver" if None in sizes else None)
+        report[path] = res
+    if args.json:
+        rb.write_json(args.json, {"benchmark": args.bench, "spp": args.spp,
+                                  "repeats": args.repeats, "results": report})
+    return 0
+
+
 def cmd_info(args):
     from .cl.build import cache_dir
     from .cl.device import ENV_VAR, describe, list_devices, select_device
@@ -251,6 +320,8 @@ def main(argv=None):
             return cmd_check(args)
         if args.command == "info":
             return cmd_info(args)
+        if args.command == "bench":
+            return cmd_bench(args)
     except SceneError as e:
         print(f"volmc: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -1,8 +1,10 @@
 """Render driver: batches of samples, progress bar, Ctrl-C, statistics.
 
-Samples are indexed globally (sample s of pixel p always uses the same random numbers), so
-an image does not depend on how it was split into batches. Batches grow until one takes
-about ``BATCH_SECONDS`` so the progress bar moves and Ctrl-C is honoured between batches.
+Samples are indexed globally (sample s of pixel p always uses the same random numbers).
+Batch sizes follow a fixed schedule that depends only on the image size (1, 2, 4, ...
+samples per pixel, up to about BATCH_SAMPLES samples per batch), never on timing, so the
+floating-point summation order, and therefore the image, is bit-for-bit reproducible. The
+progress bar moves and Ctrl-C is honoured between batches.
 """
 
 import signal
@@ -15,8 +17,21 @@ import numpy as np
 from .film import Film
 from .params import COUNTER_NAMES
 
-#: Target wall time of one batch (seconds): short enough for a responsive Ctrl-C.
-BATCH_SECONDS = 0.5
+#: Samples (pixels x samples per pixel) per batch once the schedule has ramped up: about a
+#: second of work at the default scene's speed, so Ctrl-C answers within about a second.
+BATCH_SAMPLES = 1 << 16
+
+
+def batch_schedule(n_pixels, spp):
+    """Samples per pixel of each batch: 1, 2, 4, ... up to BATCH_SAMPLES / n_pixels."""
+    cap = max(1, BATCH_SAMPLES // max(n_pixels, 1))
+    out, size, done = [], 1, 0
+    while done < spp:
+        n = min(size, cap, spp - done)
+        out.append(n)
+        done += n
+        size *= 2
+    return out
 
 BACKENDS = ("opencl", "numba")
 
@@ -105,8 +120,7 @@ class _StopFlag:
         return False
 
 
-def render(scene, backend="numba", spp=None, progress=None, batch_seconds=BATCH_SECONDS,
-           on_start=None):
+def render(scene, backend="opencl", spp=None, progress=None, on_start=None):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
@@ -123,21 +137,17 @@ def render(scene, backend="numba", spp=None, progress=None, batch_seconds=BATCH_
         progress = sys.stderr.isatty()
     bar = tqdm(total=spp, unit="spp", disable=not progress, leave=False, file=sys.stderr)
     elapsed = 0.0
-    batch = 1
     with _StopFlag() as flag:
         if on_start is not None:
             on_start()
-        while film.spp < spp and not flag.stop:
-            n = min(batch, spp - film.spp)
+        for n in batch_schedule(w * h, spp):
+            if flag.stop:
+                break
             t = time.perf_counter()
             be.render(film.spp, n, film)
-            dt = time.perf_counter() - t
-            elapsed += dt
+            elapsed += time.perf_counter() - t
             film.spp += n
             bar.update(n)
-            # Grow (or shrink) the batch towards the target time per batch.
-            per = dt / n
-            batch = int(max(1, min(4 * n, batch_seconds / max(per, 1e-9))))
         stopped = flag.stop and film.spp < spp
     bar.close()
     totals = be.counter_totals()

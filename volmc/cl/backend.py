@@ -36,6 +36,8 @@ class OpenCLBackend:
         self.options = define_flags(self.features) + list(options)
         self.local_size = local_size
         params, lights, grid = pack_scene(scene, np.float32)
+        if grid.size >= 2**31:
+            raise ValueError(f"grid of {grid.size} voxels exceeds the kernels' 2^31 limit")
         self.params = params
         w, h = scene.camera.resolution
         self.n_pix = w * h

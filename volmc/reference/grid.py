@@ -10,8 +10,6 @@ Convention (SCENE_FORMAT.md; shared with ``kernels/grid.h``):
   so a point rounding to just outside reads the edge value instead of out-of-bounds memory.
 """
 
-import math
-
 from numba import njit
 
 
@@ -20,7 +18,7 @@ def _axis(p, bmin, inv_extent, n):
     """Lower voxel index and weight of the upper neighbour along one axis."""
     x = (p - bmin) * inv_extent * n - 0.5
     x = min(max(x, 0.0), n - 1.0)
-    i0 = min(int(math.floor(x)), n - 1)
+    i0 = min(int(x), n - 1)  # x >= 0 after the clamp: truncation is floor
     f = x - i0
     i1 = min(i0 + 1, n - 1)
     return i0, i1, f

@@ -54,9 +54,10 @@ def free_flight_delta(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, co
     with probability mu(x) / mbar. Unbiased for mbar >= mu. Returns (event, t)."""
     if mbar <= 0.0:
         return EVENT_ESCAPE, t1
+    inv_mbar = 1.0 / mbar
     t = t0
     for _ in range(max_steps):
-        t -= math.log1p(-rng_next(rng)) / mbar
+        t -= math.log1p(-rng_next(rng)) * inv_mbar
         if t >= t1:
             return EVENT_ESCAPE, t1
         mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, mbar)
@@ -79,14 +80,15 @@ def transmittance_ratio(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, 
     = mbar (t1 - t0). Returns the estimate of T."""
     if mbar <= 0.0:
         return 1.0
+    inv_mbar = 1.0 / mbar
     T = 1.0
     t = t0
     for _ in range(max_steps):
-        t -= math.log1p(-rng_next(rng)) / mbar
+        t -= math.log1p(-rng_next(rng)) * inv_mbar
         if t >= t1:
             return T
         mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, mbar)
-        T *= 1.0 - mu / mbar
+        T *= 1.0 - mu * inv_mbar
     counters[C_CAPPED] += 1
     return T
 
