@@ -66,7 +66,8 @@ inline float transmittance_ratio(global const float *grid, int3 dims, float3 bmi
         t -= log1p(-rng_next(rng)) * inv_mbar;
         if (t >= t1) return T;
         float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, mbar);
-        T *= 1.0f - mu * inv_mbar;
+        /* Division, not * inv_mbar: mu <= mbar then gives a weight >= 0 exactly. */
+        T *= 1.0f - mu / mbar;
     }
     counters[C_CAPPED] += 1;
     return T;

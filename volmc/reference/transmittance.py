@@ -88,7 +88,7 @@ def transmittance_ratio(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, 
         if t >= t1:
             return T
         mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, mbar)
-        T *= 1.0 - mu * inv_mbar
+        T *= 1.0 - mu / mbar  # division: mu <= mbar gives a weight >= 0 exactly
     counters[C_CAPPED] += 1
     return T
 
