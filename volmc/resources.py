@@ -1,18 +1,22 @@
 """Where the bundled kernels and scenes are, for source checkouts and installed wheels alike."""
 
-import importlib.resources
 from pathlib import Path
 
-_REPO_ROOT = Path(__file__).resolve().parent.parent
+_PACKAGE = Path(__file__).resolve().parent
+_REPO_ROOT = _PACKAGE.parent
 
 
 def _package_dir(package, repo_dir):
-    # In a checkout (or an editable install) the folders sit at the repository root; a
-    # wheel installs them as the packages volmc.kernels / volmc.scenes.
+    # A wheel installs the folders inside the package (volmc/kernels, volmc/scenes); in a
+    # checkout (or an editable install) they sit at the repository root.
+    installed = _PACKAGE / repo_dir
+    if installed.is_dir():
+        return installed
     local = _REPO_ROOT / repo_dir
     if local.is_dir() and (_REPO_ROOT / "pyproject.toml").is_file():
         return local
-    return Path(str(importlib.resources.files(package)))
+    raise FileNotFoundError(f"volmc's {repo_dir}/ folder is missing (looked in {installed} "
+                            f"and {local}); reinstall volmc")
 
 
 def scenes_dir() -> Path:

@@ -10,7 +10,7 @@ from .build import assemble, build_program
 from .device import select_device
 
 #: Work-group size of the render kernel (None lets the driver choose). On PoCL, 1 is about
-#: 1.5x faster than the driver default for these divergent loops (`volmc bench workgroup`).
+#: 1.2x faster than the driver default for these divergent loops (`volmc bench workgroup`).
 DEFAULT_LOCAL_SIZE = 1
 
 
