@@ -8,6 +8,7 @@ Ctrl-C during a render writes what was accumulated (marked partial) and exits 13
 import argparse
 import os
 import sys
+import time
 
 from .scene.errors import SceneError
 
@@ -96,6 +97,19 @@ def build_parser():
 
     b = sub.add_parser("bench", help="benchmarks (speed of backends, builds, work-group sizes)")
     bsub = b.add_subparsers(dest="bench", required=True, parser_class=_Parser)
+    bt = bsub.add_parser("transmittance", help="every transmittance estimator on 1-D profiles and "
+                                               "grid rays: error against cost")
+    bt.add_argument("scenes", nargs="*", help="grid scenes for ray cases (default: the cloud "
+                                              "and the white furnace)")
+    bt.add_argument("--estimators", help="comma-separated subset (default: all)")
+    bt.add_argument("--quick", action="store_true", help="a small sweep (seconds, for tests)")
+    bt.add_argument("--rays", type=_positive_int, default=512,
+                    help="camera rays and shadow rays per grid scene (default 512 each)")
+    bt.add_argument("--json", help="write the full report to this JSON file")
+    bt.add_argument("--figures", help="write PNG figures into this directory")
+    bt.add_argument("--device", help="OpenCL device (as for render)")
+    bt.add_argument("-D", dest="defines", action="append", default=[],
+                    metavar="SECTION.KEY=VALUE", help="override a key of every scene")
     for name, helptext in (
             ("render", "samples/s of each backend on a scene (same paths on both)"),
             ("specialise", "samples/s of the scene-specialised build vs every feature on"),
@@ -224,7 +238,49 @@ def _rgb(v):
     return "(" + ", ".join(f"{x:.5g}" for x in v) + ")"
 
 
+def cmd_bench_transmittance(args):
+    from .bench import transmittance as bt
+    from .bench.transmittance_runner import ESTIMATORS
+    from .resources import default_scene, scenes_dir
+    from .scene import load_scene
+    names = list(ESTIMATORS)
+    if args.estimators:
+        names = [x.strip() for x in args.estimators.split(",")]
+        bad = [n for n in names if n not in ESTIMATORS]
+        if bad:
+            raise SceneError("command line", "--estimators",
+                             f"unknown estimator {bad[0]!r} (have {', '.join(ESTIMATORS)})")
+    for path in (args.json,):
+        if path:
+            _check_writable(path, "--json")
+    if args.figures and not os.path.isdir(args.figures):
+        raise SceneError("command line", "--figures", f"not a directory: {args.figures}")
+    paths = args.scenes or [str(default_scene()), str(scenes_dir() / "tests" /
+                                                       "white_furnace.toml")]
+    scenes = []
+    for p in paths:
+        s = load_scene(p, args.defines)
+        if s.grid is None:
+            raise SceneError(p, "medium.density", "the transmittance benchmark needs a grid")
+        scenes.append(s)
+    t = time.perf_counter()
+    report = bt.run(names, scenes, n_rays=args.rays, quick=args.quick, device=args.device)
+    report["seconds"] = time.perf_counter() - t
+    bt.print_report(report)
+    if args.json:
+        bt.write_json(args.json, report)
+    if args.figures:
+        from .bench import plots
+        plots.heatmaps(report, os.path.join(args.figures, "estimators_heatmap.png"))
+        plots.convergence_plots(report, os.path.join(args.figures, "estimators_variance_cost.png"),
+                                os.path.join(args.figures, "estimators_error_time.png"))
+    print(f"\nvolmc bench transmittance: {report['seconds']:.0f} s", file=sys.stderr)
+    return 0
+
+
 def cmd_bench(args):
+    if args.bench == "transmittance":
+        return cmd_bench_transmittance(args)
     from .bench import render as rb
     from .render import BACKENDS
     from .resources import default_scene, scenes_dir

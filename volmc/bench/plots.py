@@ -1,0 +1,86 @@
+"""Figures of `volmc bench transmittance` (matplotlib, written as PNG)."""
+
+import math
+import os
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def heatmaps(report, path):
+    """Per estimator: log10 of 1/(variance x lookups) over target T x majorant tightness,
+    geometric mean over the 1-D profiles (zero-variance cases shown at the colour maximum)."""
+    plt = _plt()
+    names = [n for n in report["estimators"] if n != "analytic"]
+    Ts = sorted({r["target_T"] for r in report["profiles"]})
+    ks = sorted({r["tightness"] for r in report["profiles"]})
+    grids = {}
+    for n in names:
+        acc = np.zeros((len(ks), len(Ts)))
+        cnt = np.zeros_like(acc)
+        for r in report["profiles"]:
+            if n not in r["results"]:
+                continue
+            e = r["results"][n]["eff_var_lookups"]
+            e = 1e12 if not math.isfinite(e) else e
+            i, j = ks.index(r["tightness"]), Ts.index(r["target_T"])
+            acc[i, j] += math.log10(max(e, 1e-12))
+            cnt[i, j] += 1
+        grids[n] = acc / np.maximum(cnt, 1)
+    vmin = min(g.min() for g in grids.values())
+    vmax = min(max(g.max() for g in grids.values()), vmin + 8)
+    cols = 4
+    rows = -(-len(names) // cols)
+    fig, axs = plt.subplots(rows, cols, figsize=(3.4 * cols, 3.0 * rows), squeeze=False)
+    for ax, n in zip(axs.ravel(), names):
+        im = ax.imshow(grids[n], origin="lower", vmin=vmin, vmax=vmax, cmap="viridis",
+                       aspect="auto")
+        ax.set_xticks(range(len(Ts)), [f"{t:g}" for t in Ts], fontsize=7)
+        ax.set_yticks(range(len(ks)), [f"{k:g}" for k in ks], fontsize=7)
+        ax.set_title(n + ("" if report["unbiased"][n] else " (biased)"), fontsize=9)
+        ax.set_xlabel("target transmittance", fontsize=8)
+        ax.set_ylabel("mean mu / majorant", fontsize=8)
+    for ax in axs.ravel()[len(names):]:
+        ax.axis("off")
+    fig.colorbar(im, ax=axs.ravel().tolist(), label="log10 1 / (variance x lookups)")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def convergence_plots(report, path_cost, path_time):
+    """Variance of the mean against lookups, and RMSE against time, for each grid-ray case,
+    with the 1/N (variance) and 1/sqrt(t) (RMSE) reference slopes."""
+    plt = _plt()
+    rows = report["grids"]
+    if not rows:
+        return
+    for path, xkey, ykey, slope, xlabel, ylabel in (
+            (path_cost, "lookups", "variance", -1.0, "density lookups per estimate",
+             "variance of the mean"),
+            (path_time, "seconds", "rmse", -0.5, "OpenCL time per estimate (s)", "RMSE")):
+        fig, axs = plt.subplots(1, len(rows), figsize=(5 * len(rows), 4), squeeze=False)
+        for ax, row in zip(axs[0], rows):
+            for n, r in row["results"].items():
+                pts = [c for c in r["convergence"] if c[ykey] == c[ykey] and c[ykey] > 0]
+                if not pts:
+                    continue
+                x = [c[xkey] for c in pts]
+                y = [c[ykey] for c in pts]
+                ax.loglog(x, y, "o-" if report["unbiased"][n] else "x--", ms=3, label=n)
+            xs = np.array(ax.get_xlim())
+            y0 = ax.get_ylim()[1] * 0.5
+            ax.loglog(xs, y0 * (xs / xs[0]) ** slope, "k:", lw=1,
+                      label="1/N" if slope == -1 else "1/sqrt(t)")
+            ax.set_title(f"{os.path.basename(row['scene'])}: {row['rays']}", fontsize=9)
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel(ylabel)
+            ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
