@@ -9,6 +9,14 @@
 #define EST_ARGS global const float *med, global const float *grid, int3 dims, float3 o, \
     float3 d, float t0, float t1, float mbar, float mu_c, Rng *rng, ulong *counters, int max_steps
 
+/* extinction() that also counts lookups above the majorant. */
+inline float lookup(global const float *med, global const float *grid, int3 dims, float3 o,
+                    float3 d, float t, ulong *counters, float mbar) {
+    float mu = extinction(med, grid, dims, o, d, t, counters);
+    if (mu > mbar) counters[C_OVER_MAJORANT] += 1;
+    return mu;
+}
+
 inline float transmittance_analytic(EST_ARGS) {
     return exp(-mbar * fmax(t1 - t0, 0.0f));
 }
@@ -20,7 +28,7 @@ inline float transmittance_track_length(EST_ARGS) {
     for (int i = 0; i < max_steps; ++i) {
         t -= log1p(-rng_next(rng)) * inv;
         if (t >= t1) return 1.0f;
-        if (rng_next(rng) * mbar < extinction(med, grid, dims, o, d, t, counters)) return 0.0f;
+        if (rng_next(rng) * mbar < lookup(med, grid, dims, o, d, t, counters, mbar)) return 0.0f;
     }
     counters[C_CAPPED] += 1;
     return 0.0f;
@@ -34,7 +42,7 @@ inline float transmittance_ratio_tracking(EST_ARGS) {
     for (int i = 0; i < max_steps; ++i) {
         t -= log1p(-rng_next(rng)) * inv;
         if (t >= t1) return T;
-        T *= 1.0f - extinction(med, grid, dims, o, d, t, counters) / mbar;
+        T *= 1.0f - lookup(med, grid, dims, o, d, t, counters, mbar) / mbar;
     }
     counters[C_CAPPED] += 1;
     return T;
@@ -51,7 +59,7 @@ inline float transmittance_residual_ratio(EST_ARGS) {
     for (int i = 0; i < max_steps; ++i) {
         t -= log1p(-rng_next(rng)) * inv;
         if (t >= t1) return T;
-        T *= 1.0f - (extinction(med, grid, dims, o, d, t, counters) - mu_c) / mr;
+        T *= 1.0f - (lookup(med, grid, dims, o, d, t, counters, mbar) - mu_c) / mr;
     }
     counters[C_CAPPED] += 1;
     return T;
@@ -66,7 +74,7 @@ inline float transmittance_next_flight(EST_ARGS) {
     for (int i = 0; i < max_steps; ++i) {
         t -= log1p(-rng_next(rng)) * inv;
         if (t >= t1) return T;
-        w *= 1.0f - extinction(med, grid, dims, o, d, t, counters) / mbar;
+        w *= 1.0f - lookup(med, grid, dims, o, d, t, counters, mbar) / mbar;
         T += w * exp(-mbar * (t1 - t));
     }
     counters[C_CAPPED] += 1;
@@ -83,8 +91,8 @@ inline float transmittance_biased_raymarch(EST_ARGS, float samples_per_mfp) {
     float dt = L / (float)n;
     float u = rng_next(rng);
     float tau = 0.0f;
-    for (int j = 0; j < n; ++j) tau += extinction(med, grid, dims, o, d, t0 + ((float)j + u) * dt,
-                                                  counters);
+    for (int j = 0; j < n; ++j) tau += lookup(med, grid, dims, o, d, t0 + ((float)j + u) * dt,
+                                              counters, mbar);
     return exp(-tau * dt);
 }
 

@@ -22,6 +22,15 @@
 #include "phase.h"
 #include "grid.h"
 #include "transmittance.h"
+#include "estimators.h"
+
+/* The shadow-ray estimator of grids (render.transmittance), chosen at build time. */
+#ifndef SHADOW_ESTIMATOR
+#define SHADOW_ESTIMATOR transmittance_ratio_tracking
+#endif
+#ifndef SHADOW_ESTIMATOR_EXTRA
+#define SHADOW_ESTIMATOR_EXTRA
+#endif
 
 #define RR_MAX_SURVIVAL 0.95f
 
@@ -66,8 +75,9 @@ inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, 
     return e;
 }
 
-inline float shadow_transmittance(const Params *prm, global const float *grid, int3 dims,
-                                  float3 o, float3 d, float t_max, Rng *rng_s, ulong *counters) {
+inline float shadow_transmittance(const Params *prm, global const float *med,
+                                  global const float *grid, int3 dims, float3 o, float3 d,
+                                  float t_max, Rng *rng_s, ulong *counters) {
     float3 bmin = vec3(prm->bmin), bmax = vec3(prm->bmax);
     float t1;
     float t0 = fmax(ray_box(o, d, bmin, bmax, &t1), 0.0f);
@@ -76,14 +86,15 @@ inline float shadow_transmittance(const Params *prm, global const float *grid, i
     counters[C_SHADOW] += 1;
 #ifdef FEATURE_GRID
     if (prm->has_grid)
-        return transmittance_ratio(grid, dims, bmin, vec3(prm->inv_extent), prm->scale,
-                                   prm->majorant, o, d, t0, t1, rng_s, counters, prm->max_steps);
+        return SHADOW_ESTIMATOR(med, grid, dims, o, d, t0, t1, prm->majorant, prm->minorant,
+                                rng_s, counters, prm->max_steps SHADOW_ESTIMATOR_EXTRA);
 #endif
     return transmittance_homogeneous(prm->scale * prm->density, t0, t1);
 }
 
-inline float3 trace_path(const Params *prm, global const Light *lights, global const float *grid,
-                         int3 dims, int px, int py, Rng *rng, Rng *rng_s, ulong *counters) {
+inline float3 trace_path(const Params *prm, global const Light *lights, global const float *med,
+                         global const float *grid, int3 dims, int px, int py, Rng *rng,
+                         Rng *rng_s, ulong *counters) {
     float3 bmin = vec3(prm->bmin), bmax = vec3(prm->bmax), inv_ext = vec3(prm->inv_extent);
     float3 env = vec3(prm->env);
     float3 L = (float3)(0.0f);
@@ -98,7 +109,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
     {
 #ifdef FEATURE_ENV
         if (prm->has_env)
-            return env * shadow_transmittance(prm, grid, dims, o, d, INFINITY, rng_s, counters);
+            return env * shadow_transmittance(prm, med, grid, dims, o, d, INFINITY, rng_s, counters);
 #endif
         return L;
     }
@@ -155,7 +166,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
             wl = -vec3g(lights[i].vec);
 #endif
             float f = phase_eval(prm->phase_kind, prm->g, dot(d, wl)) * falloff;
-            float tr = shadow_transmittance(prm, grid, dims, p, wl, dist, rng_s, counters);
+            float tr = shadow_transmittance(prm, med, grid, dims, p, wl, dist, rng_s, counters);
             L += beta * (f * tr) * vec3g(lights[i].color);
         }
 #endif
@@ -166,7 +177,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
             float pdf_l;
             float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
             float f = phase_eval(prm->phase_kind, prm->g, dot(d, wl));
-            float tr = shadow_transmittance(prm, grid, dims, p, wl, INFINITY, rng_s, counters);
+            float tr = shadow_transmittance(prm, med, grid, dims, p, wl, INFINITY, rng_s, counters);
             L += beta * (f * tr / (pdf_l + f)) * env;
         }
 #endif
@@ -191,8 +202,9 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
  * batch keeps the variance accurate even when it is tiny next to the mean); the host turns
  * them into float64 sums. A NaN, infinite or negative sample counts as 0 and is counted
  * as dropped, exactly as in the reference. */
-kernel void render_batch(const Params prm, global const Light *lights, global const float *grid,
-                         int3 dims, uint sample_start, uint n_samples, global float *out_mean,
+kernel void render_batch(const Params prm, global const Light *lights, global const float *med,
+                         global const float *grid, int3 dims, uint sample_start,
+                         uint n_samples, global float *out_mean,
                          global float *out_m2, global ulong *counters_out) {
     int pix = get_global_id(0);
     if (pix >= prm.width * prm.height) return;
@@ -206,7 +218,7 @@ kernel void render_batch(const Params prm, global const Light *lights, global co
     for (uint i = 0; i < n_samples; ++i) {
         rng_init(&rng, seed, (uint)pix, sample_start + i, STREAM_PATH);
         rng_init(&rng_s, seed, (uint)pix, sample_start + i, STREAM_SHADOW);
-        float3 c = trace_path(&prm, lights, grid, dims, px, py, &rng, &rng_s, cnt);
+        float3 c = trace_path(&prm, lights, med, grid, dims, px, py, &rng, &rng_s, cnt);
         if (!(isfinite(c.x) && isfinite(c.y) && isfinite(c.z)) || c.x < 0.0f || c.y < 0.0f ||
             c.z < 0.0f) {
             cnt[C_DROPPED] += 1;

@@ -7,6 +7,7 @@
 #include "phase.h"
 #include "grid.h"
 #include "transmittance.h"
+#include "estimators.h"
 
 kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out) {
     int i = get_global_id(0);
@@ -74,8 +75,9 @@ kernel void t_grid_lookup(global const float *grid, int3 dims, float3 bmin, floa
 
 /* kind: 0 ratio tracking, 1 track length, 2 delta-tracking free flight (writes t or -1).
  * One work item per estimate; ray r = i / n_per_ray uses sample index i % n_per_ray. */
-kernel void t_tracking(int kind, global const float *grid, int3 dims, float3 bmin,
-                       float3 inv_extent, float scale, float mbar, global const float *rays,
+kernel void t_tracking(int kind, global const float *med, global const float *grid, int3 dims,
+                       float3 bmin, float3 inv_extent, float scale, float mbar,
+                       global const float *rays,
                        int n_per_ray, ulong seed, int max_steps, global float *out,
                        global ulong *lookups) {
     int i = get_global_id(0);
@@ -87,11 +89,11 @@ kernel void t_tracking(int kind, global const float *grid, int3 dims, float3 bmi
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
     if (kind == 0) {
-        out[i] = transmittance_ratio(grid, dims, bmin, inv_extent, scale, mbar, o, d, t0, t1,
-                                     &rng, cnt, max_steps);
+        out[i] = transmittance_ratio_tracking(med, grid, dims, o, d, t0, t1, mbar, 0.0f, &rng,
+                                              cnt, max_steps);
     } else if (kind == 1) {
-        out[i] = transmittance_track_length(grid, dims, bmin, inv_extent, scale, mbar, o, d, t0,
-                                            t1, &rng, cnt, max_steps);
+        out[i] = transmittance_track_length(med, grid, dims, o, d, t0, t1, mbar, 0.0f, &rng, cnt,
+                                            max_steps);
     } else {
         float t;
         int ev = free_flight_delta(grid, dims, bmin, inv_extent, scale, mbar, o, d, t0, t1,

@@ -1,4 +1,4 @@
-/* Tracking through the medium: free-flight sampling and transmittance estimators.
+/* Tracking through the medium: free-flight sampling (transmittance estimators: estimators.h).
  * Twin of volmc/reference/transmittance.py (conventions, counters and step caps there).
  * A ray is o + t d on [t0, t1] inside the box, extinction mu = scale * density, global
  * majorant mbar. Counters are a private ulong array indexed by the C_* constants. */
@@ -53,34 +53,6 @@ inline int free_flight_delta(global const float *grid, int3 dims, float3 bmin, f
 
 inline float transmittance_homogeneous(float sigma_t, float t0, float t1) {
     return exp(-sigma_t * fmax(t1 - t0, 0.0f));
-}
-
-inline float transmittance_ratio(global const float *grid, int3 dims, float3 bmin,
-                                 float3 inv_extent, float scale, float mbar, float3 o, float3 d,
-                                 float t0, float t1, Rng *rng, ulong *counters, int max_steps) {
-    if (mbar <= 0.0f) return 1.0f;
-    float inv_mbar = 1.0f / mbar;
-    float T = 1.0f;
-    float t = t0;
-    for (int i = 0; i < max_steps; ++i) {
-        t -= log1p(-rng_next(rng)) * inv_mbar;
-        if (t >= t1) return T;
-        float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, mbar);
-        /* Division, not * inv_mbar: mu <= mbar then gives a weight >= 0 exactly. */
-        T *= 1.0f - mu / mbar;
-    }
-    counters[C_CAPPED] += 1;
-    return T;
-}
-
-inline float transmittance_track_length(global const float *grid, int3 dims, float3 bmin,
-                                        float3 inv_extent, float scale, float mbar, float3 o,
-                                        float3 d, float t0, float t1, Rng *rng, ulong *counters,
-                                        int max_steps) {
-    float t;
-    int ev = free_flight_delta(grid, dims, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng,
-                               counters, max_steps, &t);
-    return ev == EVENT_ESCAPE ? 1.0f : 0.0f;
 }
 
 #endif

@@ -15,8 +15,9 @@ from volmc.reference.phase import hg_eval, hg_sample, hg_sample_cos
 from volmc.reference.rng import STREAM_TEST, philox4x32_10, rng_new, uniforms
 from volmc.reference.sampling import (coordinate_system, sample_exponential,
                                       sample_uniform_sphere)
-from volmc.reference.transmittance import (EVENT_SCATTER, free_flight_delta,
-                                           transmittance_ratio, transmittance_track_length)
+from volmc.reference.estimators import transmittance_ratio_tracking, transmittance_track_length
+from volmc.reference.extinction import make_grid_medium
+from volmc.reference.transmittance import EVENT_SCATTER, free_flight_delta
 
 EDGE_U = np.array([0.0, 2.0**-24, 0.25, 0.5, 0.75, 1 - 2.0**-24], np.float64)
 
@@ -146,7 +147,7 @@ def test_grid_lookup_including_faces():
 
 
 @njit(cache=True)
-def _ref_tracking(kind, grid, scale, mbar, rays, n_per_ray, seed, max_steps):
+def _ref_tracking(kind, med, grid, scale, mbar, rays, n_per_ray, seed, max_steps):
     n = rays.shape[0] * n_per_ray
     out = np.empty(n)
     lookups = np.empty(n, np.int64)
@@ -158,11 +159,11 @@ def _ref_tracking(kind, grid, scale, mbar, rays, n_per_ray, seed, max_steps):
         rng = rng_new(seed, r, i % n_per_ray, STREAM_TEST)
         cnt = np.zeros(N_COUNTERS, np.int64)
         if kind == 0:
-            out[i] = transmittance_ratio(grid, BMIN, INV_EXT, scale, mbar, o, d, t0, t1, rng, cnt,
-                                         max_steps)
+            out[i] = transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, 0.0, rng, cnt,
+                                                  max_steps)
         elif kind == 1:
-            out[i] = transmittance_track_length(grid, BMIN, INV_EXT, scale, mbar, o, d, t0, t1,
-                                                rng, cnt, max_steps)
+            out[i] = transmittance_track_length(med, grid, o, d, t0, t1, mbar, 0.0, rng, cnt,
+                                                max_steps)
         else:
             ev, t = free_flight_delta(grid, BMIN, INV_EXT, scale, mbar, o, d, t0, t1, rng, cnt,
                                       max_steps)
@@ -198,10 +199,12 @@ def test_tracking_per_ray_and_in_mean(kind):
     n = len(rays) * n_per
     out, ob = out_buf(n)
     lk, lb = out_buf(n, np.uint64)
-    run("t_tracking", n, np.int32(kind), to_dev(grid), i3((7, 6, 5)), f3(BMIN), f3(INV_EXT),
+    med = make_grid_medium(BMIN, BMAX, scale)
+    run("t_tracking", n, np.int32(kind), to_dev(med.astype(np.float32)), to_dev(grid),
+        i3((7, 6, 5)), f3(BMIN), f3(INV_EXT),
         np.float32(scale), np.float32(mbar), to_dev(rays.astype(np.float32).ravel()),
         np.int32(n_per), np.uint64(11), np.int32(1_000_000), ob, lb, outs=[(out, ob), (lk, lb)])
-    ref, ref_lk = _ref_tracking(kind, grid.astype(np.float64), scale, mbar, rays, n_per, 11,
+    ref, ref_lk = _ref_tracking(kind, med, grid.astype(np.float64), scale, mbar, rays, n_per, 11,
                                 1_000_000)
     close = np.isclose(out, ref, rtol=1e-3, atol=1e-5) & (lk.astype(np.int64) == ref_lk)
     assert close.mean() > 0.995, close.mean()

@@ -165,6 +165,7 @@ BAD = [
     ("negative-radiance", lambda r: r["lights"][0].update(radiance=-1), "lights[0].radiance", "[0,"),
     ("lights-not-array", lambda r: r.update(lights={"type": "environment"}), "lights", "array of tables"),
     ("max-depth-below", lambda r: r["render"].update(max_depth=-2), "render.max_depth", ">= -1"),
+    ("unknown-estimator", lambda r: r["render"].update(transmittance="magic"), "render.transmittance", "must be one of"),
 ]
 
 

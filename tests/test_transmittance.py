@@ -11,8 +11,9 @@ from volmc.params import C_CAPPED, C_LOOKUPS, N_COUNTERS
 from volmc.reference.grid import grid_lookup
 from volmc.reference.optical_depth import optical_depth_exact
 from volmc.reference.rng import STREAM_TEST, rng_new
-from volmc.reference.transmittance import (EVENT_ESCAPE, EVENT_SCATTER, free_flight_delta,
-                                           transmittance_ratio, transmittance_track_length)
+from volmc.reference.estimators import transmittance_ratio_tracking, transmittance_track_length
+from volmc.reference.extinction import make_grid_medium
+from volmc.reference.transmittance import EVENT_SCATTER, free_flight_delta
 
 BMIN = (-1.0, -0.5, -2.0)
 BMAX = (1.0, 1.5, 0.0)
@@ -21,18 +22,23 @@ MAX_STEPS = 1_000_000
 
 
 @njit(cache=True)
-def _estimates(kind, grid, scale, mbar, o, d, t0, t1, n, seed):
+def _estimates_med(kind, med, grid, mbar, o, d, t0, t1, n, seed):
     out = np.empty(n)
     counters = np.zeros(N_COUNTERS, np.int64)
     for i in range(n):
         rng = rng_new(seed, 0, i, STREAM_TEST)
         if kind == 0:
-            out[i] = transmittance_ratio(grid, BMIN, INV_EXT, scale, mbar, o, d, t0, t1, rng,
-                                         counters, MAX_STEPS)
+            out[i] = transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, 0.0, rng,
+                                                  counters, MAX_STEPS)
         else:
-            out[i] = transmittance_track_length(grid, BMIN, INV_EXT, scale, mbar, o, d, t0, t1,
-                                                rng, counters, MAX_STEPS)
+            out[i] = transmittance_track_length(med, grid, o, d, t0, t1, mbar, 0.0, rng,
+                                                counters, MAX_STEPS)
     return out, counters
+
+
+def _estimates(kind, grid, scale, mbar, o, d, t0, t1, n, seed):
+    return _estimates_med(kind, make_grid_medium(BMIN, BMAX, scale), grid, mbar, o, d, t0, t1,
+                          n, seed)
 
 
 def _ray(rng):

@@ -7,7 +7,14 @@ import numpy as np
 from .params import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                      light_dtype, params_dtype)
 from .reference.phase import PHASE_HG, PHASE_ISOTROPIC
+from .reference import estimators as E
 from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
+
+def medium_array(params):
+    """The extinction-source array (reference/extinction.py layout) of a packed grid scene."""
+    from .reference.extinction import make_grid_medium
+    p = params[0]
+    return make_grid_medium(tuple(p["bmin"]), tuple(p["bmax"]), float(p["scale"]))
 
 
 def _normalize(v):
@@ -60,6 +67,7 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
         grid = np.ascontiguousarray(scene.grid, dtype=real)
         # Trilinear interpolation never exceeds the largest voxel: a true global bound.
         p["majorant"] = med.scale * float(scene.grid.max())
+        p["minorant"] = med.scale * float(scene.grid.min())
         p["density"] = 0.0
     p["albedo"] = med.albedo
     p["phase_kind"] = PHASE_HG if med.phase.type == "hg" else PHASE_ISOTROPIC
@@ -82,6 +90,7 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["max_depth"] = rnd.max_depth
     p["rr_depth"] = rnd.rr_depth
     p["max_steps"] = rnd.max_steps
+    p["shadow_estimator"] = E.ESTIMATORS[rnd.transmittance][0]
     seed = rnd.seed if spp_seed is None else spp_seed
     p["seed_lo"] = seed & 0xFFFFFFFF
     p["seed_hi"] = seed >> 32

@@ -34,6 +34,8 @@ PARAM_FIELDS = (
     ("density", "real", 1, "homogeneous density (unused with a grid)"),
     ("scale", "real", 1, "extinction = scale * density, 1/world unit"),
     ("majorant", "real", 1, "global extinction majorant (scale * max density)"),
+    ("minorant", "real", 1, "global extinction minorant (scale * min density), the control"),
+    ("shadow_estimator", "i4", 1, "transmittance estimator id of shadow rays in grids"),
     ("albedo", "real", 3, "single-scattering albedo per channel"),
     ("phase_kind", "i4", 1, "PHASE_ISOTROPIC or PHASE_HG"),
     ("g", "real", 1, "Henyey-Greenstein asymmetry"),

@@ -5,15 +5,7 @@ import numpy as np
 from ..params import N_COUNTERS
 from ..reference import estimators as E
 
-#: name -> (estimate_batch id, kernel function name, unbiased?, needs a homogeneous segment?)
-ESTIMATORS = {
-    "analytic": (E.EST_ANALYTIC, "transmittance_analytic", True, True),
-    "track_length": (E.EST_TRACK_LENGTH, "transmittance_track_length", True, False),
-    "ratio": (E.EST_RATIO, "transmittance_ratio_tracking", True, False),
-    "residual_ratio": (E.EST_RESIDUAL_RATIO, "transmittance_residual_ratio", True, False),
-    "next_flight": (E.EST_NEXT_FLIGHT, "transmittance_next_flight", True, False),
-    "biased_raymarch": (E.EST_BIASED_RAYMARCH, "transmittance_biased_raymarch", False, False),
-}
+ESTIMATORS = E.ESTIMATORS
 
 MAX_STEPS = 1_000_000
 

@@ -3,7 +3,7 @@ in batches (same interface as the Numba backend)."""
 
 import numpy as np
 
-from ..pack import pack_scene
+from ..pack import medium_array, pack_scene
 from ..params import N_COUNTERS
 from ..scene.features import define_flags, features
 from .build import assemble, build_program
@@ -33,7 +33,12 @@ class OpenCLBackend:
         if not needed <= self.features:
             raise ValueError(f"a build without {', '.join(sorted(needed - self.features))} "
                              "cannot render this scene")
-        self.options = define_flags(self.features) + list(options)
+        from ..reference.estimators import ESTIMATORS
+        est = scene.render.transmittance
+        self.options = define_flags(self.features) + [
+            f"-DSHADOW_ESTIMATOR={ESTIMATORS[est][1]}"] + list(options)
+        if est == "biased_raymarch":
+            self.options.append("-DSHADOW_ESTIMATOR_EXTRA=,1.0f")
         self.local_size = local_size
         params, lights, grid = pack_scene(scene, np.float32)
         if grid.size >= 2**31:
@@ -46,6 +51,8 @@ class OpenCLBackend:
             lights = np.zeros(1, lights.dtype)  # OpenCL buffers cannot be empty
         self.lights_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=lights)
         self.grid_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=grid)
+        med = medium_array(params).astype(np.float32)
+        self.med_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=med)
         nz, ny, nx = grid.shape
         self.dims = np.array([nx, ny, nz, 0], np.int32)
         # Batch outputs: per-pixel mean and sum of squared deviations (Welford).
@@ -77,7 +84,8 @@ class OpenCLBackend:
         """Add samples [sample_start, sample_start + n_samples) of every pixel to ``film``."""
         cl = self.cl
         gsize, lsize = self._global_size()
-        self.kernel(self.queue, gsize, lsize, self.params[0], self.lights_buf, self.grid_buf,
+        self.kernel(self.queue, gsize, lsize, self.params[0], self.lights_buf, self.med_buf,
+                    self.grid_buf,
                     self.dims, np.uint32(sample_start), np.uint32(n_samples), self.mean_buf,
                     self.m2_buf, self.cnt_buf)
         cl.enqueue_copy(self.queue, self.mean_host, self.mean_buf)

@@ -40,7 +40,8 @@ def techniques(scene):
     homogeneous = scene.grid is None
     return {
         "free_flight": "analytic" if homogeneous else "delta tracking (global majorant)",
-        "transmittance": "analytic" if homogeneous else "ratio tracking (global majorant)",
+        "transmittance": "analytic" if homogeneous else
+        f"{scene.render.transmittance} (global majorant)",
         "phase": scene.medium.phase.type,
         "nee": "all lights; environment by uniform sphere + balance-heuristic MIS",
         "russian_roulette": f"from depth {scene.render.rr_depth}, q = min(max(beta), 0.95)",

@@ -22,9 +22,18 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..params import C_CAPPED, N_COUNTERS
+from ..params import C_CAPPED, C_OVER_MAJORANT, N_COUNTERS
 from .extinction import extinction
 from .rng import STREAM_TEST, rng_new, rng_next
+
+
+@njit(cache=True, inline="always")
+def lookup(med, grid, o, d, t, counters, mbar):
+    """extinction() that also counts lookups above the majorant (a broken bound, never silent)."""
+    mu = extinction(med, grid, o, d, t, counters)
+    if mu > mbar:
+        counters[C_OVER_MAJORANT] += 1
+    return mu
 
 
 @njit(cache=True)
@@ -46,7 +55,7 @@ def transmittance_track_length(med, grid, o, d, t0, t1, mbar, mu_c, rng, counter
         t -= math.log1p(-rng_next(rng)) * inv
         if t >= t1:
             return 1.0
-        if rng_next(rng) * mbar < extinction(med, grid, o, d, t, counters):
+        if rng_next(rng) * mbar < lookup(med, grid, o, d, t, counters, mbar):
             return 0.0
     counters[C_CAPPED] += 1
     return 0.0
@@ -66,7 +75,7 @@ def transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, mu_c, rng, count
         t -= math.log1p(-rng_next(rng)) * inv
         if t >= t1:
             return T
-        T *= 1.0 - extinction(med, grid, o, d, t, counters) / mbar
+        T *= 1.0 - lookup(med, grid, o, d, t, counters, mbar) / mbar
     counters[C_CAPPED] += 1
     return T
 
@@ -90,7 +99,7 @@ def transmittance_residual_ratio(med, grid, o, d, t0, t1, mbar, mu_c, rng, count
         t -= math.log1p(-rng_next(rng)) * inv
         if t >= t1:
             return T
-        T *= 1.0 - (extinction(med, grid, o, d, t, counters) - mu_c) / mr
+        T *= 1.0 - (lookup(med, grid, o, d, t, counters, mbar) - mu_c) / mr
     counters[C_CAPPED] += 1
     return T
 
@@ -112,7 +121,7 @@ def transmittance_next_flight(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters
         t -= math.log1p(-rng_next(rng)) * inv
         if t >= t1:
             return T
-        w *= 1.0 - extinction(med, grid, o, d, t, counters) / mbar
+        w *= 1.0 - lookup(med, grid, o, d, t, counters, mbar) / mbar
         T += w * math.exp(-mbar * (t1 - t))
     counters[C_CAPPED] += 1
     return T
@@ -133,17 +142,30 @@ def transmittance_biased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, coun
     u = rng_next(rng)
     tau = 0.0
     for j in range(n):
-        tau += extinction(med, grid, o, d, t0 + (j + u) * dt, counters)
+        tau += lookup(med, grid, o, d, t0 + (j + u) * dt, counters, mbar)
     return math.exp(-tau * dt)
 
 
-#: Estimator ids of ``estimate_batch`` (see volmc.bench.transmittance_runner.ESTIMATORS).
 EST_ANALYTIC, EST_TRACK_LENGTH, EST_RATIO, EST_RESIDUAL_RATIO, EST_NEXT_FLIGHT, \
     EST_BIASED_RAYMARCH = range(6)
 
+#: The registry, written once: name -> (id, kernel function in kernels/estimators.h,
+#: unbiased?, needs a homogeneous segment?). The names are the values of render.transmittance
+#: and of `volmc bench transmittance --estimators`.
+ESTIMATORS = {
+    "analytic": (EST_ANALYTIC, "transmittance_analytic", True, True),
+    "track_length": (EST_TRACK_LENGTH, "transmittance_track_length", True, False),
+    "ratio": (EST_RATIO, "transmittance_ratio_tracking", True, False),
+    "residual_ratio": (EST_RESIDUAL_RATIO, "transmittance_residual_ratio", True, False),
+    "next_flight": (EST_NEXT_FLIGHT, "transmittance_next_flight", True, False),
+    "biased_raymarch": (EST_BIASED_RAYMARCH, "transmittance_biased_raymarch", False, False),
+}
+
 
 @njit(cache=True)
-def _estimate_one(est, med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt, max_steps, extra):
+def estimate_one(est, med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt, max_steps, extra):
+    """Run estimator ``est`` (an id of ESTIMATORS); ``extra`` is biased ray marching's
+    samples per majorant mean free path."""
     if est == EST_ANALYTIC:
         return transmittance_analytic(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt, max_steps)
     if est == EST_TRACK_LENGTH:
@@ -179,6 +201,6 @@ def estimate_batch(est, med, grid, rays, bounds, n_per_ray, seed, sample_offset,
         rng = rng_new(seed, r, sample_offset + i % n_per_ray, STREAM_TEST)
         o = (rays[r, 0], rays[r, 1], rays[r, 2])
         d = (rays[r, 3], rays[r, 4], rays[r, 5])
-        out[i] = _estimate_one(est, med[r], grid, o, d, rays[r, 6], rays[r, 7], bounds[r, 0],
+        out[i] = estimate_one(est, med[r], grid, o, d, rays[r, 6], rays[r, 7], bounds[r, 0],
                                bounds[r, 1], rng, counters[i], max_steps, extra)
     return out, counters

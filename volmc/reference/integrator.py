@@ -11,7 +11,8 @@ One sample of pixel (x, y) (y = 0 is the top row) is one path:
 4. Next-event estimation to every light: directional and point lights are delta lights
    (one shadow ray each); the environment is sampled uniformly over the sphere and
    combined with phase sampling by the balance heuristic. Shadow-ray transmittance is
-   analytic (homogeneous) or ratio tracking (grid) on its own random stream.
+   analytic (homogeneous) or, in a grid, the estimator chosen by render.transmittance
+   (ratio tracking by default; volmc/reference/estimators.py), on its own random stream.
    A medium that cannot scatter into the image (all albedos 0, or max_depth = 0) skips
    steps 2-6: the pixel is the environment times the transmittance along the camera ray.
 5. Russian roulette from ``rr_depth`` scattering events on: the path survives with
@@ -35,9 +36,10 @@ from ..params import (C_DROPPED, C_SCATTER, C_SHADOW, CAMERA_ORTHOGRAPHIC, LIGHT
 from .phase import phase_eval, phase_sample
 from .rng import RNG_STATE_SIZE, STREAM_PATH, STREAM_SHADOW, rng_init, rng_next
 from .sampling import INV_4PI, dot, normalize, sample_uniform_sphere
+from .estimators import estimate_one
+from .extinction import MED_GRID, MED_SIZE
 from .transmittance import (EVENT_CAPPED, EVENT_ESCAPE, free_flight_delta,
-                            free_flight_homogeneous, transmittance_homogeneous,
-                            transmittance_ratio)
+                            free_flight_homogeneous, transmittance_homogeneous)
 
 #: Russian roulette survival probability never exceeds this (Mitsuba's policy).
 RR_MAX_SURVIVAL = 0.95
@@ -82,8 +84,9 @@ def camera_ray(prm, px, py, u1, u2):
 
 
 @njit(cache=True, inline="always")
-def shadow_transmittance(prm, grid, o, d, t_max, rng_s, counters):
-    """Transmittance from o towards unit d up to distance t_max (inf for distant lights)."""
+def shadow_transmittance(prm, med, grid, o, d, t_max, rng_s, counters):
+    """Transmittance from o towards unit d up to distance t_max (inf for distant lights):
+    analytic in a homogeneous medium, else the estimator render.transmittance chose."""
     bmin = (prm.bmin[0], prm.bmin[1], prm.bmin[2])
     bmax = (prm.bmax[0], prm.bmax[1], prm.bmax[2])
     t0, t1 = ray_box(o, d, bmin, bmax)
@@ -94,13 +97,12 @@ def shadow_transmittance(prm, grid, o, d, t_max, rng_s, counters):
     counters[C_SHADOW] += 1
     if prm.has_grid == 0:
         return transmittance_homogeneous(prm.scale * prm.density, t0, t1)
-    inv_ext = (prm.inv_extent[0], prm.inv_extent[1], prm.inv_extent[2])
-    return transmittance_ratio(grid, bmin, inv_ext, prm.scale, prm.majorant, o, d, t0, t1,
-                               rng_s, counters, prm.max_steps)
+    return estimate_one(prm.shadow_estimator, med, grid, o, d, t0, t1, prm.majorant,
+                        prm.minorant, rng_s, counters, prm.max_steps, 1.0)
 
 
 @njit(cache=True)
-def trace_path(prm, lights, grid, px, py, rng, rng_s, counters):
+def trace_path(prm, lights, med, grid, px, py, rng, rng_s, counters):
     """Radiance (r, g, b) carried by one path through pixel (px, py)."""
     bmin = (prm.bmin[0], prm.bmin[1], prm.bmin[2])
     bmax = (prm.bmax[0], prm.bmax[1], prm.bmax[2])
@@ -121,7 +123,7 @@ def trace_path(prm, lights, grid, px, py, rng, rng_s, counters):
         # a homogeneous medium, lower variance than a 0/1 free-flight outcome for grids).
         if prm.has_env == 0:
             return 0.0, 0.0, 0.0
-        tr = shadow_transmittance(prm, grid, o, d, math.inf, rng_s, counters)
+        tr = shadow_transmittance(prm, med, grid, o, d, math.inf, rng_s, counters)
         return tr * prm.env[0], tr * prm.env[1], tr * prm.env[2]
     depth = 0
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
@@ -173,7 +175,7 @@ def trace_path(prm, lights, grid, px, py, rng, rng_s, counters):
                 wl = (v[0] / dist, v[1] / dist, v[2] / dist)
                 falloff = 1.0 / dist2
             f = phase_eval(prm.phase_kind, prm.g, dot(d, wl)) * falloff
-            tr = shadow_transmittance(prm, grid, p, wl, dist, rng_s, counters)
+            tr = shadow_transmittance(prm, med, grid, p, wl, dist, rng_s, counters)
             Lr += br * f * tr * lt.color[0]
             Lg += bg * f * tr * lt.color[1]
             Lb += bb * f * tr * lt.color[2]
@@ -181,7 +183,7 @@ def trace_path(prm, lights, grid, px, py, rng, rng_s, counters):
         if prm.has_env != 0:
             wl, pdf_l = sample_uniform_sphere(rng_next(rng), rng_next(rng))
             f = phase_eval(prm.phase_kind, prm.g, dot(d, wl))
-            tr = shadow_transmittance(prm, grid, p, wl, math.inf, rng_s, counters)
+            tr = shadow_transmittance(prm, med, grid, p, wl, math.inf, rng_s, counters)
             c = f * tr / (pdf_l + f)
             Lr += br * c * prm.env[0]
             Lg += bg * c * prm.env[1]
@@ -210,6 +212,12 @@ def render_pixel(params, lights, grid, pix, sample_start, n_samples, film_sum, f
     seed = (np.uint64(prm.seed_hi) << np.uint64(32)) | np.uint64(prm.seed_lo)
     rng = np.empty(RNG_STATE_SIZE, np.uint32)
     rng_s = np.empty(RNG_STATE_SIZE, np.uint32)
+    med = np.zeros(MED_SIZE)  # extinction source of the shadow-ray estimators
+    med[0] = MED_GRID
+    for a in range(3):
+        med[1 + a] = prm.bmin[a]
+        med[4 + a] = prm.inv_extent[a]
+    med[7] = prm.scale
     cnt = counters[pix]
     sr = 0.0
     sg = 0.0
@@ -220,7 +228,7 @@ def render_pixel(params, lights, grid, pix, sample_start, n_samples, film_sum, f
     for s in range(sample_start, sample_start + n_samples):
         rng_init(rng, seed, pix, s, STREAM_PATH)
         rng_init(rng_s, seed, pix, s, STREAM_SHADOW)
-        r, g, b = trace_path(prm, lights, grid, px, py, rng, rng_s, cnt)
+        r, g, b = trace_path(prm, lights, med, grid, px, py, rng, rng_s, cnt)
         if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)) or \
                 r < 0.0 or g < 0.0 or b < 0.0:
             cnt[C_DROPPED] += 1  # the sample counts as 0

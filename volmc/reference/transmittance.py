@@ -1,4 +1,6 @@
-"""Tracking through the medium: free-flight sampling and transmittance estimators.
+"""Tracking through the medium for free-flight sampling (the integrator's scattering events).
+
+Transmittance estimators for shadow rays live in estimators.py.
 
 All functions work on a ray o + t d restricted to [t0, t1] (world units along a unit d)
 inside the medium box, with extinction mu(x) = scale * density(x) and a global majorant
@@ -71,32 +73,3 @@ def free_flight_delta(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, co
 def transmittance_homogeneous(sigma_t, t0, t1):
     """Exact transmittance exp(-sigma_t (t1 - t0)) of a homogeneous segment (0 lookups)."""
     return math.exp(-sigma_t * max(t1 - t0, 0.0))
-
-
-@njit(cache=True)
-def transmittance_ratio(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, counters, max_steps):
-    """Ratio tracking (Cramer 1978; Novak et al. 2014): T = prod_i (1 - mu(x_i) / mbar) over
-    tentative collisions x_i sampled at rate mbar. Unbiased for mbar >= mu; mean lookups
-    = mbar (t1 - t0). Returns the estimate of T."""
-    if mbar <= 0.0:
-        return 1.0
-    inv_mbar = 1.0 / mbar
-    T = 1.0
-    t = t0
-    for _ in range(max_steps):
-        t -= math.log1p(-rng_next(rng)) * inv_mbar
-        if t >= t1:
-            return T
-        mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, mbar)
-        T *= 1.0 - mu / mbar  # division: mu <= mbar gives a weight >= 0 exactly
-    counters[C_CAPPED] += 1
-    return T
-
-
-@njit(cache=True)
-def transmittance_track_length(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, counters,
-                               max_steps):
-    """Track-length estimator: delta tracking from t0; 1 if it passes t1, else 0."""
-    event, _ = free_flight_delta(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, counters,
-                                 max_steps)
-    return 1.0 if event == EVENT_ESCAPE else 0.0

@@ -109,6 +109,7 @@ class Render:
     rr_depth: int = 5
     seed: int = 0
     max_steps: int = 1_000_000
+    transmittance: str = "ratio"
 
 
 @dataclass(frozen=True)
@@ -126,7 +127,11 @@ REQUIRED = object()
 CAMERA_KEYS = ("type", "eye", "target", "up", "fov", "size", "resolution")
 MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase")
 PHASE_KEYS = ("type", "g")
-RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps")
+RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance")
+#: Shadow-ray transmittance estimators for grids: every estimator of the registry in
+#: volmc/reference/estimators.py except "analytic" (which needs a homogeneous segment).
+TRANSMITTANCE_ESTIMATORS = ("ratio", "residual_ratio", "next_flight", "track_length",
+                            "biased_raymarch")
 LIGHT_KEYS = {
     "environment": ("type", "radiance"),
     "directional": ("type", "direction", "irradiance"),
@@ -327,6 +332,8 @@ def _render(c, raw):
         seed=c.integer(raw.get("seed", d.seed), p + "seed", lo=0, hi=2**64 - 1),
         max_steps=c.integer(raw.get("max_steps", d.max_steps), p + "max_steps", lo=1,
                             hi=2**31 - 1),
+        transmittance=c.choice(raw.get("transmittance", d.transmittance), p + "transmittance",
+                               TRANSMITTANCE_ESTIMATORS),
     )
 
 

@@ -1,0 +1,167 @@
+/* Power-series transmittance estimators: unbiased ray marching (Kettunen et al. 2021) and the
+ * p-series CMF estimator (Georgiev et al. 2019). Twin of volmc/reference/power_series.py,
+ * where the formulas, parameters, caps and numerical guards are documented; the operation
+ * order and the random-number consumption here follow it step by step. */
+#ifndef VOLMC_POWER_SERIES_H
+#define VOLMC_POWER_SERIES_H
+
+#include "extinction.h"
+#include "rng.h"
+
+#define URM_P_ZERO 0.9f
+#define URM_K 2
+#define URM_C 2.0f
+#define URM_MAX_ORDER 16
+/* sum_{k >= 1} P(order >= k) for the three constants above (URM_MEAN_ORDER in Python). */
+#define URM_MEAN_ORDER 0.3194528049465324f
+#define CMF_GOAL 0.99f
+
+inline float ps_mu(global const float *med, global const float *grid, int3 dims, float3 o,
+                   float3 d, float t, float mbar, ulong *counters) {
+    float mu = extinction(med, grid, dims, o, d, t, counters);
+    if (mu > mbar) counters[C_OVER_MAJORANT] += 1;
+    return mu;
+}
+
+inline int cmf_lookup_budget(float lam) {
+    return (int)ceil(cbrt((0.015f + lam) * (0.65f + lam) * (60.3f + lam)));
+}
+
+inline int urm_comb_size(float lam) {
+    return max(1, (int)floor((float)cmf_lookup_budget(lam) / (1.0f + URM_MEAN_ORDER) + 0.5f));
+}
+
+/* Log-domain pmf: exp(-lam) alone underflows in float32 from lam ~ 104 on. */
+inline int cmf_deterministic_terms(float lam, int limit) {
+    float log_p = -lam;
+    float cmf = exp(log_p);
+    float log_lam = lam > 0.0f ? log(lam) : 0.0f;
+    int q = 0;
+    while (cmf < CMF_GOAL && q < limit) {
+        q += 1;
+        log_p += log_lam - log((float)q);
+        cmf += exp(log_p);
+    }
+    return q + 1;
+}
+
+inline float ps_comb(global const float *med, global const float *grid, int3 dims, float3 o,
+                     float3 d, float t0, float L, int m, float u, float mbar, ulong *counters) {
+    float h = L / (float)m;
+    float s = 0.0f;
+    for (int j = 0; j < m; ++j)
+        s += ps_mu(med, grid, dims, o, d, t0 + ((float)j + u) * h, mbar, counters);
+    return s * h;
+}
+
+inline float transmittance_unbiased_raymarch(global const float *med, global const float *grid,
+                                             int3 dims, float3 o, float3 d, float t0, float t1,
+                                             float mbar, float mu_c, Rng *rng,
+                                             ulong *counters, int max_steps) {
+    float L = t1 - t0;
+    if (!(L > 0.0f) || !(mbar > 0.0f)) return 1.0f;
+    if (max_steps < 1) {
+        counters[C_CAPPED] += 1;
+        return 1.0f;
+    }
+    int m = urm_comb_size(mbar * L); /* mu_c unused: the control is the online comb x0 */
+    /* Order before any lookup: independent of the combs, and the cost is known up front. */
+    float v = 1.0f - rng_next(rng);
+    int n = 0;
+    float q = 1.0f;
+    bool capped = false;
+    for (;;) {
+        int k = n + 1;
+        float q_next = k <= URM_K ? 1.0f - URM_P_ZERO : q * fmin(1.0f, URM_C / (float)k);
+        if (!(v <= q_next)) break;
+        if (n == URM_MAX_ORDER) {
+            capped = true;
+            break;
+        }
+        n = k;
+        q = q_next;
+    }
+    if (m * (n + 1) > max_steps) {
+        capped = true;
+        if (m > max_steps) {
+            m = max_steps;
+            n = 0;
+        } else {
+            n = max_steps / m - 1;
+        }
+    }
+    if (capped) counters[C_CAPPED] += 1;
+    float x0 = ps_comb(med, grid, dims, o, d, t0, L, m, rng_next(rng), mbar, counters);
+    float e[URM_MAX_ORDER + 1];
+    e[0] = 1.0f;
+    for (int k = 1; k <= URM_MAX_ORDER; ++k) e[k] = 0.0f;
+    for (int i = 1; i <= n; ++i) {
+        float y = x0 - ps_comb(med, grid, dims, o, d, t0, L, m, rng_next(rng), mbar, counters);
+        float inv_i = 1.0f / (float)i;
+        for (int k = i; k >= 1; --k) e[k] += ((float)k * inv_i) * (e[k - 1] * y - e[k]);
+    }
+    float s = 1.0f;
+    float w = 1.0f;
+    for (int k = 1; k <= n; ++k) {
+        float ratio = k == 1 ? 1.0f - URM_P_ZERO
+                             : (k <= URM_K ? 1.0f : fmin(1.0f, URM_C / (float)k));
+        w /= (float)k * ratio;
+        s += e[k] * w;
+    }
+    float pre = exp(-x0);
+    if (pre == 0.0f) return 0.0f;
+    float est = pre * s;
+    return isfinite(est) ? est : 0.0f;
+}
+
+inline float transmittance_power_series(global const float *med, global const float *grid,
+                                        int3 dims, float3 o, float3 d, float t0, float t1,
+                                        float mbar, float mu_c, Rng *rng, ulong *counters,
+                                        int max_steps) {
+    float L = t1 - t0;
+    if (!(L > 0.0f) || !(mbar > 0.0f)) return 1.0f;
+    if (max_steps < 1) {
+        counters[C_CAPPED] += 1;
+        return 1.0f;
+    }
+    float tau_bar = mbar * L;
+    float lam = fmax(mbar - fmax(mu_c, 0.0f), 0.0f) * L;
+    int n_det = cmf_deterministic_terms(lam, max_steps);
+    float v = 1.0f - rng_next(rng);
+    /* exp(-tau_bar) spread over the deterministic orders keeps every partial product in
+     * float range. */
+    float g = exp(-tau_bar / (float)n_det);
+    float acc = 1.0f;
+    float prod = 1.0f;
+    int k = 0;
+    while (k < n_det) {
+        if (k == max_steps) {
+            counters[C_CAPPED] += 1;
+            return acc * pown(g, n_det - k);
+        }
+        k += 1;
+        float x = t0 + rng_next(rng) * L;
+        float y = (mbar - ps_mu(med, grid, dims, o, d, x, mbar, counters)) * L;
+        prod *= g * y / (float)k;
+        acc = acc * g + prod;
+        if (prod == 0.0f) return acc * pown(g, n_det - k);
+    }
+    float q = 1.0f;
+    for (;;) {
+        q *= fmin(1.0f, lam / (float)(k + 1));
+        if (!(v <= q)) break;
+        if (k == max_steps) {
+            counters[C_CAPPED] += 1;
+            break;
+        }
+        k += 1;
+        float x = t0 + rng_next(rng) * L;
+        float y = (mbar - ps_mu(med, grid, dims, o, d, x, mbar, counters)) * L;
+        prod *= y / (float)k;
+        acc += prod / q;
+        if (prod == 0.0f) break;
+    }
+    return isfinite(acc) ? acc : 0.0f;
+}
+
+#endif
