@@ -1,5 +1,6 @@
 """OpenCL host side: struct layout, program cache, device choice, CLI commands."""
 
+import math
 import os
 import subprocess
 import sys
@@ -136,3 +137,29 @@ def test_bench_cli_runs(tmp_path):
     assert r.returncode == 0 and "driver" in r.stdout
     r = _run(["render", scene, "--device", "nope", "-o", str(tmp_path / "x.exr")])
     assert r.returncode == 2 and "nope" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_bench_transmittance_cli(tmp_path):
+    """The estimator benchmark runs end to end (quick sweep) and writes JSON and figures whose
+    figures agree with the estimators' theory (ratio tracking costs mbar L lookups)."""
+    import json
+    from volmc.resources import scenes_dir
+    scene = str(scenes_dir() / "tests" / "white_furnace.toml")
+    out = tmp_path / "t.json"
+    r = _run(["bench", "transmittance", scene, "--quick", "--rays", "64", "--json", str(out),
+              "--figures", str(tmp_path)])
+    assert r.returncode == 0, r.stderr
+    assert "camera rays" in r.stdout and "1/(MSE*t)" in r.stdout
+    rep = json.loads(out.read_text())
+    assert len(rep["profiles"]) == 5 * 2 * 2 and len(rep["grids"]) == 2
+    for row in rep["profiles"]:
+        # Ratio tracking's lookups are Poisson(mbar L) with L = 1 and
+        # mbar = mean mu / tightness = tau / effective tightness (2048 estimates per case).
+        expect = -math.log(row["exact"]) / row["effective_tightness"]
+        got = row["results"]["ratio"]["lookups"]
+        assert abs(got - expect) < 5 * math.sqrt(expect / 2048) + 1e-9, (row["profile"], got)
+    for name in ("estimators_heatmap.png", "estimators_variance_cost.png",
+                 "estimators_error_time.png"):
+        assert (tmp_path / name).stat().st_size > 1000
+    r = _run(["bench", "transmittance", scene, "--quick", "--estimators", "ratio,nope"])
+    assert r.returncode == 2 and "nope" in r.stderr

@@ -159,6 +159,7 @@ def stats(est, exact, lookups, seconds, n_per_ray):
         "seconds_per_estimate": t,
         "eff_var_lookups": 1.0 / (var * lk) if var * lk > 0 else math.inf,
         "eff_mse_time": 1.0 / (mse * t) if mse * t > 0 else math.inf,
+        "eff_mse_lookups": 1.0 / (mse * lk) if mse * lk > 0 else math.inf,
         "variance_at_budget": var * max(lk, 1.0) / BUDGET,
     }
 

@@ -314,7 +314,7 @@ def transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng, counter
         x = t0 + rng_next(rng) * L
         y = (mbar - _mu(med, grid, o, d, x, mbar, counters)) * L
         prod *= y / k
-        acc += prod
+        acc += prod / q
         if prod == 0.0:
             break
     if not math.isfinite(acc):
