@@ -1,5 +1,5 @@
 /* Batch transmittance estimation for tests and `volmc bench transmittance`.
- * Built with -DESTIMATOR=<function name> from estimators.h, so the
+ * Built with -DESTIMATOR=<function name> from estimators.h or power_series.h, so the
  * timed loop contains exactly one technique. Work item i estimates ray i / n_per_ray with
  * sample index i % n_per_ray on STREAM_TEST; rays are 9 floats: o(3), d(3), t0, t1, pad;
  * each ray has its own extinction source med[r * MED_SIZE ...] and (mbar, mu_c) bounds.
@@ -10,6 +10,7 @@
 #include "rng.h"
 #include "extinction.h"
 #include "estimators.h"
+#include "power_series.h"
 
 #ifndef ESTIMATOR_EXTRA
 #define ESTIMATOR_EXTRA

@@ -23,6 +23,7 @@
 #include "grid.h"
 #include "transmittance.h"
 #include "estimators.h"
+#include "power_series.h"
 
 /* The shadow-ray estimator of grids (render.transmittance), chosen at build time. */
 #ifndef SHADOW_ESTIMATOR
@@ -219,8 +220,8 @@ kernel void render_batch(const Params prm, global const Light *lights, global co
         rng_init(&rng, seed, (uint)pix, sample_start + i, STREAM_PATH);
         rng_init(&rng_s, seed, (uint)pix, sample_start + i, STREAM_SHADOW);
         float3 c = trace_path(&prm, lights, med, grid, dims, px, py, &rng, &rng_s, cnt);
-        if (!(isfinite(c.x) && isfinite(c.y) && isfinite(c.z)) || c.x < 0.0f || c.y < 0.0f ||
-            c.z < 0.0f) {
+        if (!(isfinite(c.x) && isfinite(c.y) && isfinite(c.z)) ||
+            (!prm.signed_samples && (c.x < 0.0f || c.y < 0.0f || c.z < 0.0f))) {
             cnt[C_DROPPED] += 1;
             c = (float3)(0.0f);
         }

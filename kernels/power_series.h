@@ -45,6 +45,34 @@ inline int cmf_deterministic_terms(float lam, int limit) {
     return q + 1;
 }
 
+inline float urm_order_ratio(int k) {
+    if (k == 1) return 1.0f - URM_P_ZERO;
+    if (k <= URM_K) return 1.0f;
+    return fmin(1.0f, URM_C / (float)k);
+}
+
+/* Elementary symmetric means updated online (convex blends: no overflow, no cancellation). */
+inline float urm_series(float x0, const float *ys, int n) {
+    float e[URM_MAX_ORDER + 1];
+    e[0] = 1.0f;
+    for (int k = 1; k <= n; ++k) e[k] = 0.0f;
+    for (int i = 1; i <= n; ++i) {
+        float y = ys[i - 1];
+        float inv_i = 1.0f / (float)i;
+        for (int k = i; k >= 1; --k) e[k] += ((float)k * inv_i) * (e[k - 1] * y - e[k]);
+    }
+    float s = 1.0f;
+    float w = 1.0f;
+    for (int k = 1; k <= n; ++k) {
+        w /= (float)k * urm_order_ratio(k);
+        s += e[k] * w;
+    }
+    float pre = exp(-x0);
+    if (pre == 0.0f) return 0.0f;
+    float est = pre * s;
+    return isfinite(est) ? est : 0.0f;
+}
+
 inline float ps_comb(global const float *med, global const float *grid, int3 dims, float3 o,
                      float3 d, float t0, float L, int m, float u, float mbar, ulong *counters) {
     float h = L / (float)m;
@@ -71,14 +99,13 @@ inline float transmittance_unbiased_raymarch(global const float *med, global con
     float q = 1.0f;
     bool capped = false;
     for (;;) {
-        int k = n + 1;
-        float q_next = k <= URM_K ? 1.0f - URM_P_ZERO : q * fmin(1.0f, URM_C / (float)k);
+        float q_next = q * urm_order_ratio(n + 1);
         if (!(v <= q_next)) break;
         if (n == URM_MAX_ORDER) {
             capped = true;
             break;
         }
-        n = k;
+        n += 1;
         q = q_next;
     }
     if (m * (n + 1) > max_steps) {
@@ -92,26 +119,10 @@ inline float transmittance_unbiased_raymarch(global const float *med, global con
     }
     if (capped) counters[C_CAPPED] += 1;
     float x0 = ps_comb(med, grid, dims, o, d, t0, L, m, rng_next(rng), mbar, counters);
-    float e[URM_MAX_ORDER + 1];
-    e[0] = 1.0f;
-    for (int k = 1; k <= URM_MAX_ORDER; ++k) e[k] = 0.0f;
-    for (int i = 1; i <= n; ++i) {
-        float y = x0 - ps_comb(med, grid, dims, o, d, t0, L, m, rng_next(rng), mbar, counters);
-        float inv_i = 1.0f / (float)i;
-        for (int k = i; k >= 1; --k) e[k] += ((float)k * inv_i) * (e[k - 1] * y - e[k]);
-    }
-    float s = 1.0f;
-    float w = 1.0f;
-    for (int k = 1; k <= n; ++k) {
-        float ratio = k == 1 ? 1.0f - URM_P_ZERO
-                             : (k <= URM_K ? 1.0f : fmin(1.0f, URM_C / (float)k));
-        w /= (float)k * ratio;
-        s += e[k] * w;
-    }
-    float pre = exp(-x0);
-    if (pre == 0.0f) return 0.0f;
-    float est = pre * s;
-    return isfinite(est) ? est : 0.0f;
+    float ys[URM_MAX_ORDER];
+    for (int i = 0; i < n; ++i)
+        ys[i] = x0 - ps_comb(med, grid, dims, o, d, t0, L, m, rng_next(rng), mbar, counters);
+    return urm_series(x0, ys, n);
 }
 
 inline float transmittance_power_series(global const float *med, global const float *grid,

@@ -123,7 +123,8 @@ def test_generic_build_renders_like_the_specialised_one(tmp_path):
 
 
 @pytest.mark.parametrize("estimator", ["ratio", "residual_ratio", "next_flight",
-                                       "track_length", "biased_raymarch"])
+                                       "track_length", "power_series", "unbiased_raymarch",
+                                       "biased_raymarch"])
 def test_shadow_estimator_option(estimator):
     """render.transmittance selects the shadow-ray estimator (kernel built for it): both
     backends agree, and with an unbiased estimator the white furnace still gives L."""

@@ -1,6 +1,7 @@
 """Power-series transmittance estimators (unbiased ray marching, p-series CMF) against exact
 optical depths, their special cases, their lookup budgets and their OpenCL twins."""
 
+import itertools
 import math
 
 import numpy as np
@@ -15,7 +16,8 @@ from volmc.reference.extinction import (MED_CONSTANT, MED_COSINE, MED_GAUSS_BUMP
 from volmc.reference.optical_depth import optical_depth_exact
 from volmc.reference.power_series import (URM_MEAN_ORDER, cmf_deterministic_terms,
                                           transmittance_power_series,
-                                          transmittance_unbiased_raymarch, urm_comb_size)
+                                          transmittance_unbiased_raymarch, urm_comb_size,
+                                          urm_series)
 from volmc.reference.rng import STREAM_TEST, rng_new
 
 URM, PSERIES = 0, 1
@@ -88,16 +90,29 @@ def _controls(kind, lo, mean):
     return (0.0,) if kind == URM else (0.0, lo, mean)
 
 
+def _aliased_cosine(T, f):
+    """Cosine whose period equals the spacing of the unbiased ray-marching comb for majorant
+    factor f: every tooth of a comb sees the same phase, so each comb estimate is L mu(one
+    random point) and the higher orders carry a large share of the mean. Smooth profiles
+    hardly exercise them (the comb size grows with the majorant, so combs are accurate)."""
+    L_med, b = 1.5, 0.8
+    a = -math.log(T) / (T1 - T0)
+    m = urm_comb_size(a * (1.0 + b) * f * (T1 - T0))
+    return make_profile(MED_COSINE, a, b, L_med * m / (T1 - T0), 0.4, L_med)
+
+
 @pytest.mark.parametrize("kind", ESTIMATORS, ids=IDS)
 def test_profiles_match_exact(kind):
     """Every 1-D profile x T in {0.9, 0.3, 0.02} x majorant tight..4x loose (x control, for
-    the p-series): the mean of 20000 estimates is within the Sidak bound (about 4 s.e.)."""
+    the p-series), plus a cosine aliased with the comb: the mean of 20000 estimates is within
+    the Sidak bound (about 4 s.e.) of the exact transmittance."""
     cases = []
-    for name in SHAPES:
+    for name in [*SHAPES, "cosine_aliased"]:
         for T in TARGETS:
-            med = _profile(name, -math.log(T))
-            lo, hi, mean = profile_bounds(med, T0, T1)
             for f in TIGHTNESS:
+                med = _aliased_cosine(T, f) if name == "cosine_aliased" else _profile(
+                    name, -math.log(T))
+                lo, hi, mean = profile_bounds(med, T0, T1)
                 for mu_c in _controls(kind, lo, mean):
                     cases.append((name, T, med, hi * f, mu_c))
     bound = z_bound(ALPHA, len(cases))
@@ -185,6 +200,47 @@ def test_pseries_non_negative_and_raymarch_can_be_negative():
     urm, _, _ = _estimates(URM, med, NO_GRID, O, D, T0, T1, hi, 0.0, N_EST, 4, MAX_STEPS)
     assert ps.min() >= 0.0
     assert urm.min() < 0.0
+
+
+def _paper_tail(k):
+    """P(N >= k) of Kettunen et al.'s aggressive roulette with p_Z = 0.9, K = 2, c = 2, written
+    out independently of the implementation."""
+    if k == 0:
+        return 1.0
+    return 0.1 * math.prod(min(1.0, 2.0 / j) for j in range(3, k + 1))
+
+
+def test_urm_series_matches_brute_force():
+    """The online U-statistics and roulette weights against the definition: the mean over all
+    k-subsets of the products, divided by k! P(N >= k)."""
+    rng = np.random.default_rng(3)
+    for n in range(0, 8):
+        for _ in range(5):
+            x0 = rng.uniform(0.0, 3.0)
+            ys = rng.normal(0.0, 1.0, size=16)
+            total = 0.0
+            for k in range(n + 1):
+                prods = [math.prod(c) for c in itertools.combinations(ys[:n], k)]
+                total += np.mean(prods) / (math.factorial(k) * _paper_tail(k))
+            assert urm_series(x0, ys, n) == pytest.approx(math.exp(-x0) * total, rel=1e-12,
+                                                          abs=1e-14)
+
+
+def test_urm_order_distribution():
+    """Orders read back from the lookups (M (N + 1) per estimate) follow P(N >= k) of the
+    paper's roulette, k = 1..5 (one-sided tail frequencies within the Sidak bound)."""
+    med = _profile("constant", 1.0)
+    mbar = 2.0 * med[1]
+    m = urm_comb_size(mbar * (T1 - T0))
+    n = 200000
+    _, lk, _ = _estimates(URM, med, NO_GRID, O, D, T0, T1, mbar, 0.0, n, 13, MAX_STEPS)
+    order = lk // m - 1
+    bound = z_bound(ALPHA, 5)
+    for k in range(1, 6):
+        p = _paper_tail(k)
+        freq = np.mean(order >= k)
+        assert abs(freq - p) < bound * math.sqrt(p * (1 - p) / n), (k, freq, p)
+    assert order.max() <= 13
 
 
 def _pseries_expected_lookups(lam):
@@ -341,7 +397,8 @@ def test_kernel_matches_reference(cl_prog, kind):
         assert cnt[C_CAPPED] == 0
         sl = slice(r * n_per, (r + 1) * n_per)
         a = out[sl].astype(np.float64)
-        agree.append(np.isclose(a, ref, rtol=2e-3, atol=2e-5) & (lk_cl[sl] == lk_ref))
+        # float32 agrees to ~1e-5 relative (measured <= 9e-5); a wrong tail term would not
+        agree.append(np.isclose(a, ref, rtol=3e-4, atol=1e-6) & (lk_cl[sl] == lk_ref))
         if int(med[0]) == 0:
             exact = math.exp(-optical_depth_exact(g64, BMIN, BMAX, 2.0, o, d, t0, t1))
         else:
@@ -354,4 +411,4 @@ def test_kernel_matches_reference(cl_prog, kind):
         assert abs(a.mean() - exact) <= bound * se_a + slack, r
     frac = np.concatenate(agree).mean()
     print(f"\nkernel/reference per-estimate agreement: {frac:.5f}")
-    assert frac > 0.99, frac
+    assert frac > 0.995, frac

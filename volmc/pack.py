@@ -91,6 +91,7 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["rr_depth"] = rnd.rr_depth
     p["max_steps"] = rnd.max_steps
     p["shadow_estimator"] = E.ESTIMATORS[rnd.transmittance][0]
+    p["signed_samples"] = int(rnd.transmittance in E.SIGNED and scene.grid is not None)
     seed = rnd.seed if spp_seed is None else spp_seed
     p["seed_lo"] = seed & 0xFFFFFFFF
     p["seed_hi"] = seed >> 32

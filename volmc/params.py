@@ -36,6 +36,7 @@ PARAM_FIELDS = (
     ("majorant", "real", 1, "global extinction majorant (scale * max density)"),
     ("minorant", "real", 1, "global extinction minorant (scale * min density), the control"),
     ("shadow_estimator", "i4", 1, "transmittance estimator id of shadow rays in grids"),
+    ("signed_samples", "i4", 1, "1 if samples may be negative (a signed shadow estimator)"),
     ("albedo", "real", 3, "single-scattering albedo per channel"),
     ("phase_kind", "i4", 1, "PHASE_ISOTROPIC or PHASE_HG"),
     ("g", "real", 1, "Henyey-Greenstein asymmetry"),

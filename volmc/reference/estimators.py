@@ -14,7 +14,9 @@ arguments:
 The twins in kernels/estimators.h have the same names and arguments (float32).
 Unbiased estimators here: track-length, ratio tracking, residual ratio tracking,
 next-flight ratio tracking; ``transmittance_analytic`` is exact for a homogeneous segment
-(mbar == mu_c) and undefined otherwise; ``transmittance_biased_raymarch`` is biased.
+(mbar == mu_c) and undefined otherwise; ``transmittance_biased_raymarch`` is biased. The
+power-series estimators (p-series CMF of Georgiev et al. 2019, unbiased ray marching of
+Kettunen et al. 2021) are in power_series.py; ESTIMATORS below registers all of them.
 """
 
 import math
@@ -24,6 +26,7 @@ from numba import njit, prange
 
 from ..params import C_CAPPED, C_OVER_MAJORANT, N_COUNTERS
 from .extinction import extinction
+from .power_series import transmittance_power_series, transmittance_unbiased_raymarch
 from .rng import STREAM_TEST, rng_new, rng_next
 
 
@@ -147,7 +150,7 @@ def transmittance_biased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, coun
 
 
 EST_ANALYTIC, EST_TRACK_LENGTH, EST_RATIO, EST_RESIDUAL_RATIO, EST_NEXT_FLIGHT, \
-    EST_BIASED_RAYMARCH = range(6)
+    EST_BIASED_RAYMARCH, EST_POWER_SERIES, EST_UNBIASED_RAYMARCH = range(8)
 
 #: The registry, written once: name -> (id, kernel function in kernels/estimators.h,
 #: unbiased?, needs a homogeneous segment?). The names are the values of render.transmittance
@@ -159,7 +162,11 @@ ESTIMATORS = {
     "residual_ratio": (EST_RESIDUAL_RATIO, "transmittance_residual_ratio", True, False),
     "next_flight": (EST_NEXT_FLIGHT, "transmittance_next_flight", True, False),
     "biased_raymarch": (EST_BIASED_RAYMARCH, "transmittance_biased_raymarch", False, False),
+    "power_series": (EST_POWER_SERIES, "transmittance_power_series", True, False),
+    "unbiased_raymarch": (EST_UNBIASED_RAYMARCH, "transmittance_unbiased_raymarch", True, False),
 }
+#: Estimators whose single estimates can be negative (their mean is still T).
+SIGNED = ("unbiased_raymarch",)
 
 
 @njit(cache=True)
@@ -183,6 +190,12 @@ def estimate_one(est, med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt, max_steps, 
     if est == EST_BIASED_RAYMARCH:
         return transmittance_biased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
                                              max_steps, extra)
+    if est == EST_POWER_SERIES:
+        return transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
+                                          max_steps)
+    if est == EST_UNBIASED_RAYMARCH:
+        return transmittance_unbiased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
+                                               max_steps)
     raise ValueError("unknown estimator id")
 
 

@@ -23,7 +23,9 @@ One sample of pixel (x, y) (y = 0 is the top row) is one path:
 Random numbers: stream STREAM_PATH for all decisions of the path (in the order above),
 stream STREAM_SHADOW for all shadow-ray transmittance estimates of the sample.
 A sample whose contribution is NaN, infinite or negative is dropped (it counts as a sample
-of value 0) and counted.
+of value 0) and counted. Negative samples are legitimate only with a signed shadow estimator
+(unbiased ray marching, params.signed_samples = 1): they are kept, since dropping them would
+bias the pixel.
 """
 
 import math
@@ -230,7 +232,7 @@ def render_pixel(params, lights, grid, pix, sample_start, n_samples, film_sum, f
         rng_init(rng_s, seed, pix, s, STREAM_SHADOW)
         r, g, b = trace_path(prm, lights, med, grid, px, py, rng, rng_s, cnt)
         if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)) or \
-                r < 0.0 or g < 0.0 or b < 0.0:
+                (prm.signed_samples == 0 and (r < 0.0 or g < 0.0 or b < 0.0)):
             cnt[C_DROPPED] += 1  # the sample counts as 0
             continue
         sr += r

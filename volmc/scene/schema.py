@@ -131,7 +131,7 @@ RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittan
 #: Shadow-ray transmittance estimators for grids: every estimator of the registry in
 #: volmc/reference/estimators.py except "analytic" (which needs a homogeneous segment).
 TRANSMITTANCE_ESTIMATORS = ("ratio", "residual_ratio", "next_flight", "track_length",
-                            "biased_raymarch")
+                            "power_series", "unbiased_raymarch", "biased_raymarch")
 LIGHT_KEYS = {
     "environment": ("type", "radiance"),
     "directional": ("type", "direction", "irradiance"),
