@@ -9,14 +9,6 @@
 #define EST_ARGS global const float *med, global const float *grid, int3 dims, float3 o, \
     float3 d, float t0, float t1, float mbar, float mu_c, Rng *rng, ulong *counters, int max_steps
 
-/* extinction() that also counts lookups above the majorant. */
-inline float lookup(global const float *med, global const float *grid, int3 dims, float3 o,
-                    float3 d, float t, ulong *counters, float mbar) {
-    float mu = extinction(med, grid, dims, o, d, t, counters);
-    if (mu > mbar) counters[C_OVER_MAJORANT] += 1;
-    return mu;
-}
-
 inline float transmittance_analytic(EST_ARGS) {
     return exp(-mbar * fmax(t1 - t0, 0.0f));
 }

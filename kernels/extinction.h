@@ -39,4 +39,12 @@ inline float extinction(global const float *med, global const float *grid, int3 
     return extinction_profile(med, t);
 }
 
+/* extinction() that also counts lookups above the majorant (a broken bound is counted). */
+inline float lookup(global const float *med, global const float *grid, int3 dims, float3 o,
+                    float3 d, float t, ulong *counters, float mbar) {
+    float mu = extinction(med, grid, dims, o, d, t, counters);
+    if (mu > mbar) counters[C_OVER_MAJORANT] += 1;
+    return mu;
+}
+
 #endif

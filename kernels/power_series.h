@@ -16,13 +16,6 @@
 #define URM_MEAN_ORDER 0.3194528049465324f
 #define CMF_GOAL 0.99f
 
-inline float ps_mu(global const float *med, global const float *grid, int3 dims, float3 o,
-                   float3 d, float t, float mbar, ulong *counters) {
-    float mu = extinction(med, grid, dims, o, d, t, counters);
-    if (mu > mbar) counters[C_OVER_MAJORANT] += 1;
-    return mu;
-}
-
 inline int cmf_lookup_budget(float lam) {
     return (int)ceil(cbrt((0.015f + lam) * (0.65f + lam) * (60.3f + lam)));
 }
@@ -78,7 +71,7 @@ inline float ps_comb(global const float *med, global const float *grid, int3 dim
     float h = L / (float)m;
     float s = 0.0f;
     for (int j = 0; j < m; ++j)
-        s += ps_mu(med, grid, dims, o, d, t0 + ((float)j + u) * h, mbar, counters);
+        s += lookup(med, grid, dims, o, d, t0 + ((float)j + u) * h, counters, mbar);
     return s * h;
 }
 
@@ -152,7 +145,7 @@ inline float transmittance_power_series(global const float *med, global const fl
         }
         k += 1;
         float x = t0 + rng_next(rng) * L;
-        float y = (mbar - ps_mu(med, grid, dims, o, d, x, mbar, counters)) * L;
+        float y = (mbar - lookup(med, grid, dims, o, d, x, counters, mbar)) * L;
         prod *= g * y / (float)k;
         acc = acc * g + prod;
         if (prod == 0.0f) return acc * pown(g, n_det - k);
@@ -167,7 +160,7 @@ inline float transmittance_power_series(global const float *med, global const fl
         }
         k += 1;
         float x = t0 + rng_next(rng) * L;
-        float y = (mbar - ps_mu(med, grid, dims, o, d, x, mbar, counters)) * L;
+        float y = (mbar - lookup(med, grid, dims, o, d, x, counters, mbar)) * L;
         prod *= y / (float)k;
         acc += prod / q;
         if (prod == 0.0f) break;

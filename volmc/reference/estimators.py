@@ -24,19 +24,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..params import C_CAPPED, C_OVER_MAJORANT, N_COUNTERS
-from .extinction import extinction
+from ..params import C_CAPPED, N_COUNTERS
+from .extinction import lookup
 from .power_series import transmittance_power_series, transmittance_unbiased_raymarch
 from .rng import STREAM_TEST, rng_new, rng_next
-
-
-@njit(cache=True, inline="always")
-def lookup(med, grid, o, d, t, counters, mbar):
-    """extinction() that also counts lookups above the majorant (a broken bound, never silent)."""
-    mu = extinction(med, grid, o, d, t, counters)
-    if mu > mbar:
-        counters[C_OVER_MAJORANT] += 1
-    return mu
 
 
 @njit(cache=True)

@@ -27,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..params import C_LOOKUPS
+from ..params import C_LOOKUPS, C_OVER_MAJORANT
 from .grid import grid_lookup
 
 MED_GRID = 0
@@ -67,6 +67,16 @@ def extinction(med, grid, o, d, t, counters):
         p = (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2])
         return med[7] * grid_lookup(grid, (med[1], med[2], med[3]), (med[4], med[5], med[6]), p)
     return _profile(med, t)
+
+
+@njit(cache=True, inline="always")
+def lookup(med, grid, o, d, t, counters, mbar):
+    """extinction() that also counts lookups above the majorant mbar (a broken bound is
+    counted, never silent)."""
+    mu = extinction(med, grid, o, d, t, counters)
+    if mu > mbar:
+        counters[C_OVER_MAJORANT] += 1
+    return mu
 
 
 def optical_depth_profile(med, t0, t1):

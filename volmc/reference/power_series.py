@@ -15,7 +15,7 @@ Shared conventions (twins in ``kernels/power_series.h``):
   ``mu_c`` is a control extinction the caller knows: a minorant, the mean, or 0. They only
   set how many terms and lookups are spent; neither needs to be exact for the estimate to
   stay unbiased (p-series estimates are non-negative only if mbar >= mu, though).
-* Every density evaluation goes through ``extinction`` (one C_LOOKUPS each); values above the
+* Every density evaluation goes through ``lookup`` (one C_LOOKUPS each); values above the
   majorant are counted in C_OVER_MAJORANT. If an estimate would need more than ``max_steps``
   lookups (or more than the fixed order cap of the U-statistics buffer), the series is cut
   there, C_CAPPED is incremented and the partial (biased) estimate is returned.
@@ -34,8 +34,8 @@ import math
 import numpy as np
 from numba import njit
 
-from ..params import C_CAPPED, C_OVER_MAJORANT
-from .extinction import extinction
+from ..params import C_CAPPED
+from .extinction import lookup
 from .rng import rng_next
 
 #: Unbiased ray marching, aggressive roulette: P(order = 0) (Kettunen et al. 2021, p_Z).
@@ -67,14 +67,6 @@ def _mean_order(p_zero, k_det, c):
 #: Expected expansion order of unbiased ray marching (0.31945... for the defaults); each order
 #: costs one comb, so lookups = M * (1 + URM_MEAN_ORDER) on average.
 URM_MEAN_ORDER = _mean_order(URM_P_ZERO, URM_K, URM_C)
-
-
-@njit(cache=True, inline="always")
-def _mu(med, grid, o, d, t, mbar, counters):
-    mu = extinction(med, grid, o, d, t, counters)
-    if mu > mbar:
-        counters[C_OVER_MAJORANT] += 1
-    return mu
 
 
 @njit(cache=True)
@@ -159,7 +151,7 @@ def _comb(med, grid, o, d, t0, L, m, u, mbar, counters):
     h = L / m
     s = 0.0
     for j in range(m):
-        s += _mu(med, grid, o, d, t0 + (j + u) * h, mbar, counters)
+        s += lookup(med, grid, o, d, t0 + (j + u) * h, counters, mbar)
     return s * h
 
 
@@ -322,7 +314,7 @@ def transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng, counter
             return acc * g ** (n_det - k)
         k += 1
         x = t0 + rng_next(rng) * L
-        y = (mbar - _mu(med, grid, o, d, x, mbar, counters)) * L
+        y = (mbar - lookup(med, grid, o, d, x, counters, mbar)) * L
         prod *= g * y / k
         acc = acc * g + prod
         if prod == 0.0:
@@ -337,7 +329,7 @@ def transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng, counter
             break
         k += 1
         x = t0 + rng_next(rng) * L
-        y = (mbar - _mu(med, grid, o, d, x, mbar, counters)) * L
+        y = (mbar - lookup(med, grid, o, d, x, counters, mbar)) * L
         prod *= y / k
         acc += prod / q
         if prod == 0.0:
