@@ -84,3 +84,59 @@ def test_degenerate_rays(o, d):
     d = np.array(d, float)
     d /= np.linalg.norm(d) if np.linalg.norm(d) > 0 else 1.0
     assert check_ray(np.array(o, float), d) >= 1
+
+
+def test_free_flight_over_majorant_grid_distribution():
+    """Delta tracking over a majorant grid: collision distances pass a chi-square test against
+    the exact CDF 1 - T(t) along fixed rays, for several majorant resolutions (including a
+    grid with empty cells), and it needs fewer lookups than the global majorant."""
+    from numba import njit as _njit
+
+    from stats import ALPHA, chi2_pvalue, sidak
+    from volmc.params import C_LOOKUPS, N_COUNTERS
+    from volmc.reference.majorant import build_majorant_grid
+    from volmc.reference.optical_depth import optical_depth_exact
+    from volmc.reference.rng import STREAM_TEST, rng_new
+    from volmc.reference.transmittance import EVENT_SCATTER, free_flight_delta_grid
+
+    @_njit
+    def flights(grid, maj, scale, o, d, t0, t1, n):
+        out = np.empty(n)
+        cnt = np.zeros(N_COUNTERS, np.int64)
+        inv = (1.0 / (BMAX[0] - BMIN[0]), 1.0 / (BMAX[1] - BMIN[1]), 1.0 / (BMAX[2] - BMIN[2]))
+        bmin = (BMIN[0], BMIN[1], BMIN[2])
+        bmax = (BMAX[0], BMAX[1], BMAX[2])
+        for i in range(n):
+            rng = rng_new(7, 3, i, STREAM_TEST)
+            ev, t = free_flight_delta_grid(grid, bmin, bmax, inv, scale, maj, o, d, t0, t1,
+                                           rng, cnt, 10**6)
+            out[i] = t if ev == EVENT_SCATTER else np.inf
+        return out, cnt[C_LOOKUPS]
+
+    rng = np.random.default_rng(4)
+    grid = rng.random((12, 10, 8)) ** 4
+    grid[:, :, :3] = 0.0          # an empty slab: cells with zero majorant
+    scale = 1.5
+    cases = [(res, ray) for res in ((1, 1, 1), (3, 5, 2), (12, 10, 8)) for ray in range(2)]
+    a = sidak(ALPHA, len(cases))
+    lookups = {}
+    for res, k in cases:
+        maj, _ = build_majorant_grid(grid, res)
+        d = np.array([0.8, 0.3, 0.5]) if k == 0 else np.array([-0.0, 0.6, 0.8])
+        d /= np.linalg.norm(d)
+        o = np.array([-0.95, -0.4, 0.1]) if k == 0 else np.array([0.3, -0.45, 0.05])
+        t0, t1 = clip(o, d)
+        n = 60000
+        t, lk = flights(grid, maj.astype(np.float64), scale, tuple(o), tuple(d), t0, t1, n)
+        edges = np.linspace(t0, t1, 25)
+        cdf = np.array([1 - math.exp(-optical_depth_exact(grid, tuple(BMIN), tuple(BMAX), scale,
+                                                          tuple(o), tuple(d), t0, e))
+                        for e in edges])
+        expected = np.append(np.diff(cdf), 1 - cdf[-1]) * n
+        observed = np.append(np.histogram(t[np.isfinite(t)], bins=edges)[0],
+                             np.sum(~np.isfinite(t)))
+        p, _ = chi2_pvalue(observed, expected)
+        assert p > a, (res, k, p)
+        lookups[(res, k)] = lk
+    for k in range(2):
+        assert lookups[((12, 10, 8), k)] < lookups[((1, 1, 1), k)]

@@ -13,9 +13,11 @@ for the distance plus, for delta tracking, one per collision for the accept test
 
 import math
 
+import numpy as np
 from numba import njit
 
 from ..params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT
+from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .grid import grid_lookup
 from .rng import rng_next
 
@@ -73,3 +75,39 @@ def free_flight_delta(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, co
 def transmittance_homogeneous(sigma_t, t0, t1):
     """Exact transmittance exp(-sigma_t (t1 - t0)) of a homogeneous segment (0 lookups)."""
     return math.exp(-sigma_t * max(t1 - t0, 0.0))
+
+
+@njit(cache=True)
+def free_flight_delta_grid(grid, bmin, bmax, inv_extent, scale, maj, o, d, t0, t1, rng,
+                           counters, max_steps):
+    """Delta tracking over a majorant grid (ESTIMATORS.md): the segment is walked cell by cell
+    with the 3-D DDA (dda.py), tentative collisions at each cell's rate scale * maj[cell].
+    The exponential optical-depth budget left at a cell face carries over into the next cell
+    (the exponential is memoryless, so this equals re-sampling there); empty cells cost no
+    lookup. ``maj``: per-cell density maxima [cz, cy, cx] (majorant.py). Returns (event, t)."""
+    state = np.empty(DDA_STATE_SIZE)
+    dda_init(state, o, d, t0, t1, bmin, bmax, maj.shape)
+    budget = -math.log1p(-rng_next(rng))
+    steps = 0
+    while True:
+        ok, ta, tb, iz, iy, ix = dda_next(state)
+        if not ok:
+            return EVENT_ESCAPE, t1
+        m = scale * maj[iz, iy, ix]
+        if m <= 0.0:
+            continue
+        t = ta
+        while True:
+            step = budget / m
+            if t + step >= tb:
+                budget -= m * (tb - t)
+                break
+            t += step
+            mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, m)
+            if rng_next(rng) * m < mu:
+                return EVENT_SCATTER, t
+            budget = -math.log1p(-rng_next(rng))
+            steps += 1
+            if steps >= max_steps:
+                counters[C_CAPPED] += 1
+                return EVENT_CAPPED, t
