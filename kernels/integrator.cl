@@ -6,6 +6,7 @@
  * time whether it is taken, so a build with every flag on renders any scene (the "generic"
  * build the specialisation benchmark compares against). The flags:
  *   FEATURE_GRID          density from the grid (else homogeneous, analytic tracking)
+ *   FEATURE_MAJORANT_GRID per-cell majorants along a 3-D DDA walk (render.majorant = "grid")
  *   FEATURE_PHASE_HG      Henyey-Greenstein phase function (else isotropic)
  *   FEATURE_ENV           an environment light (NEE by sphere sampling + MIS, escape term)
  *   FEATURE_DELTA_LIGHTS  directional and/or point lights in the light array
@@ -77,14 +78,34 @@ inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, 
 }
 
 inline float shadow_transmittance(const Params *prm, global const float *med,
-                                  global const float *grid, int3 dims, float3 o, float3 d,
-                                  float t_max, Rng *rng_s, ulong *counters) {
+                                  global const float *grid, int3 dims, global const float *maj_max,
+                                  global const float *maj_min, float3 o, float3 d, float t_max,
+                                  Rng *rng_s, ulong *counters) {
     float3 bmin = vec3(prm->bmin), bmax = vec3(prm->bmax);
     float t1;
     float t0 = fmax(ray_box(o, d, bmin, bmax, &t1), 0.0f);
     t1 = fmin(t1, t_max);
     if (t1 <= t0) return 1.0f;
     counters[C_SHADOW] += 1;
+#ifdef FEATURE_MAJORANT_GRID
+    if (prm->has_grid && prm->has_majorant_grid) {
+        /* Per DDA segment with the cell's bounds: a product of independent unbiased
+         * estimates; empty cells give 1 with no lookup. */
+        int3 res = (int3)(prm->maj_res[0], prm->maj_res[1], prm->maj_res[2]);
+        Dda s;
+        dda_init(&s, o, d, t0, t1, bmin, bmax, res);
+        float T = 1.0f, ta, tb;
+        int3 cell;
+        while (T != 0.0f && dda_next(&s, &ta, &tb, &cell)) {
+            int k = dda_cell_index(cell, res);
+            float m = prm->scale * maj_max[k];
+            if (m <= 0.0f || tb <= ta) continue;
+            T *= SHADOW_ESTIMATOR(med, grid, dims, o, d, ta, tb, m, prm->scale * maj_min[k],
+                                  rng_s, counters, prm->max_steps SHADOW_ESTIMATOR_EXTRA);
+        }
+        return T;
+    }
+#endif
 #ifdef FEATURE_GRID
     if (prm->has_grid)
         return SHADOW_ESTIMATOR(med, grid, dims, o, d, t0, t1, prm->majorant, prm->minorant,
@@ -94,8 +115,9 @@ inline float shadow_transmittance(const Params *prm, global const float *med,
 }
 
 inline float3 trace_path(const Params *prm, global const Light *lights, global const float *med,
-                         global const float *grid, int3 dims, int px, int py, Rng *rng,
-                         Rng *rng_s, ulong *counters) {
+                         global const float *grid, int3 dims, global const float *maj_max,
+                         global const float *maj_min, int px, int py, Rng *rng, Rng *rng_s,
+                         ulong *counters) {
     float3 bmin = vec3(prm->bmin), bmax = vec3(prm->bmax), inv_ext = vec3(prm->inv_extent);
     float3 env = vec3(prm->env);
     float3 L = (float3)(0.0f);
@@ -110,7 +132,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
     {
 #ifdef FEATURE_ENV
         if (prm->has_env)
-            return env * shadow_transmittance(prm, med, grid, dims, o, d, INFINITY, rng_s, counters);
+            return env * shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, o, d, INFINITY, rng_s, counters);
 #endif
         return L;
     }
@@ -124,6 +146,14 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
         int event = EVENT_ESCAPE;
         float t = t1;
         if (t1 > t0) {
+#ifdef FEATURE_MAJORANT_GRID
+            if (prm->has_grid && prm->has_majorant_grid)
+                event = free_flight_delta_grid(
+                    grid, dims, bmin, bmax, inv_ext, prm->scale, maj_max,
+                    (int3)(prm->maj_res[0], prm->maj_res[1], prm->maj_res[2]), o, d, t0, t1, rng,
+                    counters, prm->max_steps, &t);
+            else
+#endif
 #ifdef FEATURE_GRID
             if (prm->has_grid)
                 event = free_flight_delta(grid, dims, bmin, inv_ext, prm->scale, prm->majorant,
@@ -167,7 +197,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
             wl = -vec3g(lights[i].vec);
 #endif
             float f = phase_eval(prm->phase_kind, prm->g, dot(d, wl)) * falloff;
-            float tr = shadow_transmittance(prm, med, grid, dims, p, wl, dist, rng_s, counters);
+            float tr = shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, p, wl, dist, rng_s, counters);
             L += beta * (f * tr) * vec3g(lights[i].color);
         }
 #endif
@@ -178,7 +208,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
             float pdf_l;
             float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
             float f = phase_eval(prm->phase_kind, prm->g, dot(d, wl));
-            float tr = shadow_transmittance(prm, med, grid, dims, p, wl, INFINITY, rng_s, counters);
+            float tr = shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, p, wl, INFINITY, rng_s, counters);
             L += beta * (f * tr / (pdf_l + f)) * env;
         }
 #endif
@@ -204,8 +234,9 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
  * them into float64 sums. A NaN, infinite or negative sample counts as 0 and is counted
  * as dropped, exactly as in the reference. */
 kernel void render_batch(const Params prm, global const Light *lights, global const float *med,
-                         global const float *grid, int3 dims, uint sample_start,
-                         uint n_samples, global float *out_mean,
+                         global const float *grid, int3 dims, global const float *maj_max,
+                         global const float *maj_min, uint sample_start, uint n_samples,
+                         global float *out_mean,
                          global float *out_m2, global ulong *counters_out) {
     int pix = get_global_id(0);
     if (pix >= prm.width * prm.height) return;
@@ -219,7 +250,8 @@ kernel void render_batch(const Params prm, global const Light *lights, global co
     for (uint i = 0; i < n_samples; ++i) {
         rng_init(&rng, seed, (uint)pix, sample_start + i, STREAM_PATH);
         rng_init(&rng_s, seed, (uint)pix, sample_start + i, STREAM_SHADOW);
-        float3 c = trace_path(&prm, lights, med, grid, dims, px, py, &rng, &rng_s, cnt);
+        float3 c = trace_path(&prm, lights, med, grid, dims, maj_max, maj_min, px, py, &rng, &rng_s,
+                              cnt);
         if (!(isfinite(c.x) && isfinite(c.y) && isfinite(c.z)) ||
             (!prm.signed_samples && (c.x < 0.0f || c.y < 0.0f || c.z < 0.0f))) {
             cnt[C_DROPPED] += 1;

@@ -7,6 +7,7 @@
 
 #include "rng.h"
 #include "grid.h"
+#include "dda.h"
 
 #define EVENT_ESCAPE 0
 #define EVENT_SCATTER 1
@@ -53,6 +54,46 @@ inline int free_flight_delta(global const float *grid, int3 dims, float3 bmin, f
 
 inline float transmittance_homogeneous(float sigma_t, float t0, float t1) {
     return exp(-sigma_t * fmax(t1 - t0, 0.0f));
+}
+
+/* Delta tracking over a majorant grid (twin of free_flight_delta_grid): the remaining
+ * exponential budget carries across cell faces; empty cells cost no lookup. */
+inline int free_flight_delta_grid(global const float *grid, int3 dims, float3 bmin, float3 bmax,
+                                  float3 inv_extent, float scale, global const float *maj,
+                                  int3 maj_res, float3 o, float3 d, float t0, float t1, Rng *rng,
+                                  ulong *counters, int max_steps, float *t_out) {
+    Dda s;
+    dda_init(&s, o, d, t0, t1, bmin, bmax, maj_res);
+    float budget = -log1p(-rng_next(rng));
+    int steps = 0;
+    float ta, tb;
+    int3 cell;
+    *t_out = t1;
+    while (dda_next(&s, &ta, &tb, &cell)) {
+        float m = scale * maj[dda_cell_index(cell, maj_res)];
+        if (m <= 0.0f) continue;
+        float t = ta;
+        while (true) {
+            float step = budget / m;
+            if (t + step >= tb) {
+                budget -= m * (tb - t);
+                break;
+            }
+            t += step;
+            float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, m);
+            if (rng_next(rng) * m < mu) {
+                *t_out = t;
+                return EVENT_SCATTER;
+            }
+            budget = -log1p(-rng_next(rng));
+            if (++steps >= max_steps) {
+                counters[C_CAPPED] += 1;
+                *t_out = t;
+                return EVENT_CAPPED;
+            }
+        }
+    }
+    return EVENT_ESCAPE;
 }
 
 #endif

@@ -10,6 +10,20 @@ from .reference.phase import PHASE_HG, PHASE_ISOTROPIC
 from .reference import estimators as E
 from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
 
+def pack_majorant(scene, real=np.float64):
+    """(maxima, minima) density bounds per majorant cell [cz, cy, cx] for render.majorant =
+    "grid" with a density grid, else 1x1x1 arrays holding the global bounds."""
+    from .reference.majorant import build_majorant_grid
+    if scene.grid is None:
+        return np.zeros((1, 1, 1), real), np.zeros((1, 1, 1), real)
+    if scene.render.majorant != "grid":
+        return (np.full((1, 1, 1), scene.grid.max(), real),
+                np.full((1, 1, 1), scene.grid.min(), real))
+    res = scene.render.majorant_resolution
+    mx, mn = build_majorant_grid(scene.grid, tuple(reversed(res)) if res else None)
+    return np.ascontiguousarray(mx, real), np.ascontiguousarray(mn, real)
+
+
 def medium_array(params):
     """The extinction-source array (reference/extinction.py layout) of a packed grid scene."""
     from .reference.extinction import make_grid_medium
@@ -91,6 +105,13 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["rr_depth"] = rnd.rr_depth
     p["max_steps"] = rnd.max_steps
     p["shadow_estimator"] = E.ESTIMATORS[rnd.transmittance][0]
+    if scene.grid is not None and rnd.majorant == "grid":
+        from .reference.majorant import auto_resolution
+        p["has_majorant_grid"] = 1
+        res = rnd.majorant_resolution
+        p["maj_res"] = tuple(reversed(res)) if res else auto_resolution(scene.grid.shape)
+    else:
+        p["maj_res"] = (1, 1, 1)
     p["signed_samples"] = int(rnd.transmittance in E.SIGNED and scene.grid is not None)
     seed = rnd.seed if spp_seed is None else spp_seed
     p["seed_lo"] = seed & 0xFFFFFFFF

@@ -3,7 +3,7 @@ in batches (same interface as the Numba backend)."""
 
 import numpy as np
 
-from ..pack import medium_array, pack_scene
+from ..pack import medium_array, pack_majorant, pack_scene
 from ..params import N_COUNTERS
 from ..scene.features import define_flags, features
 from .build import assemble, build_program
@@ -51,6 +51,9 @@ class OpenCLBackend:
             lights = np.zeros(1, lights.dtype)  # OpenCL buffers cannot be empty
         self.lights_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=lights)
         self.grid_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=grid)
+        maj_max, maj_min = pack_majorant(scene, np.float32)
+        self.maj_max_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=maj_max)
+        self.maj_min_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=maj_min)
         med = medium_array(params).astype(np.float32)
         self.med_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=med)
         nz, ny, nx = grid.shape
@@ -86,7 +89,8 @@ class OpenCLBackend:
         gsize, lsize = self._global_size()
         self.kernel(self.queue, gsize, lsize, self.params[0], self.lights_buf, self.med_buf,
                     self.grid_buf,
-                    self.dims, np.uint32(sample_start), np.uint32(n_samples), self.mean_buf,
+                    self.dims, self.maj_max_buf, self.maj_min_buf, np.uint32(sample_start),
+                    np.uint32(n_samples), self.mean_buf,
                     self.m2_buf, self.cnt_buf)
         cl.enqueue_copy(self.queue, self.mean_host, self.mean_buf)
         cl.enqueue_copy(self.queue, self.m2_host, self.m2_buf)

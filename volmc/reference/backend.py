@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ..pack import pack_scene
+from ..pack import pack_majorant, pack_scene
 from ..params import N_COUNTERS
 from .integrator import render_batch
 
@@ -15,6 +15,7 @@ class NumbaBackend:
     def __init__(self, scene):
         self.scene = scene
         self.params, self.lights, self.grid = pack_scene(scene, np.float64)
+        self.maj_max, self.maj_min = pack_majorant(scene, np.float64)
         w, h = scene.camera.resolution
         self.counters = np.zeros((w * h, N_COUNTERS), np.int64)
         self.techniques = techniques(scene)
@@ -22,13 +23,13 @@ class NumbaBackend:
     def warm_up(self):
         """Compile (or load from Numba's cache) without rendering any sample."""
         film = np.zeros((1, 1, 3))
-        render_batch(self.params, self.lights, self.grid, 0, 0, film, film.copy(),
-                     np.zeros((1, N_COUNTERS), np.int64))
+        render_batch(self.params, self.lights, self.grid, self.maj_max, self.maj_min, 0, 0, film,
+                     film.copy(), np.zeros((1, N_COUNTERS), np.int64))
 
     def render(self, sample_start, n_samples, film):
         """Add samples [sample_start, sample_start + n_samples) of every pixel to ``film``."""
-        render_batch(self.params, self.lights, self.grid, sample_start, n_samples, film.sum,
-                     film.sum_sq, self.counters)
+        render_batch(self.params, self.lights, self.grid, self.maj_max, self.maj_min,
+                     sample_start, n_samples, film.sum, film.sum_sq, self.counters)
 
     def counter_totals(self):
         """Counters summed over pixels, as a 1-D int64 array (see params.COUNTER_NAMES)."""
@@ -39,9 +40,10 @@ def techniques(scene):
     """The technique choices a scene implies, for metadata and --stats."""
     homogeneous = scene.grid is None
     return {
-        "free_flight": "analytic" if homogeneous else "delta tracking (global majorant)",
+        "free_flight": "analytic" if homogeneous else
+        f"delta tracking ({scene.render.majorant} majorant)",
         "transmittance": "analytic" if homogeneous else
-        f"{scene.render.transmittance} (global majorant)",
+        f"{scene.render.transmittance} ({scene.render.majorant} majorant)",
         "phase": scene.medium.phase.type,
         "nee": "all lights; environment by uniform sphere + balance-heuristic MIS",
         "russian_roulette": f"from depth {scene.render.rr_depth}, q = min(max(beta), 0.95)",

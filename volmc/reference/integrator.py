@@ -4,7 +4,8 @@ One sample of pixel (x, y) (y = 0 is the top row) is one path:
 
 1. Camera ray through the pixel, jittered uniformly inside it (two uniforms).
 2. Free flight inside the medium box: analytic for a homogeneous medium, delta tracking
-   with the global majorant for a grid. Escaping the box ends the path and adds the
+   for a grid, with the global majorant or (render.majorant = "grid") per-cell majorants
+   along a 3-D DDA walk (empty cells cost nothing). Escaping the box ends the path and adds the
    environment radiance, weighted by MIS when the direction came from phase sampling.
 3. At a real collision: the scattering event count rises; past ``max_depth`` the path
    ends. The throughput is multiplied by the albedo (sigma_s / sigma_t).
@@ -40,8 +41,10 @@ from .rng import RNG_STATE_SIZE, STREAM_PATH, STREAM_SHADOW, rng_init, rng_next
 from .sampling import INV_4PI, dot, normalize, sample_uniform_sphere
 from .estimators import estimate_one
 from .extinction import MED_GRID, MED_SIZE
+from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .transmittance import (EVENT_CAPPED, EVENT_ESCAPE, free_flight_delta,
-                            free_flight_homogeneous, transmittance_homogeneous)
+                            free_flight_delta_grid, free_flight_homogeneous,
+                            transmittance_homogeneous)
 
 #: Russian roulette survival probability never exceeds this (Mitsuba's policy).
 RR_MAX_SURVIVAL = 0.95
@@ -86,9 +89,12 @@ def camera_ray(prm, px, py, u1, u2):
 
 
 @njit(cache=True, inline="always")
-def shadow_transmittance(prm, med, grid, o, d, t_max, rng_s, counters):
+def shadow_transmittance(prm, med, grid, maj_max, maj_min, o, d, t_max, rng_s, counters):
     """Transmittance from o towards unit d up to distance t_max (inf for distant lights):
-    analytic in a homogeneous medium, else the estimator render.transmittance chose."""
+    analytic in a homogeneous medium, else the estimator render.transmittance chose, with the
+    global bounds or, over a majorant grid, per DDA segment with that cell's bounds (the
+    product of independent unbiased per-segment estimates is unbiased; empty cells give 1
+    with no lookup)."""
     bmin = (prm.bmin[0], prm.bmin[1], prm.bmin[2])
     bmax = (prm.bmax[0], prm.bmax[1], prm.bmax[2])
     t0, t1 = ray_box(o, d, bmin, bmax)
@@ -99,12 +105,26 @@ def shadow_transmittance(prm, med, grid, o, d, t_max, rng_s, counters):
     counters[C_SHADOW] += 1
     if prm.has_grid == 0:
         return transmittance_homogeneous(prm.scale * prm.density, t0, t1)
-    return estimate_one(prm.shadow_estimator, med, grid, o, d, t0, t1, prm.majorant,
-                        prm.minorant, rng_s, counters, prm.max_steps, 1.0)
+    if prm.has_majorant_grid == 0:
+        return estimate_one(prm.shadow_estimator, med, grid, o, d, t0, t1, prm.majorant,
+                            prm.minorant, rng_s, counters, prm.max_steps, 1.0)
+    state = np.empty(DDA_STATE_SIZE)
+    dda_init(state, o, d, t0, t1, bmin, bmax, (prm.maj_res[0], prm.maj_res[1], prm.maj_res[2]))
+    T = 1.0
+    while T != 0.0:
+        ok, ta, tb, iz, iy, ix = dda_next(state)
+        if not ok:
+            break
+        m = prm.scale * maj_max[iz, iy, ix]
+        if m <= 0.0 or tb <= ta:
+            continue
+        T *= estimate_one(prm.shadow_estimator, med, grid, o, d, ta, tb, m,
+                          prm.scale * maj_min[iz, iy, ix], rng_s, counters, prm.max_steps, 1.0)
+    return T
 
 
 @njit(cache=True)
-def trace_path(prm, lights, med, grid, px, py, rng, rng_s, counters):
+def trace_path(prm, lights, med, grid, maj_max, maj_min, px, py, rng, rng_s, counters):
     """Radiance (r, g, b) carried by one path through pixel (px, py)."""
     bmin = (prm.bmin[0], prm.bmin[1], prm.bmin[2])
     bmax = (prm.bmax[0], prm.bmax[1], prm.bmax[2])
@@ -125,7 +145,8 @@ def trace_path(prm, lights, med, grid, px, py, rng, rng_s, counters):
         # a homogeneous medium, lower variance than a 0/1 free-flight outcome for grids).
         if prm.has_env == 0:
             return 0.0, 0.0, 0.0
-        tr = shadow_transmittance(prm, med, grid, o, d, math.inf, rng_s, counters)
+        tr = shadow_transmittance(prm, med, grid, maj_max, maj_min, o, d, math.inf, rng_s,
+                                  counters)
         return tr * prm.env[0], tr * prm.env[1], tr * prm.env[2]
     depth = 0
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
@@ -137,6 +158,9 @@ def trace_path(prm, lights, med, grid, px, py, rng, rng_s, counters):
         if t1 > t0:
             if prm.has_grid == 0:
                 event, t = free_flight_homogeneous(sigma_h, t0, t1, rng)
+            elif prm.has_majorant_grid != 0:
+                event, t = free_flight_delta_grid(grid, bmin, bmax, inv_ext, prm.scale, maj_max,
+                                                  o, d, t0, t1, rng, counters, prm.max_steps)
             else:
                 event, t = free_flight_delta(grid, bmin, inv_ext, prm.scale, prm.majorant, o, d,
                                              t0, t1, rng, counters, prm.max_steps)
@@ -177,7 +201,8 @@ def trace_path(prm, lights, med, grid, px, py, rng, rng_s, counters):
                 wl = (v[0] / dist, v[1] / dist, v[2] / dist)
                 falloff = 1.0 / dist2
             f = phase_eval(prm.phase_kind, prm.g, dot(d, wl)) * falloff
-            tr = shadow_transmittance(prm, med, grid, p, wl, dist, rng_s, counters)
+            tr = shadow_transmittance(prm, med, grid, maj_max, maj_min, p, wl, dist, rng_s,
+                                      counters)
             Lr += br * f * tr * lt.color[0]
             Lg += bg * f * tr * lt.color[1]
             Lb += bb * f * tr * lt.color[2]
@@ -185,7 +210,8 @@ def trace_path(prm, lights, med, grid, px, py, rng, rng_s, counters):
         if prm.has_env != 0:
             wl, pdf_l = sample_uniform_sphere(rng_next(rng), rng_next(rng))
             f = phase_eval(prm.phase_kind, prm.g, dot(d, wl))
-            tr = shadow_transmittance(prm, med, grid, p, wl, math.inf, rng_s, counters)
+            tr = shadow_transmittance(prm, med, grid, maj_max, maj_min, p, wl, math.inf, rng_s,
+                                      counters)
             c = f * tr / (pdf_l + f)
             Lr += br * c * prm.env[0]
             Lg += bg * c * prm.env[1]
@@ -206,7 +232,8 @@ def trace_path(prm, lights, med, grid, px, py, rng, rng_s, counters):
 
 
 @njit(cache=True)
-def render_pixel(params, lights, grid, pix, sample_start, n_samples, film_sum, film_sq, counters):
+def render_pixel(params, lights, grid, maj_max, maj_min, pix, sample_start, n_samples, film_sum,
+                 film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film."""
     prm = params[0]
     py = pix // prm.width
@@ -230,7 +257,7 @@ def render_pixel(params, lights, grid, pix, sample_start, n_samples, film_sum, f
     for s in range(sample_start, sample_start + n_samples):
         rng_init(rng, seed, pix, s, STREAM_PATH)
         rng_init(rng_s, seed, pix, s, STREAM_SHADOW)
-        r, g, b = trace_path(prm, lights, med, grid, px, py, rng, rng_s, cnt)
+        r, g, b = trace_path(prm, lights, med, grid, maj_max, maj_min, px, py, rng, rng_s, cnt)
         if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)) or \
                 (prm.signed_samples == 0 and (r < 0.0 or g < 0.0 or b < 0.0)):
             cnt[C_DROPPED] += 1  # the sample counts as 0
@@ -250,19 +277,21 @@ def render_pixel(params, lights, grid, pix, sample_start, n_samples, film_sum, f
 
 
 @njit(cache=True, parallel=True)
-def render_batch(params, lights, grid, sample_start, n_samples, film_sum, film_sq, counters):
+def render_batch(params, lights, grid, maj_max, maj_min, sample_start, n_samples, film_sum,
+                 film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of every pixel to the film.
 
     params: one-element array of ``params_dtype(float64)``; lights: array of
     ``light_dtype(float64)``; grid: float64 [nz, ny, nx] (ignored unless has_grid);
+    maj_max, maj_min: per-cell density bounds [cz, cy, cx] (used when has_majorant_grid);
     film_sum, film_sq: float64 [height, width, 3] running sums of sample values and of their
     squares; counters: int64 [height * width, N_COUNTERS], accumulated in place.
     Pixels are independent, so the loop over them runs in parallel.
     """
     n_pix = film_sum.shape[0] * film_sum.shape[1]
     for pix in prange(n_pix):
-        render_pixel(params, lights, grid, pix, sample_start, n_samples, film_sum, film_sq,
-                     counters)
+        render_pixel(params, lights, grid, maj_max, maj_min, pix, sample_start, n_samples,
+                     film_sum, film_sq, counters)
 
 
 def new_counters(width, height):

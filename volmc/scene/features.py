@@ -6,6 +6,7 @@ from .schema import ConstantDensity, DirectionalLight, EnvironmentLight, PointLi
 #: Every feature flag, with the condition that turns it on.
 FEATURES = {
     "GRID": "density comes from a grid (else homogeneous: analytic tracking)",
+    "MAJORANT_GRID": "per-cell majorants with a 3-D DDA walk (render.majorant = \"grid\")",
     "PHASE_HG": "Henyey-Greenstein phase function (else isotropic)",
     "ENV": "an environment light",
     "DELTA_LIGHTS": "at least one directional or point light",
@@ -22,6 +23,8 @@ def features(scene) -> frozenset:
     out = set()
     if not isinstance(m.density, ConstantDensity):
         out.add("GRID")
+        if r.majorant == "grid":
+            out.add("MAJORANT_GRID")
     if m.phase.type == "hg":
         out.add("PHASE_HG")
     if any(isinstance(lt, EnvironmentLight) for lt in scene.lights):

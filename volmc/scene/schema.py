@@ -110,6 +110,8 @@ class Render:
     seed: int = 0
     max_steps: int = 1_000_000
     transmittance: str = "ratio"
+    majorant: str = "grid"
+    majorant_resolution: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -127,7 +129,9 @@ REQUIRED = object()
 CAMERA_KEYS = ("type", "eye", "target", "up", "fov", "size", "resolution")
 MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase")
 PHASE_KEYS = ("type", "g")
-RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance")
+RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
+               "majorant_resolution")
+MAJORANTS = ("global", "grid")
 #: Shadow-ray transmittance estimators for grids: every estimator of the registry in
 #: volmc/reference/estimators.py except "analytic" (which needs a homogeneous segment).
 TRANSMITTANCE_ESTIMATORS = ("ratio", "residual_ratio", "next_flight", "track_length",
@@ -334,7 +338,17 @@ def _render(c, raw):
                             hi=2**31 - 1),
         transmittance=c.choice(raw.get("transmittance", d.transmittance), p + "transmittance",
                                TRANSMITTANCE_ESTIMATORS),
+        majorant=c.choice(raw.get("majorant", d.majorant), p + "majorant", MAJORANTS),
+        majorant_resolution=_majorant_resolution(c, raw.get("majorant_resolution", [])),
     )
+
+
+def _majorant_resolution(c, v):
+    """[] (automatic) or [cx, cy, cz] cells, each in [1, 256]."""
+    key = "render.majorant_resolution"
+    if not isinstance(v, list) or len(v) not in (0, 3):
+        c.fail(key, f"expected [] (automatic) or [cx, cy, cz], got {_show(v)}")
+    return tuple(c.integer(x, key, lo=1, hi=256) for x in v)
 
 
 def validate(raw: dict, file: str, file_dir: Optional[str] = None) -> SceneSpec:

@@ -41,7 +41,8 @@ def to_dict(spec: SceneSpec) -> dict:
                    "scale": m.scale, "albedo": list(m.albedo), "phase": phase},
         "lights": lights,
         "render": {"spp": r.spp, "max_depth": r.max_depth, "rr_depth": r.rr_depth,
-                   "seed": r.seed, "max_steps": r.max_steps, "transmittance": r.transmittance},
+                   "seed": r.seed, "max_steps": r.max_steps, "transmittance": r.transmittance,
+                   "majorant": r.majorant, "majorant_resolution": list(r.majorant_resolution)},
     }
 
 

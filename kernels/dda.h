@@ -1,0 +1,75 @@
+/* 3-D DDA over a majorant grid. Twin of volmc/reference/dda.py (conventions and robustness
+ * arguments there): dda_next yields (t_enter, t_exit, cell) segments tiling [t0, t1]. */
+#ifndef VOLMC_DDA_H
+#define VOLMC_DDA_H
+
+typedef struct {
+    float t, t1;
+    float tnext[3], dt[3];
+    int i[3], step[3], n[3];
+    int done;
+} Dda;
+
+/* res_zyx = (cz, cy, cx) cells tiling [bmin, bmax]; the segment is already clipped. */
+inline void dda_init(Dda *s, float3 o, float3 d, float t0, float t1, float3 bmin, float3 bmax,
+                     int3 res_zyx) {
+    float oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
+    float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
+    int n[3] = {res_zyx.z, res_zyx.y, res_zyx.x};
+    s->t = t0;
+    s->t1 = t1;
+    s->done = !(t1 > t0);
+    for (int a = 0; a < 3; ++a) {
+        float size = (hi[a] - lo[a]) / (float)n[a];
+        float p = oa[a] + t0 * da[a];
+        int i = clamp((int)floor((p - lo[a]) / size), 0, n[a] - 1);
+        s->i[a] = i;
+        s->n[a] = n[a];
+        if (da[a] > 0.0f) {
+            s->step[a] = 1;
+            s->tnext[a] = (lo[a] + (float)(i + 1) * size - oa[a]) / da[a];
+            s->dt[a] = size / da[a];
+        } else if (da[a] < 0.0f) {
+            s->step[a] = -1;
+            s->tnext[a] = (lo[a] + (float)i * size - oa[a]) / da[a];
+            s->dt[a] = -size / da[a];
+        } else {
+            s->step[a] = 0;
+            s->tnext[a] = INFINITY;
+            s->dt[a] = INFINITY;
+        }
+    }
+}
+
+/* Returns 0 when the walk is over; else writes the segment and its cell (ix, iy, iz). */
+inline int dda_next(Dda *s, float *t_enter, float *t_exit, int3 *cell) {
+    if (s->done) return 0;
+    int a = 0;
+    if (s->tnext[1] < s->tnext[a]) a = 1;
+    if (s->tnext[2] < s->tnext[a]) a = 2;
+    *t_enter = s->t;
+    float te = fmin(fmax(s->tnext[a], s->t), s->t1);
+    *cell = (int3)(s->i[0], s->i[1], s->i[2]);
+    if (te >= s->t1) {
+        s->done = 1;
+    } else {
+        int i = s->i[a] + s->step[a];
+        if (i < 0 || i >= s->n[a]) {
+            s->done = 1;
+            te = s->t1;
+        } else {
+            s->i[a] = i;
+            s->tnext[a] += s->dt[a];
+        }
+    }
+    s->t = te;
+    *t_exit = te;
+    return 1;
+}
+
+/* Flat index of a cell (ix, iy, iz) in a [cz][cy][cx] array. */
+inline int dda_cell_index(int3 cell, int3 res_zyx) {
+    return (cell.z * res_zyx.y + cell.y) * res_zyx.z + cell.x;
+}
+
+#endif
