@@ -8,6 +8,7 @@
 #include "grid.h"
 #include "transmittance.h"
 #include "estimators.h"
+#include "dda.h"
 
 kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out) {
     int i = get_global_id(0);
@@ -101,4 +102,26 @@ kernel void t_tracking(int kind, global const float *med, global const float *gr
         out[i] = ev == EVENT_SCATTER ? t : -1.0f;
     }
     lookups[i] = cnt[C_LOOKUPS];
+}
+
+/* DDA walks of rays (9 floats each, as t_tracking) into out[r][k] = (ta, tb, iz, iy, ix). */
+kernel void t_dda(global const float *rays, float3 bmin, float3 bmax, int3 res_zyx,
+                  int max_segments, global float *out, global int *count) {
+    int r = get_global_id(0);
+    float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
+    Dda s;
+    dda_init(&s, o, d, rays[9 * r + 6], rays[9 * r + 7], bmin, bmax, res_zyx);
+    float ta, tb;
+    int3 cell;
+    int k = 0;
+    while (k < max_segments && dda_next(&s, &ta, &tb, &cell)) {
+        global float *row = out + ((size_t)r * max_segments + k) * 5;
+        row[0] = ta;
+        row[1] = tb;
+        row[2] = (float)cell.z;
+        row[3] = (float)cell.y;
+        row[4] = (float)cell.x;
+        ++k;
+    }
+    count[r] = k;
 }
