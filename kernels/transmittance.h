@@ -96,4 +96,49 @@ inline int free_flight_delta_grid(global const float *grid, int3 dims, float3 bm
     return EVENT_ESCAPE;
 }
 
+/* Decomposition tracking over a majorant grid (twin of free_flight_decomposition_grid): the
+ * cell minorant is the control, so u m < mu_c is a real collision with no lookup. */
+inline int free_flight_decomposition_grid(global const float *grid, int3 dims, float3 bmin,
+                                          float3 bmax, float3 inv_extent, float scale,
+                                          global const float *maj, global const float *mnr,
+                                          int3 maj_res, float3 o, float3 d, float t0, float t1,
+                                          Rng *rng, ulong *counters, int max_steps,
+                                          float *t_out) {
+    Dda s;
+    dda_init(&s, o, d, t0, t1, bmin, bmax, maj_res);
+    float budget = -log1p(-rng_next(rng));
+    int steps = 0;
+    float ta, tb;
+    int3 cell;
+    *t_out = t1;
+    while (dda_next(&s, &ta, &tb, &cell)) {
+        int k = dda_cell_index(cell, maj_res);
+        float m = scale * maj[k];
+        if (m <= 0.0f) continue;
+        float mc = scale * mnr[k];
+        float t = ta;
+        while (true) {
+            float step = budget / m;
+            if (t + step >= tb) {
+                budget -= m * (tb - t);
+                break;
+            }
+            t += step;
+            float um = rng_next(rng) * m;
+            if (um < mc ||
+                um < sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, m)) {
+                *t_out = t;
+                return EVENT_SCATTER;
+            }
+            budget = -log1p(-rng_next(rng));
+            if (++steps >= max_steps) {
+                counters[C_CAPPED] += 1;
+                *t_out = t;
+                return EVENT_CAPPED;
+            }
+        }
+    }
+    return EVENT_ESCAPE;
+}
+
 #endif

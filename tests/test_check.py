@@ -166,3 +166,19 @@ def test_global_and_grid_majorants_agree(backend):
     assert cmp.passed, cmp.summary("global", "grid")
     assert b.counters["lookups"] < 0.6 * a.counters["lookups"]
     assert b.counters["over_majorant"] == 0 and b.counters["capped"] == 0
+
+
+@pytest.mark.parametrize("backend", ["opencl", "numba"])
+def test_decomposition_tracking_same_paths_fewer_lookups(backend):
+    """render.free_flight = "decomposition" makes the same decisions as delta tracking for the
+    same random numbers (identical scattering counts and, up to float32 rounding, images) but
+    skips the lookups the per-cell minorant already decides."""
+    from volmc.render import render
+    over = ["camera.resolution=[12, 12]", "render.spp=32", "medium.density.resolution=32",
+            "render.majorant_resolution=[16, 16, 16]"]   # fine cells: interior minorants > 0
+    a = render(load_scene(scenes_dir() / "cloud.toml", over), backend=backend, progress=False)
+    b = render(load_scene(scenes_dir() / "cloud.toml", over + ["render.free_flight=decomposition"]),
+               backend=backend, progress=False)
+    assert a.counters["scatter_events"] == b.counters["scatter_events"]
+    assert np.allclose(a.image, b.image, rtol=1e-4, atol=1e-6)
+    assert b.counters["lookups"] < a.counters["lookups"]

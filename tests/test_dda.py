@@ -174,3 +174,59 @@ def test_kernel_dda_matches_reference():
                 np.allclose(a[:, :2], b[:, :2], atol=1e-5):
             agree += 1
     assert agree >= len(rays) - 2, agree   # float32 may split a corner crossing differently
+
+
+def test_decomposition_tracking_distribution():
+    """Decomposition tracking over a majorant grid: collision distances pass the chi-square
+    test against 1 - T(t), and the per-cell minorants save lookups on a dense grid."""
+    from numba import njit as _njit
+
+    from stats import ALPHA, chi2_pvalue, sidak
+    from volmc.params import C_LOOKUPS, N_COUNTERS
+    from volmc.reference.majorant import build_majorant_grid
+    from volmc.reference.optical_depth import optical_depth_exact
+    from volmc.reference.rng import STREAM_TEST, rng_new
+    from volmc.reference.transmittance import (EVENT_SCATTER, free_flight_decomposition_grid,
+                                               free_flight_delta_grid)
+
+    @_njit
+    def flights(grid, maj, mnr, scale, o, d, t0, t1, n, decomposition):
+        out = np.empty(n)
+        cnt = np.zeros(N_COUNTERS, np.int64)
+        inv = (1.0 / (BMAX[0] - BMIN[0]), 1.0 / (BMAX[1] - BMIN[1]), 1.0 / (BMAX[2] - BMIN[2]))
+        bmin = (BMIN[0], BMIN[1], BMIN[2])
+        bmax = (BMAX[0], BMAX[1], BMAX[2])
+        for i in range(n):
+            rng = rng_new(9, 1, i, STREAM_TEST)
+            if decomposition:
+                ev, t = free_flight_decomposition_grid(grid, bmin, bmax, inv, scale, maj, mnr, o,
+                                                       d, t0, t1, rng, cnt, 10**6)
+            else:
+                ev, t = free_flight_delta_grid(grid, bmin, bmax, inv, scale, maj, o, d, t0, t1,
+                                               rng, cnt, 10**6)
+            out[i] = t if ev == EVENT_SCATTER else np.inf
+        return out, cnt[C_LOOKUPS]
+
+    grid = 0.5 + 0.5 * np.random.default_rng(5).random((12, 10, 8))   # dense: minorants > 0
+    scale = 0.6
+    a = sidak(ALPHA, 2)
+    for res in ((3, 5, 2), (12, 10, 8)):
+        maj, mnr = build_majorant_grid(grid, res)
+        o, d = np.array([-0.9, -0.4, 0.1]), np.array([0.8, 0.3, 0.5])
+        d /= np.linalg.norm(d)
+        t0, t1 = clip(o, d)
+        n = 60000
+        args = (grid, maj.astype(np.float64), mnr.astype(np.float64), scale, tuple(o), tuple(d),
+                t0, t1, n)
+        t, lk = flights(*args, True)
+        t_delta, lk_delta = flights(*args, False)
+        assert np.array_equal(t, t_delta)          # same decisions for the same numbers
+        assert lk < 0.7 * lk_delta                 # the control saves lookups
+        edges = np.linspace(t0, t1, 25)
+        cdf = np.array([1 - math.exp(-optical_depth_exact(grid, tuple(BMIN), tuple(BMAX), scale,
+                                                          tuple(o), tuple(d), t0, e))
+                        for e in edges])
+        expected = np.append(np.diff(cdf), 1 - cdf[-1]) * n
+        observed = np.append(np.histogram(t[np.isfinite(t)], bins=edges)[0],
+                             np.sum(~np.isfinite(t)))
+        assert chi2_pvalue(observed, expected)[0] > a

@@ -166,6 +166,9 @@ BAD = [
     ("lights-not-array", lambda r: r.update(lights={"type": "environment"}), "lights", "array of tables"),
     ("max-depth-below", lambda r: r["render"].update(max_depth=-2), "render.max_depth", ">= -1"),
     ("unknown-estimator", lambda r: r["render"].update(transmittance="magic"), "render.transmittance", "must be one of"),
+    ("unknown-majorant", lambda r: r["render"].update(majorant="tight"), "render.majorant", "must be one of"),
+    ("bad-majorant-resolution", lambda r: r["render"].update(majorant_resolution=[4, 0, 4]), "render.majorant_resolution", ">= 1"),
+    ("unknown-free-flight", lambda r: r["render"].update(free_flight="woodcock"), "render.free_flight", "must be one of"),
 ]
 
 

@@ -108,6 +108,7 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     if scene.grid is not None and rnd.majorant == "grid":
         from .reference.majorant import auto_resolution
         p["has_majorant_grid"] = 1
+        p["decomposition"] = int(rnd.free_flight == "decomposition")
         res = rnd.majorant_resolution
         p["maj_res"] = tuple(reversed(res)) if res else auto_resolution(scene.grid.shape)
     else:

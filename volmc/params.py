@@ -37,6 +37,7 @@ PARAM_FIELDS = (
     ("minorant", "real", 1, "global extinction minorant (scale * min density), the control"),
     ("has_majorant_grid", "i4", 1, "1: per-cell majorants and minorants with a DDA walk"),
     ("maj_res", "i4", 3, "majorant grid cells (cz, cy, cx)"),
+    ("decomposition", "i4", 1, "1: decomposition tracking (per-cell minorant as control)"),
     ("shadow_estimator", "i4", 1, "transmittance estimator id of shadow rays in grids"),
     ("signed_samples", "i4", 1, "1 if samples may be negative (a signed shadow estimator)"),
     ("albedo", "real", 3, "single-scattering albedo per channel"),

@@ -111,6 +111,7 @@ class Render:
     max_steps: int = 1_000_000
     transmittance: str = "ratio"
     majorant: str = "grid"
+    free_flight: str = "delta"
     majorant_resolution: tuple = ()
 
 
@@ -130,8 +131,9 @@ CAMERA_KEYS = ("type", "eye", "target", "up", "fov", "size", "resolution")
 MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
-               "majorant_resolution")
+               "majorant_resolution", "free_flight")
 MAJORANTS = ("global", "grid")
+FREE_FLIGHTS = ("delta", "decomposition")
 #: Shadow-ray transmittance estimators for grids: every estimator of the registry in
 #: volmc/reference/estimators.py except "analytic" (which needs a homogeneous segment).
 TRANSMITTANCE_ESTIMATORS = ("ratio", "residual_ratio", "next_flight", "track_length",
@@ -339,6 +341,8 @@ def _render(c, raw):
         transmittance=c.choice(raw.get("transmittance", d.transmittance), p + "transmittance",
                                TRANSMITTANCE_ESTIMATORS),
         majorant=c.choice(raw.get("majorant", d.majorant), p + "majorant", MAJORANTS),
+        free_flight=c.choice(raw.get("free_flight", d.free_flight), p + "free_flight",
+                             FREE_FLIGHTS),
         majorant_resolution=_majorant_resolution(c, raw.get("majorant_resolution", [])),
     )
 
