@@ -147,16 +147,11 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
         float t = t1;
         if (t1 > t0) {
 #ifdef FEATURE_MAJORANT_GRID
-            if (prm->has_grid && prm->has_majorant_grid && prm->decomposition)
-                event = free_flight_decomposition_grid(
+            if (prm->has_grid && prm->has_majorant_grid)
+                event = free_flight_grid(
                     grid, dims, bmin, bmax, inv_ext, prm->scale, maj_max, maj_min,
-                    (int3)(prm->maj_res[0], prm->maj_res[1], prm->maj_res[2]), o, d, t0, t1, rng,
-                    counters, prm->max_steps, &t);
-            else if (prm->has_grid && prm->has_majorant_grid)
-                event = free_flight_delta_grid(
-                    grid, dims, bmin, bmax, inv_ext, prm->scale, maj_max,
-                    (int3)(prm->maj_res[0], prm->maj_res[1], prm->maj_res[2]), o, d, t0, t1, rng,
-                    counters, prm->max_steps, &t);
+                    prm->decomposition, (int3)(prm->maj_res[0], prm->maj_res[1], prm->maj_res[2]),
+                    o, d, t0, t1, rng, counters, prm->max_steps, &t);
             else
 #endif
 #ifdef FEATURE_GRID

@@ -56,54 +56,14 @@ inline float transmittance_homogeneous(float sigma_t, float t0, float t1) {
     return exp(-sigma_t * fmax(t1 - t0, 0.0f));
 }
 
-/* Delta tracking over a majorant grid (twin of free_flight_delta_grid): the remaining
- * exponential budget carries across cell faces; empty cells cost no lookup. */
-inline int free_flight_delta_grid(global const float *grid, int3 dims, float3 bmin, float3 bmax,
-                                  float3 inv_extent, float scale, global const float *maj,
-                                  int3 maj_res, float3 o, float3 d, float t0, float t1, Rng *rng,
-                                  ulong *counters, int max_steps, float *t_out) {
-    Dda s;
-    dda_init(&s, o, d, t0, t1, bmin, bmax, maj_res);
-    float budget = -log1p(-rng_next(rng));
-    int steps = 0;
-    float ta, tb;
-    int3 cell;
-    *t_out = t1;
-    while (dda_next(&s, &ta, &tb, &cell)) {
-        float m = scale * maj[dda_cell_index(cell, maj_res)];
-        if (m <= 0.0f) continue;
-        float t = ta;
-        while (true) {
-            float step = budget / m;
-            if (t + step >= tb) {
-                budget -= m * (tb - t);
-                break;
-            }
-            t += step;
-            float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, m);
-            if (rng_next(rng) * m < mu) {
-                *t_out = t;
-                return EVENT_SCATTER;
-            }
-            budget = -log1p(-rng_next(rng));
-            if (++steps >= max_steps) {
-                counters[C_CAPPED] += 1;
-                *t_out = t;
-                return EVENT_CAPPED;
-            }
-        }
-    }
-    return EVENT_ESCAPE;
-}
-
-/* Decomposition tracking over a majorant grid (twin of free_flight_decomposition_grid): the
- * cell minorant is the control, so u m < mu_c is a real collision with no lookup. */
-inline int free_flight_decomposition_grid(global const float *grid, int3 dims, float3 bmin,
-                                          float3 bmax, float3 inv_extent, float scale,
-                                          global const float *maj, global const float *mnr,
-                                          int3 maj_res, float3 o, float3 d, float t0, float t1,
-                                          Rng *rng, ulong *counters, int max_steps,
-                                          float *t_out) {
+/* Free flight over a majorant grid: delta tracking, or decomposition tracking with the cell
+ * minorant as the control (use_control). Twin of free_flight_grid, where the algorithm and
+ * why both make the same decisions for the same random numbers are explained. */
+inline int free_flight_grid(global const float *grid, int3 dims, float3 bmin, float3 bmax,
+                            float3 inv_extent, float scale, global const float *maj,
+                            global const float *mnr, int use_control, int3 maj_res, float3 o,
+                            float3 d, float t0, float t1, Rng *rng, ulong *counters,
+                            int max_steps, float *t_out) {
     Dda s;
     dda_init(&s, o, d, t0, t1, bmin, bmax, maj_res);
     float budget = -log1p(-rng_next(rng));
@@ -115,7 +75,7 @@ inline int free_flight_decomposition_grid(global const float *grid, int3 dims, f
         int k = dda_cell_index(cell, maj_res);
         float m = scale * maj[k];
         if (m <= 0.0f) continue;
-        float mc = scale * mnr[k];
+        float mc = use_control ? scale * mnr[k] : 0.0f;
         float t = ta;
         while (true) {
             float step = budget / m;

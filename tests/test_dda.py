@@ -97,7 +97,7 @@ def test_free_flight_over_majorant_grid_distribution():
     from volmc.reference.majorant import build_majorant_grid
     from volmc.reference.optical_depth import optical_depth_exact
     from volmc.reference.rng import STREAM_TEST, rng_new
-    from volmc.reference.transmittance import EVENT_SCATTER, free_flight_delta_grid
+    from volmc.reference.transmittance import EVENT_SCATTER, free_flight_grid
 
     @_njit
     def flights(grid, maj, scale, o, d, t0, t1, n):
@@ -108,8 +108,8 @@ def test_free_flight_over_majorant_grid_distribution():
         bmax = (BMAX[0], BMAX[1], BMAX[2])
         for i in range(n):
             rng = rng_new(7, 3, i, STREAM_TEST)
-            ev, t = free_flight_delta_grid(grid, bmin, bmax, inv, scale, maj, o, d, t0, t1,
-                                           rng, cnt, 10**6)
+            ev, t = free_flight_grid(grid, bmin, bmax, inv, scale, maj, maj, False, o, d, t0,
+                                     t1, rng, cnt, 10**6)
             out[i] = t if ev == EVENT_SCATTER else np.inf
         return out, cnt[C_LOOKUPS]
 
@@ -186,8 +186,7 @@ def test_decomposition_tracking_distribution():
     from volmc.reference.majorant import build_majorant_grid
     from volmc.reference.optical_depth import optical_depth_exact
     from volmc.reference.rng import STREAM_TEST, rng_new
-    from volmc.reference.transmittance import (EVENT_SCATTER, free_flight_decomposition_grid,
-                                               free_flight_delta_grid)
+    from volmc.reference.transmittance import EVENT_SCATTER, free_flight_grid
 
     @_njit
     def flights(grid, maj, mnr, scale, o, d, t0, t1, n, decomposition):
@@ -198,12 +197,8 @@ def test_decomposition_tracking_distribution():
         bmax = (BMAX[0], BMAX[1], BMAX[2])
         for i in range(n):
             rng = rng_new(9, 1, i, STREAM_TEST)
-            if decomposition:
-                ev, t = free_flight_decomposition_grid(grid, bmin, bmax, inv, scale, maj, mnr, o,
-                                                       d, t0, t1, rng, cnt, 10**6)
-            else:
-                ev, t = free_flight_delta_grid(grid, bmin, bmax, inv, scale, maj, o, d, t0, t1,
-                                               rng, cnt, 10**6)
+            ev, t = free_flight_grid(grid, bmin, bmax, inv, scale, maj, mnr, decomposition, o,
+                                     d, t0, t1, rng, cnt, 10**6)
             out[i] = t if ev == EVENT_SCATTER else np.inf
         return out, cnt[C_LOOKUPS]
 

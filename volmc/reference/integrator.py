@@ -43,8 +43,7 @@ from .estimators import estimate_one
 from .extinction import MED_GRID, MED_SIZE
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .transmittance import (EVENT_CAPPED, EVENT_ESCAPE, free_flight_delta,
-                            free_flight_decomposition_grid, free_flight_delta_grid,
-                            free_flight_homogeneous,
+                            free_flight_grid, free_flight_homogeneous,
                             transmittance_homogeneous)
 
 #: Russian roulette survival probability never exceeds this (Mitsuba's policy).
@@ -159,13 +158,10 @@ def trace_path(prm, lights, med, grid, maj_max, maj_min, px, py, rng, rng_s, cou
         if t1 > t0:
             if prm.has_grid == 0:
                 event, t = free_flight_homogeneous(sigma_h, t0, t1, rng)
-            elif prm.has_majorant_grid != 0 and prm.decomposition != 0:
-                event, t = free_flight_decomposition_grid(grid, bmin, bmax, inv_ext, prm.scale,
-                                                          maj_max, maj_min, o, d, t0, t1, rng,
-                                                          counters, prm.max_steps)
             elif prm.has_majorant_grid != 0:
-                event, t = free_flight_delta_grid(grid, bmin, bmax, inv_ext, prm.scale, maj_max,
-                                                  o, d, t0, t1, rng, counters, prm.max_steps)
+                event, t = free_flight_grid(grid, bmin, bmax, inv_ext, prm.scale, maj_max,
+                                            maj_min, prm.decomposition != 0, o, d, t0, t1, rng,
+                                            counters, prm.max_steps)
             else:
                 event, t = free_flight_delta(grid, bmin, inv_ext, prm.scale, prm.majorant, o, d,
                                              t0, t1, rng, counters, prm.max_steps)

@@ -78,13 +78,25 @@ def transmittance_homogeneous(sigma_t, t0, t1):
 
 
 @njit(cache=True)
-def free_flight_delta_grid(grid, bmin, bmax, inv_extent, scale, maj, o, d, t0, t1, rng,
-                           counters, max_steps):
-    """Delta tracking over a majorant grid (ESTIMATORS.md): the segment is walked cell by cell
-    with the 3-D DDA (dda.py), tentative collisions at each cell's rate scale * maj[cell].
-    The exponential optical-depth budget left at a cell face carries over into the next cell
-    (the exponential is memoryless, so this equals re-sampling there); empty cells cost no
-    lookup. ``maj``: per-cell density maxima [cz, cy, cx] (majorant.py). Returns (event, t)."""
+def free_flight_grid(grid, bmin, bmax, inv_extent, scale, maj, mnr, use_control, o, d, t0, t1,
+                     rng, counters, max_steps):
+    """Free flight over a majorant grid: delta tracking (use_control False) or decomposition
+    tracking (Kutz, Habel, Li, Novak 2017; use_control True). Returns (event, t).
+
+    The segment is walked cell by cell with the 3-D DDA (dda.py); tentative collisions come at
+    each cell's rate m = scale * maj[cell], and the exponential optical-depth budget left at a
+    cell face carries into the next cell (the exponential is memoryless, so this equals
+    re-sampling there); empty cells cost no lookup. One uniform u per tentative collision
+    accepts it when u m < mu.
+
+    Decomposition tracking splits mu = mu_c + mu_r with the cell minorant mu_c = scale *
+    mnr[cell] as the control: control collisions (rate mu_c) need no lookup, residual ones
+    (rate m - mu_c) are delta-tracked, and their superposition is a Poisson process of rate m
+    in which a tentative collision is a control collision with probability mu_c / m. So
+    u m < mu_c is a real collision decided without any lookup; otherwise the density is
+    looked up as in delta tracking. For the same random numbers both variants make exactly
+    the same decisions; decomposition tracking skips the lookups the control decides.
+    ``maj``, ``mnr``: per-cell density maxima and minima [cz, cy, cx] (majorant.py)."""
     state = np.empty(DDA_STATE_SIZE)
     dda_init(state, o, d, t0, t1, bmin, bmax, maj.shape)
     budget = -math.log1p(-rng_next(rng))
@@ -96,47 +108,7 @@ def free_flight_delta_grid(grid, bmin, bmax, inv_extent, scale, maj, o, d, t0, t
         m = scale * maj[iz, iy, ix]
         if m <= 0.0:
             continue
-        t = ta
-        while True:
-            step = budget / m
-            if t + step >= tb:
-                budget -= m * (tb - t)
-                break
-            t += step
-            mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, m)
-            if rng_next(rng) * m < mu:
-                return EVENT_SCATTER, t
-            budget = -math.log1p(-rng_next(rng))
-            steps += 1
-            if steps >= max_steps:
-                counters[C_CAPPED] += 1
-                return EVENT_CAPPED, t
-
-
-@njit(cache=True)
-def free_flight_decomposition_grid(grid, bmin, bmax, inv_extent, scale, maj, mnr, o, d, t0,
-                                   t1, rng, counters, max_steps):
-    """Decomposition tracking (Kutz, Habel, Li, Novak 2017) over a majorant grid: in each cell
-    mu = mu_c + mu_r with the cell's minorant mu_c = scale * mnr[cell] as the control. Control
-    collisions (rate mu_c) need no lookup; residual ones (rate m - mu_c) are delta-tracked.
-    Their superposition is a Poisson process of rate m in which a tentative collision is a
-    control collision with probability mu_c / m, so one uniform u per tentative collision
-    decides: u m < mu_c is a real collision without any lookup, otherwise the density is
-    looked up and u m < mu accepts it. For the same random numbers this makes exactly the
-    decisions of ``free_flight_delta_grid``, with fewer lookups wherever mu_c > 0.
-    ``mnr``: per-cell density minima [cz, cy, cx] (majorant.py). Returns (event, t)."""
-    state = np.empty(DDA_STATE_SIZE)
-    dda_init(state, o, d, t0, t1, bmin, bmax, maj.shape)
-    budget = -math.log1p(-rng_next(rng))
-    steps = 0
-    while True:
-        ok, ta, tb, iz, iy, ix = dda_next(state)
-        if not ok:
-            return EVENT_ESCAPE, t1
-        m = scale * maj[iz, iy, ix]
-        if m <= 0.0:
-            continue
-        mc = scale * mnr[iz, iy, ix]
+        mc = scale * mnr[iz, iy, ix] if use_control else 0.0
         t = ta
         while True:
             step = budget / m
