@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ..pack import pack_majorant, pack_scene
+from ..pack import medium_array, pack_majorant, pack_scene
 from ..params import N_COUNTERS
 from .integrator import render_batch
 
@@ -16,6 +16,7 @@ class NumbaBackend:
         self.scene = scene
         self.params, self.lights, self.grid = pack_scene(scene, np.float64)
         self.maj_max, self.maj_min = pack_majorant(scene, np.float64)
+        self.med = medium_array(self.params)
         w, h = scene.camera.resolution
         self.counters = np.zeros((w * h, N_COUNTERS), np.int64)
         self.techniques = techniques(scene)
@@ -23,12 +24,12 @@ class NumbaBackend:
     def warm_up(self):
         """Compile (or load from Numba's cache) without rendering any sample."""
         film = np.zeros((1, 1, 3))
-        render_batch(self.params, self.lights, self.grid, self.maj_max, self.maj_min, 0, 0, film,
-                     film.copy(), np.zeros((1, N_COUNTERS), np.int64))
+        render_batch(self.params, self.lights, self.med, self.grid, self.maj_max, self.maj_min,
+                     0, 0, film, film.copy(), np.zeros((1, N_COUNTERS), np.int64))
 
     def render(self, sample_start, n_samples, film):
         """Add samples [sample_start, sample_start + n_samples) of every pixel to ``film``."""
-        render_batch(self.params, self.lights, self.grid, self.maj_max, self.maj_min,
+        render_batch(self.params, self.lights, self.med, self.grid, self.maj_max, self.maj_min,
                      sample_start, n_samples, film.sum, film.sum_sq, self.counters)
 
     def counter_totals(self):

@@ -40,7 +40,6 @@ from .phase import phase_eval, phase_sample
 from .rng import RNG_STATE_SIZE, STREAM_PATH, STREAM_SHADOW, rng_init, rng_next
 from .sampling import INV_4PI, dot, normalize, sample_uniform_sphere
 from .estimators import estimate_one
-from .extinction import MED_GRID, MED_SIZE
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .transmittance import (EVENT_CAPPED, EVENT_ESCAPE, free_flight_delta,
                             free_flight_grid, free_flight_homogeneous,
@@ -233,8 +232,8 @@ def trace_path(prm, lights, med, grid, maj_max, maj_min, px, py, rng, rng_s, cou
 
 
 @njit(cache=True)
-def render_pixel(params, lights, grid, maj_max, maj_min, pix, sample_start, n_samples, film_sum,
-                 film_sq, counters):
+def render_pixel(params, lights, med, grid, maj_max, maj_min, pix, sample_start, n_samples,
+                 film_sum, film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film."""
     prm = params[0]
     py = pix // prm.width
@@ -242,12 +241,6 @@ def render_pixel(params, lights, grid, maj_max, maj_min, pix, sample_start, n_sa
     seed = (np.uint64(prm.seed_hi) << np.uint64(32)) | np.uint64(prm.seed_lo)
     rng = np.empty(RNG_STATE_SIZE, np.uint32)
     rng_s = np.empty(RNG_STATE_SIZE, np.uint32)
-    med = np.zeros(MED_SIZE)  # extinction source of the shadow-ray estimators
-    med[0] = MED_GRID
-    for a in range(3):
-        med[1 + a] = prm.bmin[a]
-        med[4 + a] = prm.inv_extent[a]
-    med[7] = prm.scale
     cnt = counters[pix]
     sr = 0.0
     sg = 0.0
@@ -278,12 +271,13 @@ def render_pixel(params, lights, grid, maj_max, maj_min, pix, sample_start, n_sa
 
 
 @njit(cache=True, parallel=True)
-def render_batch(params, lights, grid, maj_max, maj_min, sample_start, n_samples, film_sum,
+def render_batch(params, lights, med, grid, maj_max, maj_min, sample_start, n_samples, film_sum,
                  film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of every pixel to the film.
 
     params: one-element array of ``params_dtype(float64)``; lights: array of
-    ``light_dtype(float64)``; grid: float64 [nz, ny, nx] (ignored unless has_grid);
+    ``light_dtype(float64)``; med: the grid's extinction source for the shadow-ray
+    estimators (``pack.medium_array``); grid: float64 [nz, ny, nx] (ignored unless has_grid);
     maj_max, maj_min: per-cell density bounds [cz, cy, cx] (used when has_majorant_grid);
     film_sum, film_sq: float64 [height, width, 3] running sums of sample values and of their
     squares; counters: int64 [height * width, N_COUNTERS], accumulated in place.
@@ -291,7 +285,7 @@ def render_batch(params, lights, grid, maj_max, maj_min, sample_start, n_samples
     """
     n_pix = film_sum.shape[0] * film_sum.shape[1]
     for pix in prange(n_pix):
-        render_pixel(params, lights, grid, maj_max, maj_min, pix, sample_start, n_samples,
+        render_pixel(params, lights, med, grid, maj_max, maj_min, pix, sample_start, n_samples,
                      film_sum, film_sq, counters)
 
 
