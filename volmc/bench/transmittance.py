@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from ..reference import extinction as X
+from ..reference.integrator import ray_box
 from ..reference.optical_depth import optical_depth_exact
 from .transmittance_runner import ESTIMATORS, OpenCLEstimator
 
@@ -72,14 +73,9 @@ def grid_rays(scene, n_camera, n_shadow, seed=0):
     out = []
 
     def clip(o, d):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ta = (lo - o) / d
-            tb = (hi - o) / d
-        tmin = np.where(d == 0, -np.inf, np.minimum(ta, tb))
-        tmax = np.where(d == 0, np.inf, np.maximum(ta, tb))
-        inside = np.all((d != 0) | ((o >= lo) & (o <= hi)))
-        t0, t1 = max(tmin.max(), 0.0), tmax.min()
-        return (t0, t1) if inside and t1 > t0 else None
+        t0, t1 = ray_box(tuple(o), tuple(d), tuple(lo), tuple(hi))
+        t0 = max(t0, 0.0)
+        return (t0, t1) if t1 > t0 else None
 
     cams = []
     while len(cams) < n_camera:
