@@ -1,4 +1,4 @@
-"""Command line: ``volmc render``, ``check``, ``convert``, ``info``.
+"""Command line: ``volmc render``, ``check``, ``peer``, ``bench``, ``convert``, ``info``.
 
 Bad input (scene files, grids, flag values) prints one line
 ``volmc: error: <file>: <key>: <what is wrong>`` and exits with status 2, no traceback.
@@ -94,6 +94,25 @@ def build_parser():
                    metavar="SECTION.KEY=VALUE", help="override a scene key (repeatable)")
 
     sub.add_parser("info", help="list OpenCL platforms and devices and the kernel cache")
+
+    pe = sub.add_parser("peer", help="render a scene with volmc and with a peer renderer "
+                                     "(Mitsuba 3): agreement and speed against error")
+    pe.add_argument("peer", choices=["mitsuba"], help="the peer renderer")
+    pe.add_argument("scene", nargs="?", help="scene .toml (default: the bundled cloud scene)")
+    pe.add_argument("--spp", type=_positive_int, help="samples per pixel of both renders "
+                                                      "(default: the scene's)")
+    pe.add_argument("--passes", type=_positive_int, default=16,
+                    help="the peer renders in this many independent launches, whose spread "
+                         "gives its per-pixel variance (default 16)")
+    pe.add_argument("--reference-spp", type=int, default=None,
+                    help="samples per pixel of the volmc reference for RMSE (default 8 x spp; "
+                         "0: agreement only)")
+    pe.add_argument("--device", help="OpenCL device (as for render)")
+    pe.add_argument("-D", dest="defines", action="append", default=[],
+                    metavar="SECTION.KEY=VALUE", help="override a scene key (repeatable)")
+    pe.add_argument("--json", help="write the report to this JSON file")
+    pe.add_argument("--images", metavar="DIR",
+                    help="write volmc.exr, mitsuba.exr (and reference.exr) into DIR")
 
     b = sub.add_parser("bench", help="benchmarks (speed of backends, builds, work-group sizes)")
     bsub = b.add_subparsers(dest="bench", required=True, parser_class=_Parser)
@@ -232,6 +251,41 @@ def cmd_check(args):
     print(f"  {names[1]}: {rb.seconds:.2f} s, mean {_rgb(cmp.mean_b)}")
     print("  " + cmp.summary(names[0], names[1]))
     return 0 if cmp.passed else 1
+
+
+def cmd_peer(args):
+    from .peers import compare_with_mitsuba
+    from .peers.mitsuba import PeerUnavailable
+    from .resources import default_scene
+    from .scene import load_scene
+    if args.reference_spp is not None and args.reference_spp < 0:
+        raise SceneError("command line", "--reference-spp",
+                         f"must be 0 or a positive integer, got {args.reference_spp}")
+    if args.json:
+        _check_writable(args.json, "--json")
+    if args.images and not os.path.isdir(args.images):
+        raise SceneError("command line", "--images", f"not a directory: {args.images}")
+    scene_path = str(default_scene()) if args.scene is None else args.scene
+    scene = load_scene(scene_path, args.defines)
+    if min(hi - lo for lo, hi in zip(*scene.spec.medium.bounds)) <= 0:
+        raise SceneError(scene_path, "medium.bounds", "a box of zero thickness has no "
+                                                      "Mitsuba equivalent")
+    print(f"volmc peer mitsuba: {scene_path}", flush=True)
+    try:
+        report, images = compare_with_mitsuba(scene, args.spp, args.passes, args.reference_spp,
+                                              args.device)
+    except PeerUnavailable as e:
+        raise SceneError("command line", "peer", str(e)) from None
+    if args.json:
+        import json
+        report["scene"] = os.path.abspath(scene_path)
+        with open(args.json, "w") as f:
+            json.dump(report, f, indent=2)
+    if args.images:
+        from .film import write_exr
+        for name, img in images.items():
+            write_exr(os.path.join(args.images, f"{name}.exr"), img, {"renderer": name})
+    return 0 if report["agreement"]["passed"] else 1
 
 
 def _rgb(v):
@@ -378,6 +432,8 @@ def main(argv=None):
             return cmd_info(args)
         if args.command == "bench":
             return cmd_bench(args)
+        if args.command == "peer":
+            return cmd_peer(args)
     except SceneError as e:
         print(f"volmc: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

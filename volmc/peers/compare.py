@@ -1,0 +1,112 @@
+"""Agreement and speed of volmc against a peer renderer on the same scene.
+
+Agreement: a per-pixel Welch test of volmc's image against the peer's. volmc's variance of
+the mean has spp - 1 degrees of freedom (treated as exact); the peer's comes from the spread
+of K independent passes (K - 1 degrees of freedom), so each pixel's statistic is compared
+with Student's t at its Welch-Satterthwaite degrees of freedom, Sidak-corrected over all
+pixel channels at family level ALPHA. The image means are compared the same way, with the
+peer's variance taken from its K pass means directly.
+
+Speed: time and RMSE of each renderer at the same spp against a high-spp reference (volmc,
+independent seed). The reference's own noise adds its mean variance to every measured MSE;
+that known amount is subtracted, so the RMSE printed is that against the exact image.
+Equal-error time ratio = (t_peer * mse_peer) / (t_volmc * mse_volmc): Monte Carlo MSE falls
+as 1/t, so this is how much longer the peer needs to reach volmc's error.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..check import ALPHA, ROUNDING_ABS, ROUNDING_REL
+
+
+def welch_pvalues(diff, var_a, var_b, dof_b):
+    """Two-sided p-values of diff / sqrt(var_a + var_b); var_b has dof_b degrees of freedom."""
+    from scipy import stats
+    var = var_a + var_b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dof = np.where(var_b > 0, var * var / (var_b * var_b / dof_b), np.inf)
+        z = np.where(var > 0, diff / np.sqrt(var), np.where(diff == 0, 0.0, np.inf))
+    dof = np.maximum(dof, dof_b)
+    return 2.0 * stats.t.sf(np.abs(z), dof), z
+
+
+@dataclass
+class Agreement:
+    """Outcome of volmc against a peer: image means, their z-scores, per-pixel test."""
+    mean_volmc: tuple
+    mean_peer: tuple
+    mean_z: tuple
+    mean_p: float
+    max_abs_z: float
+    min_p: float
+    per_test_alpha: float
+    frac_rejected: float
+    n_tests: int
+
+    @property
+    def passed(self):
+        return self.min_p >= self.per_test_alpha and self.mean_p >= 1 - (1 - ALPHA) ** (1 / 3)
+
+    def summary(self, peer="peer"):
+        verdict = "AGREE" if self.passed else "DIFFER"
+        mz = ", ".join(f"{z:+.2f}" for z in self.mean_z)
+        rel = ", ".join(f"{100 * (a / b - 1):+.3f} %" if b else "n/a"
+                        for a, b in zip(self.mean_volmc, self.mean_peer))
+        return (f"{verdict}: image mean volmc - {peer} (R, G, B): {rel}, in standard errors "
+                f"{mz}; max |z| per pixel {self.max_abs_z:.2f}, smallest p {self.min_p:.2e} "
+                f"(Sidak per-test level {self.per_test_alpha:.2e} over {self.n_tests} pixel "
+                f"channels); {100 * self.frac_rejected:.3f} % rejected")
+
+
+def agreement(mean_v, var_v, mean_p, var_p, pass_means_p, spp_p=None):
+    """Compare volmc (mean, variance of the mean) with a peer rendered in K passes.
+
+    pass_means_p: [K, 3] image means of the peer's passes (for the image-mean test);
+    spp_p: the peer's samples per pixel in all (for the rule-of-three variance floor)."""
+    from scipy import stats
+    mean_v, var_v = np.asarray(mean_v, np.float64), np.asarray(var_v, np.float64)
+    mean_p, var_p = np.asarray(mean_p, np.float64), np.asarray(var_p, np.float64)
+    k = len(pass_means_p)
+    # Rule of three: when the peer's samples in a pixel all came out alike (a rare event, such
+    # as a real collision in thin medium, was never drawn), its sample variance is 0 but the
+    # true one is not. Zero events in n samples bound the event rate below 3 / n at 95 %, so
+    # a peer whose samples jump by up to the pixel value with that rate has variance of the
+    # mean up to 3 * value^2 / n^2; the peer's variance is floored there.
+    n_p = spp_p if spp_p else k
+    floor = 3.0 * np.maximum(np.abs(mean_v), np.abs(mean_p)) ** 2 / float(n_p) ** 2
+    var_p = np.maximum(var_p, floor)
+    # Float32 rounding in either renderer (as in volmc check) is not a statistical difference.
+    rounding = ROUNDING_REL * np.maximum(np.abs(mean_v), np.abs(mean_p)) + ROUNDING_ABS
+    p, z = welch_pvalues(mean_v - mean_p, var_v + rounding ** 2, var_p, k - 1)
+    per = 1.0 - (1.0 - ALPHA) ** (1.0 / p.size)
+    n_pix = mean_v.shape[0] * mean_v.shape[1]
+    mz, mp = [], []
+    pm = np.asarray(pass_means_p, np.float64)
+    for c in range(3):
+        va = float(var_v[..., c].sum()) / n_pix ** 2
+        vb = float(pm[:, c].var(ddof=1)) / k
+        d = float(mean_v[..., c].mean() - mean_p[..., c].mean())
+        pc, zc = welch_pvalues(np.array(d), np.array(va), np.array(vb), k - 1)
+        mz.append(float(zc))
+        mp.append(float(pc))
+    return Agreement(tuple(mean_v.mean(axis=(0, 1))), tuple(mean_p.mean(axis=(0, 1))),
+                     tuple(mz), min(mp), float(np.abs(z).max()), float(p.min()), per,
+                     float(np.mean(p < per)), int(p.size))
+
+
+def rmse_to_reference(image, ref_mean, ref_var):
+    """RMSE of ``image`` against the exact image, estimated from a noisy reference.
+
+    E[(x - r)^2] = (x - exact)^2 + Var(r): the reference's mean variance of the mean is
+    subtracted (never below zero)."""
+    d = np.asarray(image, np.float64) - np.asarray(ref_mean, np.float64)
+    mse = float(np.mean(d * d)) - float(np.mean(ref_var))
+    return math.sqrt(max(mse, 0.0))
+
+
+def equal_error_time_ratio(t_a, rmse_a, t_b, rmse_b):
+    """How many times longer B needs than A to reach the same RMSE (MSE proportional to 1/t)."""
+    return (t_b * rmse_b ** 2) / (t_a * rmse_a ** 2)

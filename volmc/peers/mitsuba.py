@@ -1,0 +1,224 @@
+"""Mitsuba 3 as a peer renderer: translate a volmc scene, render it with ``volpath``.
+
+Conventions and how the translation matches them (each checked by tests/test_peer_mitsuba.py
+or by the README's cross-check):
+
+- **Camera.** volmc's ``fov`` is the full vertical angle; Mitsuba's ``perspective`` gets
+  ``fov_axis = "y"`` and ``look_at(eye, target, up)``, which puts +x on the right when looking
+  down -z with +y up, as volmc does. volmc's orthographic ``size`` is the vertical extent in
+  world units; Mitsuba's ``orthographic`` camera spans [-1, 1] horizontally and
+  [-1/aspect, 1/aspect] vertically, so its ``to_world`` gets a scale of size * aspect / 2.
+  Both sample the pixel uniformly (Mitsuba: ``box`` reconstruction filter, radius half a pixel).
+- **Medium box.** A ``cube`` shape ([-1, 1]^3) scaled to ``medium.bounds`` with a ``null`` BSDF
+  carries the medium as its interior. A camera inside the box gets the medium as its
+  exterior medium (Mitsuba needs to be told; volmc finds it by geometry).
+- **Grid.** Both index arrays [z, y, x] with x fastest, put voxel centres at
+  (i + 0.5) / n of the box, interpolate trilinearly and clamp to the edge voxels
+  (Mitsuba's ``gridvolume`` with its default ``filter_type = "bilinear"``, ``wrap_mode =
+  "clamp"``). Its ``to_world`` maps the unit cube to ``medium.bounds``. Extinction is
+  ``scale * density`` on both sides (``heterogeneous.scale``).
+- **Lights.** ``environment`` becomes ``constant`` (radiance), ``directional`` stays
+  ``directional`` (irradiance, direction of travel), ``point`` becomes ``point`` (intensity).
+  The units agree: an empty scene shows the environment radiance in both.
+- **Phase.** Both use Henyey-Greenstein with g > 0 scattering forward.
+- **Path depth.** volmc's ``max_depth`` counts scattering events; Mitsuba's counts path
+  vertices including the camera ray's end, so Mitsuba gets max_depth + 1 (and rr_depth + 1);
+  -1 (unbounded) stays -1.
+- **Colour.** Mitsuba's ``llvm_ad_rgb`` variant: RGB throughout, as in volmc.
+
+Mitsuba is optional (``pip install 'volmc[peers]'``). Its LLVM backend needs a libLLVM it
+can load; ``DRJIT_LIBLLVM_PATH`` names one, otherwise the newest ``libLLVM.so.1x`` in the
+usual library directories is used. Loading is first tried in a subprocess, because a
+libLLVM that Dr.Jit cannot use crashes the interpreter instead of raising.
+"""
+
+import functools
+import glob
+import math
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+VARIANT = "llvm_ad_rgb"
+#: Largest number of camera rays per Mitsuba launch (memory: Dr.Jit keeps per-lane state).
+MAX_LANES = 1 << 22
+_LIB_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64",
+             "/usr/lib", "/usr/local/lib", "/opt/homebrew/opt/llvm/lib")
+
+
+class PeerUnavailable(RuntimeError):
+    """Mitsuba cannot be used here; the message says why and how to fix it."""
+
+
+def find_libllvm():
+    """Path of a libLLVM for Dr.Jit: $DRJIT_LIBLLVM_PATH, else the newest found, else None."""
+    env = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if env:
+        return env
+    found = []
+    for d in _LIB_DIRS:
+        found += glob.glob(os.path.join(d, "libLLVM.so.1[0-9]*"))
+        found += glob.glob(os.path.join(d, "libLLVM-1[0-9]*.so*"))
+    def version(p):
+        digits = "".join(c if c.isdigit() or c == "." else " " for c in os.path.basename(p))
+        nums = [int(x) for x in digits.replace(".", " ").split() if x]
+        return nums[:2]
+    return max(found, key=version) if found else None
+
+
+_PROBE = ("import mitsuba as mi; mi.set_variant('{v}'); "
+          "s = mi.load_dict({{'type': 'scene', 'e': {{'type': 'constant'}}, "
+          "'i': {{'type': 'path'}}, "
+          "'sensor': {{'type': 'perspective', 'film': {{'type': 'hdrfilm', 'width': 2, "
+          "'height': 2}}}}}}); mi.render(s, spp=1); print(mi.__version__)")
+
+
+@functools.lru_cache(maxsize=None)
+def probe():
+    """Mitsuba's version string; raises PeerUnavailable with the reason when it cannot run."""
+    try:
+        import mitsuba  # noqa: F401  (only whether it is installed; loading happens below)
+    except ImportError:
+        raise PeerUnavailable("Mitsuba 3 is not installed (pip install 'volmc[peers]')")
+    env = dict(os.environ)
+    lib = find_libllvm()
+    if lib:
+        env["DRJIT_LIBLLVM_PATH"] = lib
+    try:
+        out = subprocess.run([sys.executable, "-c", _PROBE.format(v=VARIANT)], env=env,
+                             capture_output=True, text=True, timeout=300)
+    except subprocess.TimeoutExpired:
+        raise PeerUnavailable("Mitsuba's test render did not finish within 300 s")
+    if out.returncode != 0:
+        last = (out.stderr.strip().splitlines() or [f"exit status {out.returncode}"])[-1]
+        raise PeerUnavailable(
+            f"Mitsuba's {VARIANT} variant does not run here ({last}); install a libLLVM it "
+            f"can load (e.g. apt-get install libllvm19) and set DRJIT_LIBLLVM_PATH "
+            f"(tried {lib or 'no libLLVM found'})")
+    if lib:
+        os.environ["DRJIT_LIBLLVM_PATH"] = lib
+    return out.stdout.strip().splitlines()[-1]
+
+
+def _mi():
+    probe()
+    import mitsuba as mi
+    mi.set_variant(VARIANT)
+    return mi
+
+
+def _rgb(v):
+    return {"type": "rgb", "value": [float(x) for x in v]}
+
+
+def _inside(p, bounds):
+    return all(bounds[0][i] < p[i] < bounds[1][i] for i in range(3))
+
+
+def scene_dict(scene, mi=None):
+    """The Mitsuba 3 scene dictionary of a volmc Scene (see the module docstring)."""
+    from ..scene.schema import ConstantDensity
+    mi = mi or _mi()
+    T = mi.ScalarTransform4f
+    spec = scene.spec
+    cam, med, ren = spec.camera, spec.medium, spec.render
+    (x0, y0, z0), (x1, y1, z1) = med.bounds
+    ext = (x1 - x0, y1 - y0, z1 - z0)
+    if min(ext) <= 0:
+        raise ValueError("medium.bounds has zero thickness: Mitsuba's cube cannot be scaled to it")
+
+    phase = ({"type": "hg", "g": float(med.phase.g)} if med.phase.type == "hg"
+             else {"type": "isotropic"})
+    if isinstance(med.density, ConstantDensity):
+        medium = {"type": "homogeneous", "sigma_t": float(med.scale * med.density.value),
+                  "albedo": _rgb(med.albedo), "phase": phase}
+    else:
+        grid = np.ascontiguousarray(np.asarray(scene.grid, np.float32)[..., None])
+        medium = {"type": "heterogeneous", "scale": float(med.scale), "phase": phase,
+                  "sigma_t": {"type": "gridvolume", "grid": mi.VolumeGrid(grid),
+                              "to_world": T().translate([x0, y0, z0]).scale(list(ext))},
+                  "albedo": {"type": "constvolume", "value": _rgb(med.albedo)}}
+    medium["id"] = "volmc_medium"
+
+    w, h = cam.resolution
+    look = T().look_at(origin=list(cam.eye), target=list(cam.target), up=list(cam.up))
+    if cam.type == "perspective":
+        sensor = {"type": "perspective", "fov": float(cam.fov), "fov_axis": "y",
+                  "to_world": look}
+    else:
+        s = cam.size * (w / h) / 2.0
+        sensor = {"type": "orthographic", "to_world": look @ T().scale([s, s, 1.0])}
+    sensor["film"] = {"type": "hdrfilm", "width": int(w), "height": int(h),
+                      "rfilter": {"type": "box"}, "pixel_format": "rgb"}
+    sensor["sampler"] = {"type": "independent", "sample_count": int(ren.spp)}
+    if _inside(cam.eye, med.bounds):
+        sensor["medium"] = {"type": "ref", "id": "volmc_medium"}
+
+    depth = -1 if ren.max_depth < 0 else ren.max_depth + 1
+    d = {"type": "scene",
+         "integrator": {"type": "volpath", "max_depth": int(depth),
+                        "rr_depth": int(ren.rr_depth + 1)},
+         "sensor": sensor,
+         "volmc_medium": medium,
+         "box": {"type": "cube", "bsdf": {"type": "null"},
+                 "interior": {"type": "ref", "id": "volmc_medium"},
+                 "to_world": T().translate([(x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2])
+                 .scale([e / 2 for e in ext])}}
+    for i, light in enumerate(spec.lights):
+        if light.type == "environment":
+            d[f"light{i}"] = {"type": "constant", "radiance": _rgb(light.radiance)}
+        elif light.type == "directional":
+            d[f"light{i}"] = {"type": "directional", "direction": [float(x) for x in
+                                                                   light.direction],
+                              "irradiance": _rgb(light.irradiance)}
+        else:
+            d[f"light{i}"] = {"type": "point", "position": [float(x) for x in light.position],
+                              "intensity": _rgb(light.intensity)}
+    return d
+
+
+class MitsubaRenderer:
+    """A volmc scene loaded into Mitsuba 3, rendered in passes of independent seeds.
+
+    ``render(spp, seed)`` returns (mean image [h, w, 3] float64, per-pixel variance of the
+    mean, wall seconds). The variance comes from the spread of the passes (``passes`` of
+    them, each spp / passes samples per pixel), because Mitsuba's films keep only means."""
+
+    def __init__(self, scene):
+        self.mi = _mi()
+        self.scene = scene
+        t = time.perf_counter()
+        self.mi_scene = self.mi.load_dict(scene_dict(scene, self.mi))
+        self.load_seconds = time.perf_counter() - t
+        w, h = scene.spec.camera.resolution
+        self.pixels = w * h
+
+    def warm_up(self):
+        """Compile the megakernel once (Dr.Jit caches it), so timings exclude compilation."""
+        self._pass(1, 2**31 - 1)
+
+    def _pass(self, spp, seed):
+        img = self.mi.render(self.mi_scene, seed=int(seed) % (2**31 - 1), spp=int(spp))
+        return np.asarray(img, np.float64)[..., :3]
+
+    def render(self, spp, seed=0, passes=None):
+        """(mean, variance of the mean, wall seconds, [passes, 3] pass image means).
+
+        The image is the sample-weighted mean of ``passes`` launches with independent seeds
+        (default: as few as memory allows). The spread of the nearly equal-size passes
+        estimates the variance of one pass's mean; the overall mean's variance is that over
+        the number of passes (NaN for a single pass)."""
+        if passes is None:
+            passes = max(1, math.ceil(spp * self.pixels / MAX_LANES))
+        passes = max(1, min(passes, spp))
+        sizes = [spp // passes + (1 if i < spp % passes else 0) for i in range(passes)]
+        t = time.perf_counter()
+        stack = np.stack([self._pass(n, seed * 100_003 + i) for i, n in enumerate(sizes)])
+        seconds = time.perf_counter() - t
+        mean = np.tensordot(np.array(sizes, np.float64) / spp, stack, axes=1)
+        var = (stack.var(axis=0, ddof=1) / passes if passes > 1
+               else np.full_like(mean, np.nan))
+        return mean, var, seconds, stack.mean(axis=(1, 2))
