@@ -54,6 +54,13 @@ def _finite_float(text):
     return v
 
 
+def _exposure(text):
+    v = _finite_float(text)
+    if abs(v) > 100.0:   # 2 ** exposure must stay a finite float
+        raise argparse.ArgumentTypeError(f"must be in [-100, 100] stops, got {text!r}")
+    return v
+
+
 def build_parser():
     from .render import BACKENDS
     p = _Parser(prog="volmc", description="Monte Carlo volume path tracer")
@@ -73,7 +80,7 @@ def build_parser():
     r.add_argument("--png", nargs="?", const="", default=None, metavar="PATH",
                    help="also write a tonemapped sRGB PNG preview (default path: EXR name with "
                         ".png); on by default when no scene is given")
-    r.add_argument("--exposure", type=_finite_float, default=0.0,
+    r.add_argument("--exposure", type=_exposure, default=0.0,
                    help="PNG exposure in stops (default 0)")
     r.add_argument("--tonemap", choices=("filmic", "clamp"), default="filmic",
                    help="PNG tone curve (default filmic)")
@@ -129,8 +136,34 @@ def build_parser():
     bt.add_argument("--device", help="OpenCL device (as for render)")
     bt.add_argument("-D", dest="defines", action="append", default=[],
                     metavar="SECTION.KEY=VALUE", help="override a key of every scene")
+    br = bsub.add_parser("render", help="RMSE against wall time for every configuration "
+                                        "(backend x majorant x free flight x shadow estimator, "
+                                        "and Mitsuba 3 when it runs)")
+    br.add_argument("scene", nargs="?", help="scene .toml (default: the bundled cloud scene)")
+    br.add_argument("--backends", default="opencl,numba",
+                    help="comma-separated volmc backends (default opencl,numba)")
+    br.add_argument("--majorants", default="grid,global", help="default grid,global")
+    br.add_argument("--free-flights", default="delta,decomposition",
+                    help="default delta,decomposition")
+    br.add_argument("--transmittances", default=None,
+                    help="shadow-ray estimators (default: every unbiased grid estimator; "
+                         "'scene' = the scene's own)")
+    br.add_argument("--peer", choices=["mitsuba", "none", "auto"], default="auto",
+                    help="include Mitsuba 3 (auto: when it can run; mitsuba: required)")
+    br.add_argument("--spp-levels", default="4,16,64",
+                    help="comma-separated samples per pixel of the timed renders")
+    br.add_argument("--reference-spp", type=_positive_int, default=1024,
+                    help="samples per pixel of the reference (default 1024)")
+    br.add_argument("--repeats", type=_positive_int, default=1,
+                    help="passes over the spp ladder (default 1)")
+    br.add_argument("--device", help="OpenCL device (as for render)")
+    br.add_argument("-D", dest="defines", action="append", default=[],
+                    metavar="SECTION.KEY=VALUE", help="override a scene key (repeatable)")
+    br.add_argument("--json", help="also write the report to this JSON file")
+    br.add_argument("--plot", help="write the RMSE-against-time figure (PNG) here")
+    br.add_argument("--no-ceiling", action="store_true",
+                    help="skip the raw-lookup ceiling measurement")
     for name, helptext in (
-            ("render", "samples/s of each backend on a scene (same paths on both)"),
             ("specialise", "samples/s of the scene-specialised build vs every feature on"),
             ("workgroup", "samples/s of the OpenCL kernel per work-group size")):
         bb = bsub.add_parser(name, help=helptext)
@@ -144,9 +177,6 @@ def build_parser():
         bb.add_argument("-D", dest="defines", action="append", default=[],
                         metavar="SECTION.KEY=VALUE", help="override a scene key (repeatable)")
         bb.add_argument("--json", help="also write the figures to this JSON file")
-        if name == "render":
-            bb.add_argument("--backends", default="opencl,numba",
-                            help="comma-separated backends (default opencl,numba)")
         if name == "workgroup":
             bb.add_argument("--sizes", default="driver,1,2,4,8,16,32,64",
                             help="comma-separated work-group sizes ('driver' = driver's choice)")
@@ -162,6 +192,8 @@ def build_parser():
 
 
 def _check_writable(path, flag):
+    if not path or path.endswith(("/", os.sep)) or os.path.isdir(path):
+        raise SceneError("command line", flag, f"expected a file path, got {path!r}")
     d = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(d):
         raise SceneError("command line", flag, f"directory does not exist: {d}")
@@ -193,6 +225,9 @@ def cmd_render(args):
         png = os.path.splitext(out)[0] + ".png"
     _check_writable(out, "-o")
     if png:
+        if not png.lower().endswith(".png"):   # the image writer picks the format by suffix
+            raise SceneError("command line", "--png", f"expected a path ending in .png, got "
+                                                      f"{png!r}")
         _check_writable(png, "--png")
 
     defines = list(args.defines)
@@ -202,6 +237,9 @@ def cmd_render(args):
         defines.append(f"render.seed={args.seed}")
     scene = load_scene(scene_path, defines)
 
+    if args.backend == "opencl":
+        from .cl.device import select_device
+        select_device(args.device)   # a bad --device fails before anything is printed
     if not args.quiet:
         w, h = scene.camera.resolution
         print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "
@@ -332,11 +370,80 @@ def cmd_bench_transmittance(args):
     return 0
 
 
+def _list(text, flag, allowed):
+    items = [x.strip() for x in text.split(",") if x.strip()]
+    bad = [x for x in items if x not in allowed]
+    if not items or bad:
+        raise SceneError("command line", flag, f"expected a comma-separated list of "
+                                               f"{', '.join(allowed)}, got {text!r}")
+    return items
+
+
+def cmd_bench_render(args):
+    from .bench import convergence as cv
+    from .bench.render import write_json
+    from .render import BACKENDS
+    from .resources import default_scene
+    from .scene import load_scene
+    from .scene.schema import ConstantDensity
+    backends = _list(args.backends, "--backends", BACKENDS)
+    majorants = _list(args.majorants, "--majorants", ("grid", "global"))
+    flights = _list(args.free_flights, "--free-flights", ("delta", "decomposition"))
+    levels = []
+    for x in args.spp_levels.split(","):
+        if not (x.strip().isascii() and x.strip().isdigit()) or int(x) < 1:
+            raise SceneError("command line", "--spp-levels",
+                             f"expected positive integers separated by commas, got "
+                             f"{args.spp_levels!r}")
+        levels.append(int(x))
+    for path, flag in ((args.json, "--json"), (args.plot, "--plot")):
+        if path:
+            _check_writable(path, flag)
+    scene_path = str(default_scene()) if args.scene is None else args.scene
+    scene = load_scene(scene_path, args.defines)
+    homogeneous = isinstance(scene.spec.medium.density, ConstantDensity)
+    if args.transmittances == "scene":
+        ests = [scene.render.transmittance]
+    elif args.transmittances:
+        from .reference.estimators import ESTIMATORS
+        ests = _list(args.transmittances, "--transmittances", tuple(ESTIMATORS))
+    else:
+        ests = (["analytic"] if homogeneous else []) + cv.grid_estimators()
+    peer = args.peer != "none"
+    if peer:
+        from .peers.mitsuba import PeerUnavailable, probe
+        try:
+            print(f"peer: Mitsuba {probe()}", flush=True)
+        except PeerUnavailable as e:
+            if args.peer == "mitsuba":
+                raise SceneError("command line", "--peer", str(e)) from None
+            print(f"peer: none ({e})", flush=True)
+            peer = False
+    configs = cv.make_configs(backends, majorants, flights, ests, peer)
+    w, h = scene.camera.resolution
+    print(f"volmc bench render: {scene_path}: {w}x{h}, {len(configs)} configurations",
+          flush=True)
+    ceiling = None
+    if not args.no_ceiling and not homogeneous:
+        from .bench.lookups import lookup_ceiling
+        ceiling = lookup_ceiling(scene, backends, device=args.device)
+    report = cv.run(scene, configs, levels, args.reference_spp, args.repeats, args.device,
+                    ceiling)
+    cv.print_report(report)
+    if args.json:
+        write_json(args.json, report)
+    if args.plot:
+        from .bench.plots import render_convergence_plot
+        render_convergence_plot(report, args.plot)
+    return 0
+
+
 def cmd_bench(args):
     if args.bench == "transmittance":
         return cmd_bench_transmittance(args)
+    if args.bench == "render":
+        return cmd_bench_render(args)
     from .bench import render as rb
-    from .render import BACKENDS
     from .resources import default_scene, scenes_dir
     from .scene import load_scene
     paths = args.scenes or ([str(default_scene())] + ([str(scenes_dir() / "homogeneous.toml")]
@@ -348,15 +455,7 @@ def cmd_bench(args):
         scene = load_scene(path, args.defines)
         w, h = scene.camera.resolution
         print(f"{path}: {w}x{h}, {args.spp} spp per batch, {args.repeats} repeats", flush=True)
-        if args.bench == "render":
-            names = [x.strip() for x in args.backends.split(",")]
-            if any(n not in BACKENDS for n in names):
-                raise SceneError("command line", "--backends",
-                                 f"unknown backend in {args.backends!r} (have "
-                                 f"{', '.join(BACKENDS)})")
-            res = rb.bench_backends(scene, names, args.spp, args.repeats, args.device)
-            rb.print_table("samples per second:", res, baseline=names[-1])
-        elif args.bench == "specialise":
+        if args.bench == "specialise":
             res = rb.bench_specialisation(scene, args.spp, args.repeats, args.device)
             rb.print_table("samples per second:", res, baseline="all features")
         else:
@@ -365,7 +464,7 @@ def cmd_bench(args):
                 x = x.strip()
                 if x == "driver":
                     sizes.append(None)
-                elif x.isdigit() and int(x) > 0:
+                elif x.isascii() and x.isdigit() and int(x) > 0:
                     sizes.append(int(x))
                 else:
                     raise SceneError("command line", "--sizes", f"not a work-group size: {x!r}")

@@ -87,3 +87,31 @@ def convergence_plots(report, path_cost, path_time):
         fig.tight_layout()
         fig.savefig(path, dpi=110)
         plt.close(fig)
+
+
+def render_convergence_plot(report, path, max_lines=12):
+    """`volmc bench render`: RMSE against wall time per configuration (log-log), the best
+    ``max_lines`` volmc configurations plus Mitsuba, with a 1/sqrt(t) slope for reference."""
+    plt = _plt()
+    rows = sorted(report["results"], key=lambda r: r["mse_seconds"])
+    keep = [r for r in rows if r["backend"] != "mitsuba"][:max_lines]
+    keep += [r for r in rows if r["backend"] == "mitsuba"]
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    for r in keep:
+        pts = sorted((p for p in r["points"] if p["rmse"] > 0), key=lambda p: p["seconds"])
+        style = dict(color="k", lw=2.2, marker="s") if r["backend"] == "mitsuba" else \
+            dict(lw=1.2, marker="o", ms=3)
+        ax.loglog([p["seconds"] for p in pts], [p["rmse"] for p in pts],
+                  label=f"{r['name']} ({r['time_to_equal_error_vs_best_volmc']:.2f}x)", **style)
+    xs = np.array(ax.get_xlim())
+    best = keep[0]
+    ax.loglog(xs, np.sqrt(best["mse_seconds"] / xs), "k:", lw=1, label="1/sqrt(t) through best")
+    w, h = report["resolution"]
+    ax.set_title(f"{os.path.basename(str(report['scene']))}, {w}x{h}: RMSE against wall time "
+                 f"(time to equal error vs best in brackets)", fontsize=9)
+    ax.set_xlabel("wall time (s)")
+    ax.set_ylabel("RMSE against the reference")
+    ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

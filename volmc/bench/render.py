@@ -1,4 +1,6 @@
-"""Render-speed benchmarks: backends, kernel specialisation, work-group size.
+"""Render-speed benchmarks: kernel specialisation and work-group size (samples/s).
+
+Speed against error across backends and techniques is volmc/bench/convergence.py.
 
 Every benchmark renders the same scene with the same seed in every configuration. Both
 backends and all builds draw the same random numbers, so they trace the same paths and do
@@ -12,7 +14,6 @@ import statistics
 import time
 
 from ..film import Film
-from ..render import make_backend
 
 
 def _time_render(backend, scene, spp, start):
@@ -56,13 +57,6 @@ def run_configs(scene, configs, spp, repeats, log=print):
                      "all_seconds": times[name], "all_cpu_seconds": cpu[name],
                      "lookups": int(totals[0])}
     return out
-
-
-def bench_backends(scene, backends=("opencl", "numba"), spp=4, repeats=3, device=None,
-                   log=print):
-    """samples/s of each backend on one scene (same algorithm, same random numbers)."""
-    configs = {b: (lambda b=b: make_backend(b, scene, device)) for b in backends}
-    return run_configs(scene, configs, spp, repeats, log)
 
 
 def bench_specialisation(scene, spp=4, repeats=3, device=None, log=print):

@@ -1,0 +1,205 @@
+"""Speed against error: RMSE as a function of wall time for every render configuration.
+
+A configuration is backend x majorant x free-flight x shadow-ray estimator (and the Mitsuba 3
+peer when it can run). Each one renders the scene at a ladder of sample counts; every render
+is timed (compilation excluded: each renderer is built and launched once before timing) and
+its RMSE is taken against a high-spp reference rendered by volmc with an independent seed.
+The reference's own noise adds its mean variance of the mean to every MSE; that known amount
+is subtracted (volmc.peers.compare.rmse_to_reference).
+
+Renders alternate: each spp level is rendered by every configuration in turn (the order
+rotates between repetitions), so drift of this shared machine hits all of them alike.
+
+Efficiency: for an unbiased renderer MSE = c / t, so c = MSE x t (geometric mean over the
+upper half of the spp ladder, where fixed per-launch costs no longer matter) is the time
+needed for unit MSE. The time to reach the same RMSE as configuration B is c_A / c_B times
+B's time: the "time to equal error" ratios printed.
+"""
+
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..film import Film
+from ..peers import with_render
+from ..peers.compare import rmse_to_reference
+from ..render import batch_schedule, make_backend
+
+
+@dataclass(frozen=True)
+class Config:
+    """One renderer configuration. backend "mitsuba" ignores the technique fields."""
+    backend: str
+    majorant: str = ""
+    free_flight: str = ""
+    transmittance: str = ""
+
+    @property
+    def name(self):
+        if self.backend == "mitsuba":
+            return "mitsuba volpath"
+        return f"{self.backend} {self.majorant} {self.free_flight} {self.transmittance}"
+
+
+def grid_estimators():
+    """Unbiased shadow-ray estimators that work on grids (the registry decides)."""
+    from ..reference.estimators import ESTIMATORS
+    return [n for n, (_, _, unbiased, homog_only) in ESTIMATORS.items()
+            if unbiased and not homog_only]
+
+
+def make_configs(backends, majorants, free_flights, transmittances, peer):
+    out = [Config(b, m, f, t) for b in backends for m in majorants for f in free_flights
+           for t in transmittances]
+    if peer:
+        out.append(Config("mitsuba"))
+    return out
+
+
+class _VolmcRunner:
+    def __init__(self, scene, cfg, device):
+        self.scene = with_render(scene, majorant=cfg.majorant, free_flight=cfg.free_flight,
+                                 transmittance=cfg.transmittance)
+        self.be = make_backend(cfg.backend, self.scene, device)
+        self.be.warm_up()
+        w, h = self.scene.camera.resolution
+        self.w, self.h = w, h
+        self.next_sample = 0
+        self.render(1)  # first launch (driver-side compilation) is not measured
+
+    def render(self, spp):
+        film = Film(self.w, self.h)
+        before = self.be.counter_totals().copy()
+        t = time.perf_counter()
+        for n in batch_schedule(self.w * self.h, spp):
+            self.be.render(self.next_sample + film.spp, n, film)
+            film.spp += n
+        sec = time.perf_counter() - t
+        self.next_sample += spp  # later renders use fresh, independent samples
+        lookups = int(self.be.counter_totals()[0] - before[0])
+        return film.mean(), sec, lookups
+
+
+class _MitsubaRunner:
+    def __init__(self, scene):
+        from ..peers.mitsuba import MitsubaRenderer
+        self.r = MitsubaRenderer(scene)
+        self.r.warm_up()
+        self.seed = 1000
+
+    def render(self, spp):
+        self.seed += 1
+        mean, _, sec, _ = self.r.render(spp, seed=self.seed)
+        return mean, sec, None
+
+
+def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceiling=None,
+        log=print):
+    """Render every configuration at every spp level; returns the report dict."""
+    w, h = scene.camera.resolution
+    pixels = w * h
+    log(f"reference: volmc opencl, {reference_spp} spp (independent seed)")
+    t = time.perf_counter()
+    sref = with_render(scene, seed=(scene.render.seed + 0x5EED) % 2**64)
+    from ..render import render
+    ref = render(sref, backend=make_backend("opencl", sref, device), spp=reference_spp,
+                 progress=False)
+    ref_mean, ref_var = ref.film.mean(), ref.film.variance_of_mean()
+    log(f"  {time.perf_counter() - t:.1f} s; reference noise (RMS standard error) "
+        f"{math.sqrt(float(np.mean(ref_var))):.2e}")
+
+    runners = {}
+    for cfg in configs:
+        t = time.perf_counter()
+        runners[cfg] = (_MitsubaRunner(scene) if cfg.backend == "mitsuba"
+                        else _VolmcRunner(scene, cfg, device))
+        log(f"  {cfg.name}: ready in {time.perf_counter() - t:.1f} s")
+
+    points = {cfg: [] for cfg in configs}
+    order = list(configs)
+    for rep in range(repeats):
+        for spp in spp_levels:
+            for cfg in order:
+                mean, sec, lookups = runners[cfg].render(spp)
+                e = rmse_to_reference(mean, ref_mean, ref_var)
+                points[cfg].append({"spp": spp, "seconds": sec, "rmse": e,
+                                    "lookups": lookups})
+            order = order[1:] + order[:1]
+        log(f"  repetition {rep + 1}/{repeats} done")
+
+    upper = sorted(spp_levels)[len(spp_levels) // 2:]
+    results = []
+    for cfg in configs:
+        pts = points[cfg]
+        fit = [p for p in pts if p["spp"] in upper and p["rmse"] > 0]
+        c = math.exp(float(np.mean([math.log(p["rmse"] ** 2 * p["seconds"]) for p in fit])))
+        secs = sum(p["seconds"] for p in pts)
+        spp_total = sum(p["spp"] for p in pts)
+        row = {"name": cfg.name, "backend": cfg.backend, "majorant": cfg.majorant,
+               "free_flight": cfg.free_flight, "transmittance": cfg.transmittance,
+               "points": pts, "mse_seconds": c,
+               "samples_per_second": pixels * spp_total / secs}
+        if pts[0]["lookups"] is not None:
+            lk = sum(p["lookups"] for p in pts)
+            row["lookups_per_sample"] = lk / (pixels * spp_total)
+            row["lookups_per_second"] = lk / secs
+            if ceiling and cfg.backend in ceiling:
+                row["fraction_of_lookup_ceiling"] = row["lookups_per_second"] / ceiling[
+                    cfg.backend]
+        results.append(row)
+    best = min((r for r in results if r["backend"] != "mitsuba"), key=lambda r: r["mse_seconds"])
+    for r in results:
+        r["time_to_equal_error_vs_best_volmc"] = r["mse_seconds"] / best["mse_seconds"]
+    report = {"scene": scene.file, "resolution": [w, h], "spp_levels": list(spp_levels),
+              "reference_spp": reference_spp, "repeats": repeats, "best_volmc": best["name"],
+              "lookup_ceiling": ceiling or {}, "results": results}
+    peer = [r for r in results if r["backend"] == "mitsuba"]
+    if peer:
+        report["mitsuba_time_to_equal_error_vs_best_volmc"] = \
+            peer[0]["mse_seconds"] / best["mse_seconds"]
+    return report
+
+
+def majorant_pairs(report):
+    """(grid row, global row) for configurations that differ only in the majorant."""
+    by_key = {}
+    for r in report["results"]:
+        if r["backend"] != "mitsuba":
+            by_key[(r["backend"], r["free_flight"], r["transmittance"], r["majorant"])] = r
+    out = []
+    for (b, f, t, m), r in by_key.items():
+        if m == "grid" and (b, f, t, "global") in by_key:
+            out.append((r, by_key[(b, f, t, "global")]))
+    return out
+
+
+def print_report(report, log=print):
+    log(f"\nspeed against error ({report['resolution'][0]}x{report['resolution'][1]}, spp "
+        f"{report['spp_levels']} x {report['repeats']}, reference {report['reference_spp']} "
+        f"spp); MSE x time = time for unit MSE, lower is better")
+    ceiling = report["lookup_ceiling"]
+    if ceiling:
+        log("lookup ceiling (raw trilinear lookups, no tracking): " + ", ".join(
+            f"{b} {v / 1e6:.1f} M/s" for b, v in ceiling.items()))
+    log(f"  {'configuration':46s} {'samples/s':>10s} {'lookups/':>9s} {'of ceil.':>8s} "
+        f"{'MSE x s':>10s} {'time to equal error':>20s}")
+    for r in sorted(report["results"], key=lambda r: r["mse_seconds"]):
+        frac = r.get("fraction_of_lookup_ceiling")
+        lps = r.get("lookups_per_sample")
+        log(f"  {r['name']:46s} {r['samples_per_second']:10.0f} "
+            f"{'' if lps is None else f'{lps:9.1f}':>9s} "
+            f"{'' if frac is None else f'{100 * frac:7.1f}%':>8s} {r['mse_seconds']:10.3e} "
+            f"{r['time_to_equal_error_vs_best_volmc']:14.2f} x best")
+    if "mitsuba_time_to_equal_error_vs_best_volmc" in report:
+        log(f"Mitsuba 3 needs {report['mitsuba_time_to_equal_error_vs_best_volmc']:.2f}x the "
+            f"time of the best volmc configuration ({report['best_volmc']}) to reach the "
+            f"same RMSE")
+    pairs = majorant_pairs(report)
+    if pairs:
+        log("majorant grid against global majorant (same backend, free flight, estimator):")
+        for g, o in pairs:
+            log(f"  {g['backend']} {g['free_flight']} {g['transmittance']}: lookups/sample "
+                f"{g['lookups_per_sample']:.1f} vs {o['lookups_per_sample']:.1f}; global "
+                f"needs {o['mse_seconds'] / g['mse_seconds']:.2f}x the time to equal error")
