@@ -44,7 +44,7 @@ def select_device(spec=None):
         raise SceneError("OpenCL", "devices", "no OpenCL device found")
     plat_part, _, dev_part = str(spec).partition(":")
     chosen = None
-    if plat_part.isdigit():
+    if plat_part.isascii() and plat_part.isdigit():   # "²".isdigit(), but int("²") fails
         idx = int(plat_part)
         if idx < len(plats):
             chosen = plats[idx]
@@ -60,7 +60,7 @@ def select_device(spec=None):
     devs = chosen[2]
     if dev_part == "":
         dev_idx = 0
-    elif dev_part.isdigit():
+    elif dev_part.isascii() and dev_part.isdigit():
         dev_idx = int(dev_part)
     else:
         raise SceneError(source, spec, "device part must be an index, e.g. 0:1")

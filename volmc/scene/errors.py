@@ -12,4 +12,11 @@ class SceneError(Exception):
         self.file = str(file)
         self.key = key
         self.message = message
-        super().__init__(f"{self.file}: {key}: {message}" if key else f"{self.file}: {message}")
+        text = f"{self.file}: {key}: {message}" if key else f"{self.file}: {message}"
+        super().__init__(_one_line(text))
+
+
+def _one_line(text):
+    """Escape line breaks and other non-printable characters (a key or file name may hold
+    them), so the message stays one line."""
+    return "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)

@@ -8,9 +8,12 @@ Mitsuba .vol layout (little-endian): bytes b"VOL", version byte 3, int32 encodin
 ((z * yres + y) * xres + x) * channels + c. volmc reads one-channel (density) volumes.
 """
 
+import math
 import os
 import struct
+import tokenize
 import zipfile
+import zlib
 
 import numpy as np
 
@@ -41,6 +44,11 @@ def read_vol(path, key="density"):
         if min(nx, ny, nz) < 0:
             raise SceneError(path, key, f".vol has negative resolution {nx}x{ny}x{nz}")
         count = nx * ny * nz * ch
+        # Check the declared size against the file before reading: a corrupt header must
+        # not make numpy allocate (or overflow on) terabytes.
+        avail = max(os.fstat(f.fileno()).st_size - VOL_HEADER.size, 0) // 4
+        if count > avail:
+            raise SceneError(path, key, f"truncated .vol data: {avail} of {count} values")
         data = np.fromfile(f, dtype="<f4", count=count)
     if data.size != count:
         raise SceneError(path, key, f"truncated .vol data: {data.size} of {count} values")
@@ -70,8 +78,19 @@ def read_grid_file(path, key="density"):
     try:
         if suffix == ".vol":
             return read_vol(path, key)[0]
+        # np.load picks the format by content; the suffix must agree (a .npz holding an
+        # .npy array has no "density" member to read).
+        with open(path, "rb") as f:
+            magic = f.read(len(np.lib.format.MAGIC_PREFIX))
+            if suffix == ".npy":
+                if magic != np.lib.format.MAGIC_PREFIX:
+                    raise SceneError(path, key, "cannot read grid: not a .npy file")
+                f.seek(0)
+                _check_npy_size(f, os.fstat(f.fileno()).st_size, path, key)
         if suffix == ".npy":
             return np.load(path, allow_pickle=False)
+        if not magic.startswith(b"PK"):
+            raise SceneError(path, key, "cannot read grid: not a .npz file (not a zip archive)")
         with np.load(path, allow_pickle=False) as z:
             if "density" not in z.files:
                 raise SceneError(path, key, f".npz has no array 'density' (has: "
@@ -79,8 +98,25 @@ def read_grid_file(path, key="density"):
             return z["density"]
     except SceneError:
         raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise SceneError(path, key, f"cannot read grid: {str(e).splitlines()[0]}") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, tokenize.TokenError,
+            TypeError, OverflowError, MemoryError) as e:
+        # Corrupt headers (numpy raises TypeError for a shape such as (True, 1, 1)) or
+        # compressed data, and sizes too large to allocate.
+        text = (str(e).splitlines() or [type(e).__name__])[0]
+        raise SceneError(path, key, f"cannot read grid: {text}") from None
+
+
+def _check_npy_size(f, file_size, path, key):
+    """Reject a .npy header that declares more data than the file holds (before numpy
+    allocates it)."""
+    version = np.lib.format.read_magic(f)
+    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                   else np.lib.format.read_array_header_2_0)
+    shape, _, dtype = read_header(f)
+    declared = math.prod(shape) * dtype.itemsize
+    if declared > file_size - f.tell():
+        raise SceneError(path, key, f"truncated .npy data: shape {shape} of {dtype} needs "
+                                    f"{declared} bytes, the file holds {file_size - f.tell()}")
 
 
 def validate_grid(arr, file, key="density"):

@@ -15,7 +15,8 @@ import numpy as np
 
 from .errors import SceneError
 from .grids import load_grid, validate_grid
-from .schema import ConstantDensity, FileDensity, GeneratedDensity, SceneSpec, validate
+from .schema import (FLOAT32_MAX, ConstantDensity, FileDensity, GeneratedDensity, SceneSpec,
+                     validate)
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,11 @@ def read_toml(path):
         raise SceneError(path, "", "not a text (UTF-8) file") from None
     except tomllib.TOMLDecodeError as e:
         raise SceneError(path, "", f"malformed TOML: {e}") from None
+    except ValueError as e:   # e.g. an integer longer than Python's 4300-digit limit
+        raise SceneError(path, "", f"malformed TOML: {(str(e).splitlines() or [''])[0]}") from None
+    except RecursionError:
+        raise SceneError(path, "", "malformed TOML: arrays or tables nested too deeply") \
+            from None
 
 
 def parse_override(text, file):
@@ -79,9 +85,14 @@ def parse_override(text, file):
         raise SceneError(file, f"-D {text}", "missing value after '='")
     try:
         parsed = tomllib.loads(f"v = {value}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (ValueError, RecursionError):   # not TOML (or too long/deep for tomllib)
         parsed = value
     return [p.strip() for p in parts], parsed
+
+
+def _is_index(part):
+    """An array index: ASCII digits only ("²".isdigit() is true, but int("²") fails)."""
+    return part.isascii() and part.isdigit()
 
 
 def apply_overrides(raw, overrides, file):
@@ -92,7 +103,7 @@ def apply_overrides(raw, overrides, file):
         for depth, part in enumerate(parts[:-1]):
             shown = ".".join(parts[:depth + 1])
             if isinstance(node, list):
-                if not part.isdigit() or int(part) >= len(node):
+                if not _is_index(part) or int(part) >= len(node):
                     raise SceneError(file, f"-D {text}",
                                      f"'{shown}': no element {part} (there are {len(node)})")
                 node = node[int(part)]
@@ -104,7 +115,7 @@ def apply_overrides(raw, overrides, file):
                 raise SceneError(file, f"-D {text}", f"'{shown}' is not a table")
         last = parts[-1]
         if isinstance(node, list):
-            if not last.isdigit() or int(last) >= len(node):
+            if not _is_index(last) or int(last) >= len(node):
                 raise SceneError(file, f"-D {text}", f"no element {last} (there are {len(node)})")
             node[int(last)] = value
         elif isinstance(node, dict):
@@ -122,11 +133,18 @@ def load_density(spec: SceneSpec):
     if isinstance(d, FileDensity):
         if not os.path.exists(d.resolved):
             raise SceneError(spec.file, "medium.density.file", f"grid file not found: {d.path}")
-        return load_grid(d.resolved, "medium.density")
-    if isinstance(d, GeneratedDensity):
+        grid = load_grid(d.resolved, "medium.density")
+    elif isinstance(d, GeneratedDensity):
         from .generators import cloud
-        return validate_grid(cloud(d.resolution, d.seed), spec.file, "medium.density")
-    raise TypeError(d)
+        grid = validate_grid(cloud(d.resolution, d.seed), spec.file, "medium.density")
+    else:
+        raise TypeError(d)
+    # The float32 kernels hold the global majorant scale * max(density).
+    if spec.medium.scale * float(grid.max()) > FLOAT32_MAX:
+        raise SceneError(spec.file, "medium.scale",
+                         f"scale * max(density) = {spec.medium.scale * float(grid.max()):g} "
+                         f"overflows float32 (at most {FLOAT32_MAX:g})")
+    return grid
 
 
 def load_scene(path, overrides=()):

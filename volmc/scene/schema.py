@@ -7,7 +7,10 @@ the file and the dotted key (``medium.phase.g``, ``lights[1].irradiance``).
 """
 
 import difflib
+import json
 import math
+import re
+import sys
 from dataclasses import dataclass
 from typing import Optional, Union
 
@@ -20,6 +23,8 @@ CAMERA_TYPES = ("perspective", "orthographic")
 PHASE_TYPES = ("isotropic", "hg")
 LIGHT_TYPES = ("environment", "directional", "point")
 GENERATORS = ("cloud",)
+#: Largest finite float32: every number reaches the kernels as a float32.
+FLOAT32_MAX = 3.4028234663852886e38
 
 
 @dataclass(frozen=True)
@@ -168,7 +173,7 @@ class _Checker:
                 near = difflib.get_close_matches(k, allowed, n=1)
                 hint = f" (did you mean '{near[0]}'?)" if near else \
                     f" (allowed: {', '.join(allowed)})"
-                self.fail(f"{prefix}{k}", f"unknown key{hint}")
+                self.fail(f"{prefix}{_key_name(k)}", f"unknown key{hint}")
 
     def required(self, table, k, prefix):
         if k not in table:
@@ -178,9 +183,15 @@ class _Checker:
     def number(self, v, key, lo=-math.inf, hi=math.inf, lo_open=False, hi_open=False):
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(key, f"expected a number, got {_show(v)}")
-        v = float(v)
+        try:
+            v = float(v)
+        except OverflowError:   # an integer beyond the float range
+            self.fail(key, f"must be finite, got an integer of {v.bit_length()} bits")
         if not math.isfinite(v):
             self.fail(key, f"must be finite, got {v}")
+        if abs(v) > FLOAT32_MAX:
+            self.fail(key, f"must be at most {FLOAT32_MAX:g} in magnitude (the kernels use "
+                           f"float32), got {_fmt(v)}")
         if v < lo or (lo_open and v == lo) or v > hi or (hi_open and v == hi):
             lb = "(" if lo_open else "["
             hb = ")" if hi_open else "]"
@@ -221,12 +232,22 @@ class _Checker:
         return (x, x, x)
 
 
+def _key_name(k):
+    """A key as TOML writes it: bare if it can be, else quoted (so "" and "a b" show)."""
+    if re.fullmatch(r"[A-Za-z0-9_-]+", k):
+        return k
+    return json.dumps(k, ensure_ascii=False)
+
+
 def _fmt(x):
     return f"{x:g}"
 
 
 def _show(v):
-    text = repr(v)
+    try:
+        text = repr(v)
+    except ValueError:   # an int beyond Python's str conversion limit
+        text = f"<{v.bit_length()} bits>"
     if len(text) > 40:
         text = text[:37] + "..."
     return f"{type(v).__name__} {text}"
@@ -246,14 +267,24 @@ def _camera(c, raw):
     if not isinstance(res, list) or len(res) != 2:
         c.fail(p + "resolution", f"expected [width, height], got {_show(res)}")
     res = tuple(c.integer(x, p + "resolution", lo=1) for x in res)
+    if res[0] * res[1] > 2**31 - 1:   # the kernels index pixels with an int
+        c.fail(p + "resolution", f"{res[0]} x {res[1]} pixels; at most 2^31 - 1 in all")
     fwd = [target[i] - eye[i] for i in range(3)]
     if all(x == 0.0 for x in fwd):
         c.fail(p + "target", "must differ from camera.eye")
-    cross = (fwd[1] * up[2] - fwd[2] * up[1], fwd[2] * up[0] - fwd[0] * up[2],
-             fwd[0] * up[1] - fwd[1] * up[0])
+    # The same arithmetic as pack.camera_basis, which normalises target - eye and then
+    # forward x up: both lengths must be positive and finite in floating point.
     nf = math.sqrt(sum(x * x for x in fwd))
+    if not 0.0 < nf < math.inf:
+        c.fail(p + "target", f"target - eye has length {_fmt(nf)} in floating point; "
+                             "cannot normalise it")
     nu = math.sqrt(sum(x * x for x in up))
-    if math.sqrt(sum(x * x for x in cross)) <= 1e-9 * nf * nu:
+    if not 0.0 < nu < math.inf:
+        c.fail(p + "up", f"has length {_fmt(nu)} in floating point; cannot normalise it")
+    f = [x / nf for x in fwd]
+    cross = (f[1] * up[2] - f[2] * up[1], f[2] * up[0] - f[0] * up[2],
+             f[0] * up[1] - f[1] * up[0])
+    if not math.sqrt(sum(x * x for x in cross)) > 1e-9 * nu:
         c.fail(p + "up", "must not be parallel to the viewing direction (target - eye)")
     return Camera(cam_type, eye, target, up, fov, size, res)
 
@@ -295,8 +326,14 @@ def _medium(c, raw, file_dir):
             what = "zero size" if lo[a] == hi[a] else "inverted"
             c.fail(p + "bounds", f"box has {what} along {name} ({_fmt(lo[a])} .. {_fmt(hi[a])});"
                                  " need min < max on every axis")
+        if 1.0 / (hi[a] - lo[a]) > FLOAT32_MAX:   # the kernels hold 1 / extent in float32
+            c.fail(p + "bounds", f"box is too thin along {name} (extent "
+                                 f"{_fmt(hi[a] - lo[a])}); 1 / extent overflows float32")
     density = _density(c, c.required(raw, "density", p), file_dir)
     scale = c.number(raw.get("scale", 1.0), p + "scale", 0.0)
+    if isinstance(density, ConstantDensity) and scale * density.value > FLOAT32_MAX:
+        c.fail(p + "scale", f"scale * density = {scale * density.value:g} overflows float32 "
+                            f"(at most {FLOAT32_MAX:g})")
     albedo = c.rgb(raw.get("albedo", 1.0), p + "albedo", hi=1.0)
     ph = c.table(raw.get("phase", {"type": "isotropic"}), p + "phase")
     c.known(ph, PHASE_KEYS, p + "phase.")
@@ -319,8 +356,16 @@ def _light(c, raw, i):
         return EnvironmentLight(c.rgb(c.required(raw, "radiance", p), p + "radiance"))
     if ltype == "directional":
         direction = c.vec3(c.required(raw, "direction", p), p + "direction", nonzero=True)
-        n = math.sqrt(sum(x * x for x in direction))
-        return DirectionalLight(tuple(x / n for x in direction),
+        # Scale by a power of two first (exact) so that the squares neither underflow nor
+        # overflow: a tiny or huge nonzero direction still normalises to a unit vector. A
+        # vector that is already unit to rounding is kept, so that validating a written-out
+        # scene (serialize.to_dict) gives back the same direction.
+        e = math.frexp(max(abs(x) for x in direction))[1]
+        scaled = tuple(math.ldexp(x, -e) for x in direction)
+        n = math.sqrt(sum(x * x for x in scaled))
+        if abs(math.ldexp(n, e) - 1.0) > 4 * sys.float_info.epsilon:
+            direction = tuple(x / n for x in scaled)
+        return DirectionalLight(direction,
                                 c.rgb(c.required(raw, "irradiance", p), p + "irradiance"))
     return PointLight(c.vec3(c.required(raw, "position", p), p + "position"),
                       c.rgb(c.required(raw, "intensity", p), p + "intensity"))
@@ -331,7 +376,7 @@ def _render(c, raw):
     c.known(raw, RENDER_KEYS, p)
     d = Render()
     return Render(
-        spp=c.integer(raw.get("spp", d.spp), p + "spp", lo=1),
+        spp=c.integer(raw.get("spp", d.spp), p + "spp", lo=1, hi=2**32 - 1),  # uint32 sample
         max_depth=c.integer(raw.get("max_depth", d.max_depth), p + "max_depth", lo=-1,
                             hi=2**31 - 1),
         rr_depth=c.integer(raw.get("rr_depth", d.rr_depth), p + "rr_depth", lo=0, hi=2**31 - 1),
@@ -367,5 +412,12 @@ def validate(raw: dict, file: str, file_dir: Optional[str] = None) -> SceneSpec:
     if not isinstance(lights_raw, list):
         c.fail("lights", f"expected an array of tables ([[lights]]), got {_show(lights_raw)}")
     lights = tuple(_light(c, lt, i) for i, lt in enumerate(lights_raw))
+    env = [0.0, 0.0, 0.0]   # environment lights are summed into one float32 radiance
+    for i, lt in enumerate(lights):
+        if isinstance(lt, EnvironmentLight):
+            env = [env[k] + lt.radiance[k] for k in range(3)]
+            if max(env) > FLOAT32_MAX:
+                c.fail(f"lights[{i}].radiance", f"the environment radiances sum to "
+                                                f"{max(env):g}, which overflows float32")
     render = _render(c, c.table(raw.get("render", {}), "render"))
     return SceneSpec(str(file), camera, medium, lights, render)
