@@ -35,8 +35,9 @@ inline void dda_init(Dda *s, float3 o, float3 d, float t0, float t1, float3 bmin
             s->dt[a] = -size / da[a];
         } else {
             s->step[a] = 0;
-            s->tnext[a] = INFINITY;
-            s->dt[a] = INFINITY;
+            /* FLT_MAX: finite-math-only builds may fold infinities (NO_LIMIT, guards.h). */
+            s->tnext[a] = FLT_MAX;
+            s->dt[a] = FLT_MAX;
         }
     }
 }

@@ -25,6 +25,7 @@
 #include "transmittance.h"
 #include "estimators.h"
 #include "power_series.h"
+#include "guards.h"
 
 /* The shadow-ray estimator of grids (render.transmittance), chosen at build time. */
 #ifndef SHADOW_ESTIMATOR
@@ -42,14 +43,14 @@ inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2])
 /* Returns t_enter, writes t_exit; no hit when t_enter >= t_exit. Zero direction components
  * (including -0.0) are handled without 0 * inf. */
 inline float ray_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t_exit) {
-    float t0 = -INFINITY, t1 = INFINITY;
+    float t0 = -FLT_MAX, t1 = FLT_MAX;  /* "no limit": see NO_LIMIT in guards.h */
     float oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
     float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
     for (int a = 0; a < 3; ++a) {
         if (da[a] == 0.0f) {
             if (oa[a] < lo[a] || oa[a] > hi[a]) {
-                *t_exit = -INFINITY;
-                return INFINITY;
+                *t_exit = -FLT_MAX;
+                return FLT_MAX;
             }
         } else {
             float inv = 1.0f / da[a];
@@ -61,6 +62,46 @@ inline float ray_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t_exit
     }
     *t_exit = t1;
     return t0;
+}
+
+/* Guard "entry re-basing" (HARD_CASES 10, 11, 13): clips ray o + t d to the box and, when the
+ * box is entered from outside (t_enter > 0), moves the origin to the entry point, snapped onto
+ * the box (clamped into it, and exactly onto the entry face), and clips again from there.
+ * Every later distance is then local to the box: no tracking loop accumulates a large t (a
+ * far camera), the chord comes from nearby numbers (exact for a thin slab seen from afar),
+ * and a dense medium is entered exactly at its face, never a rounding error inside it (which
+ * would bury the path). Returns the origin to use; writes the local segment [*t0, *t1] (no
+ * medium when *t1 <= *t0) and the distance *shift the origin moved along d. Twin of
+ * enter_box in integrator.py. */
+inline float3 enter_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t0, float *t1,
+                        float *shift) {
+    float te = ray_box(o, d, bmin, bmax, t1);
+    *shift = 0.0f;
+    if (!(te > 0.0f && *t1 > te)) {
+        *t0 = fmax(te, 0.0f);
+        return o;
+    }
+    float oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
+    float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
+    float pa[3];
+    int entry = 0;
+    float best = -FLT_MAX;
+    for (int a = 0; a < 3; ++a) {
+        pa[a] = clamp(oa[a] + te * da[a], lo[a], hi[a]);
+        if (da[a] != 0.0f) {
+            float tin = ((da[a] > 0.0f ? lo[a] : hi[a]) - oa[a]) / da[a];
+            if (tin > best) {
+                best = tin;
+                entry = a;
+            }
+        }
+    }
+    pa[entry] = da[entry] > 0.0f ? lo[entry] : hi[entry];
+    float3 p = (float3)(pa[0], pa[1], pa[2]);
+    *shift = te;
+    ray_box(p, d, bmin, bmax, t1);
+    *t0 = 0.0f;
+    return p;
 }
 
 inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, float3 *dir) {
@@ -82,9 +123,9 @@ inline float shadow_transmittance(const Params *prm, global const float *med,
                                   global const float *maj_min, float3 o, float3 d, float t_max,
                                   Rng *rng_s, ulong *counters) {
     float3 bmin = vec3(prm->bmin), bmax = vec3(prm->bmax);
-    float t1;
-    float t0 = fmax(ray_box(o, d, bmin, bmax, &t1), 0.0f);
-    t1 = fmin(t1, t_max);
+    float t0, t1, shift;
+    o = enter_box(o, d, bmin, bmax, &t0, &t1, &shift);
+    t1 = fmin(t1, t_max - shift);
     if (t1 <= t0) return 1.0f;
     counters[C_SHADOW] += 1;
 #ifdef FEATURE_MAJORANT_GRID
@@ -96,12 +137,14 @@ inline float shadow_transmittance(const Params *prm, global const float *med,
         dda_init(&s, o, d, t0, t1, bmin, bmax, res);
         float T = 1.0f, ta, tb;
         int3 cell;
-        while (T != 0.0f && dda_next(&s, &ta, &tb, &cell)) {
+        while (dda_next(&s, &ta, &tb, &cell)) {
             int k = dda_cell_index(cell, res);
             float m = prm->scale * maj_max[k];
             if (m <= 0.0f || tb <= ta) continue;
             T *= SHADOW_ESTIMATOR(med, grid, dims, o, d, ta, tb, m, prm->scale * maj_min[k],
                                   rng_s, counters, prm->max_steps SHADOW_ESTIMATOR_EXTRA);
+            /* Transmittance roulette over the product of segments (T == 0 ends it too). */
+            if (!transmittance_roulette(&T, rng_s)) break;
         }
         return T;
     }
@@ -132,7 +175,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
     {
 #ifdef FEATURE_ENV
         if (prm->has_env)
-            return env * shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, o, d, INFINITY, rng_s, counters);
+            return env * shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, o, d, NO_LIMIT, rng_s, counters);
 #endif
         return L;
     }
@@ -141,8 +184,8 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
     int depth = 0;
     float pdf_phase = 0.0f;
     while (true) {
-        float t1;
-        float t0 = fmax(ray_box(o, d, bmin, bmax, &t1), 0.0f);
+        float t0, t1, shift;
+        o = enter_box(o, d, bmin, bmax, &t0, &t1, &shift);
         int event = EVENT_ESCAPE;
         float t = t1;
         if (t1 > t0) {
@@ -181,7 +224,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
 #ifdef FEATURE_DELTA_LIGHTS
         for (int i = 0; i < prm->n_lights; ++i) {
             float3 wl;
-            float dist = INFINITY, falloff = 1.0f;
+            float dist = NO_LIMIT, falloff = 1.0f;
 #ifdef FEATURE_POINT
             if (lights[i].type == LIGHT_DIRECTIONAL) {
                 wl = -vec3g(lights[i].vec);
@@ -208,7 +251,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
             float pdf_l;
             float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
             float f = phase_eval(prm->phase_kind, prm->g, dot(d, wl));
-            float tr = shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, p, wl, INFINITY, rng_s, counters);
+            float tr = shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, p, wl, NO_LIMIT, rng_s, counters);
             L += beta * (f * tr / (pdf_l + f)) * env;
         }
 #endif
@@ -252,8 +295,7 @@ kernel void render_batch(const Params prm, global const Light *lights, global co
         rng_init(&rng_s, seed, (uint)pix, sample_start + i, STREAM_SHADOW);
         float3 c = trace_path(&prm, lights, med, grid, dims, maj_max, maj_min, px, py, &rng, &rng_s,
                               cnt);
-        if (!(isfinite(c.x) && isfinite(c.y) && isfinite(c.z)) ||
-            (!prm.signed_samples && (c.x < 0.0f || c.y < 0.0f || c.z < 0.0f))) {
+        if (!sample_ok(c, prm.signed_samples)) {
             cnt[C_DROPPED] += 1;
             c = (float3)(0.0f);
         }

@@ -7,6 +7,7 @@
 
 #include "extinction.h"
 #include "rng.h"
+#include "guards.h"
 
 #define URM_P_ZERO 0.9f
 #define URM_K 2
@@ -63,7 +64,7 @@ inline float urm_series(float x0, const float *ys, int n) {
     float pre = exp(-x0);
     if (pre == 0.0f) return 0.0f;
     float est = pre * s;
-    return isfinite(est) ? est : 0.0f;
+    return finite_bits(est) ? est : 0.0f;  /* guards.h: survives fast-math */
 }
 
 inline float ps_comb(global const float *med, global const float *grid, int3 dims, float3 o,
@@ -165,7 +166,7 @@ inline float transmittance_power_series(global const float *med, global const fl
         acc += prod / q;
         if (prod == 0.0f) break;
     }
-    return isfinite(acc) ? acc : 0.0f;
+    return finite_bits(acc) ? acc : 0.0f;
 }
 
 #endif

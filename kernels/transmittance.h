@@ -37,18 +37,21 @@ inline int free_flight_delta(global const float *grid, int3 dims, float3 bmin, f
     *t_out = t1;
     if (mbar <= 0.0f) return EVENT_ESCAPE;
     float inv_mbar = 1.0f / mbar;
-    float t = t0;
+    /* Guard "local distances": the walk starts at o' = o + t0 d and s runs from 0 (see
+     * free_flight_delta in transmittance.py). */
+    o = o + t0 * d;
+    float L = t1 - t0, s = 0.0f;
     for (int i = 0; i < max_steps; ++i) {
-        t -= log1p(-rng_next(rng)) * inv_mbar;
-        if (t >= t1) return EVENT_ESCAPE;
-        float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, mbar);
+        s -= log1p(-rng_next(rng)) * inv_mbar;
+        if (s >= L) return EVENT_ESCAPE;
+        float mu = sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, s, counters, mbar);
         if (rng_next(rng) * mbar < mu) {
-            *t_out = t;
+            *t_out = t0 + s;
             return EVENT_SCATTER;
         }
     }
     counters[C_CAPPED] += 1;
-    *t_out = t;
+    *t_out = t0 + s;
     return EVENT_CAPPED;
 }
 
@@ -64,13 +67,17 @@ inline int free_flight_grid(global const float *grid, int3 dims, float3 bmin, fl
                             global const float *mnr, int use_control, int3 maj_res, float3 o,
                             float3 d, float t0, float t1, Rng *rng, ulong *counters,
                             int max_steps, float *t_out) {
+    /* Guard "local distances": the walk starts at o' = o + t0 d with local distances in
+     * [0, t1 - t0] (the DDA included); t0 is added back to the result. */
+    *t_out = t1;
+    o = o + t0 * d;
+    float t_base = t0;
     Dda s;
-    dda_init(&s, o, d, t0, t1, bmin, bmax, maj_res);
+    dda_init(&s, o, d, 0.0f, t1 - t0, bmin, bmax, maj_res);
     float budget = -log1p(-rng_next(rng));
     int steps = 0;
     float ta, tb;
     int3 cell;
-    *t_out = t1;
     while (dda_next(&s, &ta, &tb, &cell)) {
         int k = dda_cell_index(cell, maj_res);
         float m = scale * maj[k];
@@ -87,13 +94,13 @@ inline int free_flight_grid(global const float *grid, int3 dims, float3 bmin, fl
             float um = rng_next(rng) * m;
             if (um < mc ||
                 um < sigma_t_at(grid, dims, bmin, inv_extent, scale, o, d, t, counters, m)) {
-                *t_out = t;
+                *t_out = t_base + t;
                 return EVENT_SCATTER;
             }
             budget = -log1p(-rng_next(rng));
             if (++steps >= max_steps) {
                 counters[C_CAPPED] += 1;
-                *t_out = t;
+                *t_out = t_base + t;
                 return EVENT_CAPPED;
             }
         }

@@ -153,9 +153,16 @@ def test_bench_transmittance_cli(tmp_path):
     for row in rep["profiles"]:
         # Ratio tracking's lookups are Poisson(mbar L) with L = 1 and
         # mbar = mean mu / tightness = tau / effective tightness (2048 estimates per case).
+        # Transmittance roulette (HARD_CASES 10) ends a walk early once T = 0 or T < 1e-3
+        # (where mu reaches the majorant, e.g. at the peak of a bump), so the count is at
+        # most that; on the constant profile under a loose majorant every factor is
+        # 1 - tightness and no walk gets there, so the count is exactly Poisson(mbar L).
         expect = -math.log(row["exact"]) / row["effective_tightness"]
         got = row["results"]["ratio"]["lookups"]
-        assert abs(got - expect) < 5 * math.sqrt(expect / 2048) + 1e-9, (row["profile"], got)
+        tol = 5 * math.sqrt(expect / 2048) + 1e-9
+        assert got < expect + tol, (row["profile"], got)
+        if row["profile"] == "constant" and row["effective_tightness"] < 0.5:
+            assert abs(got - expect) < tol, (row["profile"], got)
     for name in ("estimators_heatmap.png", "estimators_variance_cost.png",
                  "estimators_error_time.png"):
         assert (tmp_path / name).stat().st_size > 1000

@@ -265,6 +265,16 @@ def cmd_render(args):
     if args.stats:
         for k, v in res.stats().items():
             print(f"  {k:24s} {v:.6g}" if isinstance(v, float) else f"  {k:24s} {v}")
+    # Guard "reported counters" (HARD_CASES 10, 19, 20): a render that cut paths, dropped
+    # samples or met extinction above its majorant says so even without --stats or with
+    # --quiet (the counts are also in the EXR metadata): never a silent bias.
+    c = res.counters
+    for key, what in (("over_majorant", "density lookups exceeded the majorant (the image is "
+                       "biased: was the density changed after the majorant was built?)"),
+                      ("capped", "walks were cut by render.max_steps"),
+                      ("dropped", "NaN, infinite or negative samples were dropped")):
+        if c.get(key, 0) > 0:
+            print(f"volmc: warning: {c[key]} {what}", file=sys.stderr)
     return EXIT_INTERRUPTED if res.partial else 0
 
 

@@ -46,42 +46,66 @@ def camera_basis(camera):
     return f, r, u
 
 
+def scene_frame(scene):
+    """Guard "scene frame" (HARD_CASES 11, 12): the frame every backend renders in.
+
+    Returns (centre, unit): the centre of the medium box and a power of two close to its
+    largest half-extent. Positions are packed as (x - centre) / unit (in float64, before any
+    float32 rounding), extinction as scale * unit, point-light intensities as I / unit^2;
+    directions, radiances and irradiances are unchanged. Radiance along every ray is the same
+    in both frames, so the image is too, but the kernels' float32 then always sees a box of
+    half-size in [0.7, 1.4] at the origin: a scene translated 1e7 units away (where float32
+    has an ulp of 1) or scaled by 1e-4 or 1e4 renders from the same numbers as at the origin.
+    A power of two scales without rounding. Counters (lookups, steps) are unchanged too."""
+    lo, hi = scene.medium.bounds
+    centre = tuple(0.5 * (lo[i] + hi[i]) for i in range(3))
+    half = max(0.5 * (hi[i] - lo[i]) for i in range(3))
+    return centre, 2.0 ** round(math.log2(half))
+
+
 def pack_scene(scene, real=np.float64, spp_seed=None):
     """Return (params[1], lights[n], grid) for a Scene.
 
     ``params`` is a one-element array of ``params_dtype(real)``; ``lights`` holds the
     directional and point lights (environment lights are summed into params.env);
     ``grid`` is a C-contiguous [z, y, x] array of ``real`` (a 1x1x1 dummy when homogeneous).
+    Positions and extinction are in the scene frame (``scene_frame``).
     """
     cam, med, rnd = scene.camera, scene.medium, scene.render
+    centre, unit = scene_frame(scene)
+
+    def local(x):
+        return [(x[i] - centre[i]) / unit for i in range(3)]
+
+    sigma_scale = med.scale * unit
     p = np.zeros(1, params_dtype(real))[0]
     w, h = cam.resolution
     p["width"], p["height"] = w, h
     f, r, u = camera_basis(cam)
     p["forward"], p["right"], p["up"] = f, r, u
-    p["eye"] = cam.eye
+    p["eye"] = local(cam.eye)
     if cam.type == "orthographic":
         p["cam_type"] = CAMERA_ORTHOGRAPHIC
-        p["half_height"] = 0.5 * cam.size
+        p["half_height"] = 0.5 * cam.size / unit
     else:
         p["cam_type"] = CAMERA_PERSPECTIVE
         p["half_height"] = math.tan(math.radians(cam.fov) * 0.5)
     p["aspect"] = w / h
-    lo, hi = med.bounds
+    lo, hi = local(med.bounds[0]), local(med.bounds[1])
     p["bmin"], p["bmax"] = lo, hi
     p["inv_extent"] = [1.0 / (hi[i] - lo[i]) for i in range(3)]
-    p["scale"] = med.scale
+    p["scale"] = sigma_scale
     if scene.grid is None:
         p["has_grid"] = 0
         p["density"] = med.density.value
-        p["majorant"] = med.scale * med.density.value
+        p["majorant"] = sigma_scale * med.density.value
         grid = np.zeros((1, 1, 1), real)
     else:
         p["has_grid"] = 1
         grid = np.ascontiguousarray(scene.grid, dtype=real)
         # Trilinear interpolation never exceeds the largest voxel: a true global bound.
-        p["majorant"] = med.scale * float(scene.grid.max())
-        p["minorant"] = med.scale * float(scene.grid.min())
+        p["majorant"] = sigma_scale * float(scene.grid.max())
+        p["minorant"] = sigma_scale * float(scene.grid.min())
         p["density"] = 0.0
     p["albedo"] = med.albedo
     p["phase_kind"] = PHASE_HG if med.phase.type == "hg" else PHASE_ISOTROPIC
@@ -95,7 +119,8 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
         elif isinstance(lt, DirectionalLight):
             lights.append((LIGHT_DIRECTIONAL, lt.direction, lt.irradiance))
         elif isinstance(lt, PointLight):
-            lights.append((LIGHT_POINT, lt.position, lt.intensity))
+            lights.append((LIGHT_POINT, local(lt.position),
+                           [c / (unit * unit) for c in lt.intensity]))
     p["env"] = env
     larr = np.zeros(len(lights), light_dtype(real))
     for i, (t, v, c) in enumerate(lights):

@@ -5,7 +5,9 @@ and reads its fields by name; the OpenCL host derives the C struct of the kernel
 field list (with ``np.float32`` reals), so the layout is never written twice by hand.
 
 Units: lengths in world units, extinction in 1/world unit, angles as cosines or tangents,
-radiance/irradiance/intensity in the scene's linear RGB units.
+radiance/irradiance/intensity in the scene's linear RGB units. "World" is the scene frame of
+``pack.scene_frame``: the scene re-centred on the medium box and scaled by a power of two, so
+the kernels' float32 never sees coordinates far from the origin (HARD_CASES 11, 12).
 """
 
 import numpy as np

@@ -30,6 +30,34 @@ from .power_series import transmittance_power_series, transmittance_unbiased_ray
 from .rng import STREAM_TEST, rng_new, rng_next
 
 
+#: Guard "transmittance roulette" (HARD_CASES 10): below this running |T| a walk goes on
+#: with probability |T| / TR_RR_THRESHOLD.
+TR_RR_THRESHOLD = 1e-3
+
+
+@njit(cache=True, inline="always")
+def transmittance_roulette(T, rng):
+    """Russian roulette on a running transmittance weight. Returns (alive, T).
+
+    Once |T| < TR_RR_THRESHOLD the walk survives with probability q = |T| / TR_RR_THRESHOLD
+    and carries T / q = +-TR_RR_THRESHOLD, else it ends with T = 0: E[T] is unchanged
+    (unbiased), and T == 0 ends the walk at once. Dense media (HARD_CASES 10: majorant optical
+    depth 1e6) then cost a few lookups per shadow ray instead of the whole walk. The threshold
+    is low enough that the variance it adds (at most TR_RR_THRESHOLD^2 per estimate) is
+    invisible in the closed-form variance of ratio tracking."""
+    a = abs(T)
+    if not a < TR_RR_THRESHOLD:
+        return True, T
+    if a == 0.0 or rng_next(rng) * TR_RR_THRESHOLD >= a:
+        return False, 0.0
+    return True, TR_RR_THRESHOLD if T > 0.0 else -TR_RR_THRESHOLD
+
+
+# Guard "local distances" (HARD_CASES 11): every tracking loop below accumulates the distance
+# s from the segment start t0, never t itself, so a far ray origin (t0 = 1e5 with a majorant of
+# 1e3: t + dt == t in float32) cannot stall the walk; lookups are at t0 + s.
+
+
 @njit(cache=True)
 def transmittance_analytic(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
     """Homogeneous segment (mbar == mu_c == mu): T = exp(-mu (t1 - t0)), no lookups."""
@@ -44,12 +72,13 @@ def transmittance_track_length(med, grid, o, d, t0, t1, mbar, mu_c, rng, counter
     if mbar <= 0.0:
         return 1.0
     inv = 1.0 / mbar
-    t = t0
+    L = t1 - t0
+    s = 0.0
     for _ in range(max_steps):
-        t -= math.log1p(-rng_next(rng)) * inv
-        if t >= t1:
+        s -= math.log1p(-rng_next(rng)) * inv
+        if s >= L:
             return 1.0
-        if rng_next(rng) * mbar < lookup(med, grid, o, d, t, counters, mbar):
+        if rng_next(rng) * mbar < lookup(med, grid, o, d, t0 + s, counters, mbar):
             return 0.0
     counters[C_CAPPED] += 1
     return 0.0
@@ -64,12 +93,16 @@ def transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, mu_c, rng, count
         return 1.0
     inv = 1.0 / mbar
     T = 1.0
-    t = t0
+    L = t1 - t0
+    s = 0.0
     for _ in range(max_steps):
-        t -= math.log1p(-rng_next(rng)) * inv
-        if t >= t1:
+        s -= math.log1p(-rng_next(rng)) * inv
+        if s >= L:
             return T
-        T *= 1.0 - lookup(med, grid, o, d, t, counters, mbar) / mbar
+        T *= 1.0 - lookup(med, grid, o, d, t0 + s, counters, mbar) / mbar
+        alive, T = transmittance_roulette(T, rng)
+        if not alive:
+            return T
     counters[C_CAPPED] += 1
     return T
 
@@ -88,12 +121,15 @@ def transmittance_residual_ratio(med, grid, o, d, t0, t1, mbar, mu_c, rng, count
         return Tc
     inv = 1.0 / mr
     T = Tc
-    t = t0
+    s = 0.0
     for _ in range(max_steps):
-        t -= math.log1p(-rng_next(rng)) * inv
-        if t >= t1:
+        s -= math.log1p(-rng_next(rng)) * inv
+        if s >= L:
             return T
-        T *= 1.0 - (lookup(med, grid, o, d, t, counters, mbar) - mu_c) / mr
+        T *= 1.0 - (lookup(med, grid, o, d, t0 + s, counters, mbar) - mu_c) / mr
+        alive, T = transmittance_roulette(T, rng)
+        if not alive:
+            return T
     counters[C_CAPPED] += 1
     return T
 
@@ -109,14 +145,18 @@ def transmittance_next_flight(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters
         return 1.0
     inv = 1.0 / mbar
     w = 1.0
-    t = t0
-    T = math.exp(-mbar * max(t1 - t0, 0.0))
+    L = t1 - t0
+    s = 0.0
+    T = math.exp(-mbar * max(L, 0.0))
     for _ in range(max_steps):
-        t -= math.log1p(-rng_next(rng)) * inv
-        if t >= t1:
+        s -= math.log1p(-rng_next(rng)) * inv
+        if s >= L:
             return T
-        w *= 1.0 - lookup(med, grid, o, d, t, counters, mbar) / mbar
-        T += w * math.exp(-mbar * (t1 - t))
+        w *= 1.0 - lookup(med, grid, o, d, t0 + s, counters, mbar) / mbar
+        alive, w = transmittance_roulette(w, rng)
+        if not alive:
+            return T
+        T += w * math.exp(-mbar * (L - s))
     counters[C_CAPPED] += 1
     return T
 
@@ -126,8 +166,12 @@ def transmittance_biased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, coun
                                   max_steps, samples_per_mfp=1.0):
     """Biased ray marching (a reference point, NOT unbiased): a jittered comb of
     n = ceil(samples_per_mfp * mbar L) equidistant points estimates tau without bias, but
-    exp(-tau_hat) overestimates T (Jensen). The bias shrinks as the step shrinks."""
+    exp(-tau_hat) overestimates T (Jensen). The bias shrinks as the step shrinks.
+    An empty segment (mbar <= 0, so mu = 0, or zero length) returns 1 with no lookup, as
+    every other estimator does (HARD_CASES 8: no lookups in empty majorant cells)."""
     L = max(t1 - t0, 0.0)
+    if mbar <= 0.0 or L <= 0.0:
+        return 1.0
     n = max(1, int(math.ceil(samples_per_mfp * mbar * L)))
     if n > max_steps:
         counters[C_CAPPED] += 1

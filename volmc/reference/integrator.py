@@ -39,7 +39,8 @@ from ..params import (C_DROPPED, C_SCATTER, C_SHADOW, CAMERA_ORTHOGRAPHIC, LIGHT
 from .phase import phase_eval, phase_sample
 from .rng import RNG_STATE_SIZE, STREAM_PATH, STREAM_SHADOW, rng_init, rng_next
 from .sampling import INV_4PI, dot, normalize, sample_uniform_sphere
-from .estimators import estimate_one
+from .estimators import estimate_one, transmittance_roulette
+from .guards import sample_ok
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .transmittance import (EVENT_CAPPED, EVENT_ESCAPE, free_flight_delta,
                             free_flight_grid, free_flight_homogeneous,
@@ -71,6 +72,44 @@ def ray_box(o, d, bmin, bmax):
 
 
 @njit(cache=True, inline="always")
+def enter_box(o, d, bmin, bmax):
+    """Guard "entry re-basing" (HARD_CASES 10, 11, 13): clip ray o + t d to the box and, when
+    the box is entered from outside (t_enter > 0), move the origin to the entry point, snapped
+    onto the box (clamped into it, and exactly onto the entry face), and clip again from there.
+    Every later distance is then local to the box: no tracking loop accumulates a large t (a
+    far camera), the chord comes from nearby numbers (exact for a thin slab seen from afar),
+    and a dense medium is entered exactly at its face, never a rounding error inside it (in
+    a medium of extinction 1e30 that would bury the path: every direction blocked).
+
+    Returns (origin, t0, t1, shift): the origin to use, the local segment (no medium when
+    t1 <= t0) and the distance the origin moved along d."""
+    te, t1 = ray_box(o, d, bmin, bmax)
+    if not (te > 0.0 and t1 > te):
+        return o, max(te, 0.0), t1, 0.0
+    entry = 0
+    best = -math.inf
+    for a in range(3):
+        if d[a] != 0.0:
+            tin = ((bmin[a] if d[a] > 0.0 else bmax[a]) - o[a]) / d[a]
+            if tin > best:
+                best = tin
+                entry = a
+    p0 = min(max(o[0] + te * d[0], bmin[0]), bmax[0])
+    p1 = min(max(o[1] + te * d[1], bmin[1]), bmax[1])
+    p2 = min(max(o[2] + te * d[2], bmin[2]), bmax[2])
+    face = bmin[entry] if d[entry] > 0.0 else bmax[entry]
+    if entry == 0:
+        p0 = face
+    elif entry == 1:
+        p1 = face
+    else:
+        p2 = face
+    p = (p0, p1, p2)
+    _, t1 = ray_box(p, d, bmin, bmax)
+    return p, 0.0, t1, te
+
+
+@njit(cache=True, inline="always")
 def camera_ray(prm, px, py, u1, u2):
     """Primary ray through film position (px + u1, py + u2) (pixels; py = 0 at the top).
 
@@ -96,9 +135,8 @@ def shadow_transmittance(prm, med, grid, maj_max, maj_min, o, d, t_max, rng_s, c
     with no lookup)."""
     bmin = (prm.bmin[0], prm.bmin[1], prm.bmin[2])
     bmax = (prm.bmax[0], prm.bmax[1], prm.bmax[2])
-    t0, t1 = ray_box(o, d, bmin, bmax)
-    t0 = max(t0, 0.0)
-    t1 = min(t1, t_max)
+    o, t0, t1, shift = enter_box(o, d, bmin, bmax)
+    t1 = min(t1, t_max - shift)
     if t1 <= t0:
         return 1.0
     counters[C_SHADOW] += 1
@@ -110,7 +148,7 @@ def shadow_transmittance(prm, med, grid, maj_max, maj_min, o, d, t_max, rng_s, c
     state = np.empty(DDA_STATE_SIZE)
     dda_init(state, o, d, t0, t1, bmin, bmax, (prm.maj_res[0], prm.maj_res[1], prm.maj_res[2]))
     T = 1.0
-    while T != 0.0:
+    while True:
         ok, ta, tb, iz, iy, ix = dda_next(state)
         if not ok:
             break
@@ -119,6 +157,10 @@ def shadow_transmittance(prm, med, grid, maj_max, maj_min, o, d, t_max, rng_s, c
             continue
         T *= estimate_one(prm.shadow_estimator, med, grid, o, d, ta, tb, m,
                           prm.scale * maj_min[iz, iy, ix], rng_s, counters, prm.max_steps, 1.0)
+        # Transmittance roulette over the product of segments (T == 0 ends it too).
+        alive, T = transmittance_roulette(T, rng_s)
+        if not alive:
+            break
     return T
 
 
@@ -150,8 +192,7 @@ def trace_path(prm, lights, med, grid, maj_max, maj_min, px, py, rng, rng_s, cou
     depth = 0
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
     while True:
-        t0, t1 = ray_box(o, d, bmin, bmax)
-        t0 = max(t0, 0.0)
+        o, t0, t1, _ = enter_box(o, d, bmin, bmax)
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:
@@ -252,9 +293,8 @@ def render_pixel(params, lights, med, grid, maj_max, maj_min, pix, sample_start,
         rng_init(rng, seed, pix, s, STREAM_PATH)
         rng_init(rng_s, seed, pix, s, STREAM_SHADOW)
         r, g, b = trace_path(prm, lights, med, grid, maj_max, maj_min, px, py, rng, rng_s, cnt)
-        if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)) or \
-                (prm.signed_samples == 0 and (r < 0.0 or g < 0.0 or b < 0.0)):
-            cnt[C_DROPPED] += 1  # the sample counts as 0
+        if not sample_ok(r, g, b, prm.signed_samples):
+            cnt[C_DROPPED] += 1  # the sample counts as 0 (guard "sample filter", guards.py)
             continue
         sr += r
         sg += g

@@ -36,6 +36,7 @@ from numba import njit
 
 from ..params import C_CAPPED
 from .extinction import lookup
+from .guards import finite_bits
 from .rng import rng_next
 
 #: Unbiased ray marching, aggressive roulette: P(order = 0) (Kettunen et al. 2021, p_Z).
@@ -139,7 +140,7 @@ def urm_series(x0, ys, n):
     if pre == 0.0:
         return 0.0
     est = pre * s
-    if not math.isfinite(est):
+    if not finite_bits(est):
         return 0.0
     return est
 
@@ -334,6 +335,6 @@ def transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng, counter
         acc += prod / q
         if prod == 0.0:
             break
-    if not math.isfinite(acc):
+    if not finite_bits(acc):
         return 0.0
     return acc

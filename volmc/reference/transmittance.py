@@ -55,20 +55,26 @@ def free_flight_homogeneous(sigma_t, t0, t1, rng):
 @njit(cache=True)
 def free_flight_delta(grid, bmin, inv_extent, scale, mbar, o, d, t0, t1, rng, counters, max_steps):
     """Delta (Woodcock) tracking: tentative collisions at rate mbar, each accepted as real
-    with probability mu(x) / mbar. Unbiased for mbar >= mu. Returns (event, t)."""
+    with probability mu(x) / mbar. Unbiased for mbar >= mu. Returns (event, t).
+
+    Guard "local distances" (HARD_CASES 11): the walk starts at o' = o + t0 d and accumulates
+    the distance s from there, so t0 = 1e5 with mbar = 1e3 does not stall in float32
+    (t + dt == t); the result is t0 + s."""
     if mbar <= 0.0:
         return EVENT_ESCAPE, t1
     inv_mbar = 1.0 / mbar
-    t = t0
+    o = (o[0] + t0 * d[0], o[1] + t0 * d[1], o[2] + t0 * d[2])
+    L = t1 - t0
+    s = 0.0
     for _ in range(max_steps):
-        t -= math.log1p(-rng_next(rng)) * inv_mbar
-        if t >= t1:
+        s -= math.log1p(-rng_next(rng)) * inv_mbar
+        if s >= L:
             return EVENT_ESCAPE, t1
-        mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, mbar)
+        mu = sigma_t_at(grid, bmin, inv_extent, scale, o, d, s, counters, mbar)
         if rng_next(rng) * mbar < mu:
-            return EVENT_SCATTER, t
+            return EVENT_SCATTER, t0 + s
     counters[C_CAPPED] += 1
-    return EVENT_CAPPED, t
+    return EVENT_CAPPED, t0 + s
 
 
 @njit(cache=True)
@@ -96,9 +102,13 @@ def free_flight_grid(grid, bmin, bmax, inv_extent, scale, maj, mnr, use_control,
     u m < mu_c is a real collision decided without any lookup; otherwise the density is
     looked up as in delta tracking. For the same random numbers both variants make exactly
     the same decisions; decomposition tracking skips the lookups the control decides.
-    ``maj``, ``mnr``: per-cell density maxima and minima [cz, cy, cx] (majorant.py)."""
+    ``maj``, ``mnr``: per-cell density maxima and minima [cz, cy, cx] (majorant.py).
+
+    Guard "local distances" (HARD_CASES 11): the walk, the DDA included, runs from
+    o' = o + t0 d over local distances [0, t1 - t0]; t0 is added back to the result."""
+    o = (o[0] + t0 * d[0], o[1] + t0 * d[1], o[2] + t0 * d[2])
     state = np.empty(DDA_STATE_SIZE)
-    dda_init(state, o, d, t0, t1, bmin, bmax, maj.shape)
+    dda_init(state, o, d, 0.0, t1 - t0, bmin, bmax, maj.shape)
     budget = -math.log1p(-rng_next(rng))
     steps = 0
     while True:
@@ -118,11 +128,11 @@ def free_flight_grid(grid, bmin, bmax, inv_extent, scale, maj, mnr, use_control,
             t += step
             um = rng_next(rng) * m
             if um < mc:
-                return EVENT_SCATTER, t
+                return EVENT_SCATTER, t0 + t
             if um < sigma_t_at(grid, bmin, inv_extent, scale, o, d, t, counters, m):
-                return EVENT_SCATTER, t
+                return EVENT_SCATTER, t0 + t
             budget = -math.log1p(-rng_next(rng))
             steps += 1
             if steps >= max_steps:
                 counters[C_CAPPED] += 1
-                return EVENT_CAPPED, t
+                return EVENT_CAPPED, t0 + t
