@@ -125,3 +125,26 @@ kernel void t_dda(global const float *rays, float3 bmin, float3 bmax, int3 res_z
     }
     count[r] = k;
 }
+
+/* Free flight over a majorant grid (delta tracking, or decomposition tracking when
+ * use_control): rays as t_tracking; writes the collision distance, or -1 on escape (-2 if
+ * capped), and the lookups of each walk. maj and mnr are [cz][cy][cx] density bounds. */
+kernel void t_free_flight_grid(global const float *grid, int3 dims, float3 bmin, float3 bmax,
+                               float3 inv_extent, float scale, global const float *maj,
+                               global const float *mnr, int use_control, int3 maj_res,
+                               global const float *rays, int n_per_ray, ulong seed,
+                               int max_steps, global float *out, global ulong *lookups) {
+    int i = get_global_id(0);
+    int r = i / n_per_ray;
+    float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
+    float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
+    Rng rng;
+    rng_init(&rng, seed, (uint)r, (uint)(i % n_per_ray), STREAM_TEST);
+    ulong cnt[N_COUNTERS];
+    for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
+    float t;
+    int ev = free_flight_grid(grid, dims, bmin, bmax, inv_extent, scale, maj, mnr, use_control,
+                              maj_res, o, d, t0, t1, &rng, cnt, max_steps, &t);
+    out[i] = ev == EVENT_SCATTER ? t : (ev == EVENT_CAPPED ? -2.0f : -1.0f);
+    lookups[i] = cnt[C_LOOKUPS];
+}
