@@ -148,8 +148,12 @@ def test_bench_transmittance_cli(tmp_path):
               "--figures", str(tmp_path)])
     assert r.returncode == 0, r.stderr
     assert "camera rays" in r.stdout and "1/(MSE*t)" in r.stdout
+    assert "guard counters over every case" in r.stdout
     rep = json.loads(out.read_text())
     assert len(rep["profiles"]) == 5 * 2 * 2 and len(rep["grids"]) == 2
+    for row in rep["profiles"] + rep["grids"]:
+        for res in row["results"].values():
+            assert res["guards"] == {"capped": 0, "over_majorant": 0, "non_finite": 0}
     for row in rep["profiles"]:
         # Ratio tracking's lookups are Poisson(mbar L) with L = 1 and
         # mbar = mean mu / tightness = tau / effective tightness (2048 estimates per case).
@@ -196,6 +200,7 @@ def test_bench_render_speed_against_error(tmp_path):
         e2, e32 = (p["rmse"] for p in x["points"])
         assert 0 < e32 < e2
         assert 0 < x["fraction_of_lookup_ceiling"] < 2
+        assert x["guards"] == {"capped": 0, "dropped": 0, "over_majorant": 0}
     for b in ("opencl", "numba"):
         assert rows[f"{b} global delta ratio"]["lookups_per_sample"] > \
             rows[f"{b} grid delta ratio"]["lookups_per_sample"]
@@ -205,13 +210,18 @@ def test_bench_render_speed_against_error(tmp_path):
 
 
 def test_lookup_ceiling_kernels_are_twins():
-    """The OpenCL lookup kernel and its Numba twin read the same densities at the same points."""
+    """The OpenCL lookup kernel and its Numba twin read the same densities at the same points
+    along the scene's pixel rays."""
     import numpy as np
-    from volmc.bench.lookups import OpenCLLookups, lookup_sums
-    rng = np.random.default_rng(3)
-    grid = rng.random((6, 7, 9)).astype(np.float32)
-    bounds = ((-1.0, -0.5, 0.0), (1.0, 2.0, 0.5))
-    a = OpenCLLookups(grid, bounds).sums(500, 33, 7)
-    b = lookup_sums(grid.astype(np.float64), np.array(bounds[0]), np.array(bounds[1]), 500, 33, 7)
+    from volmc.bench.lookups import OpenCLLookups, camera_segments, lookup_sums
+    from volmc.resources import scenes_dir
+    from volmc.scene import load_scene
+    scene = load_scene(scenes_dir() / "tests" / "white_furnace.toml",
+                       ["camera.resolution=[12,10]"])
+    segs, bmin, bmax = camera_segments(scene)
+    # The corner pixels of this view miss the box; every segment is a chord inside it.
+    assert 60 < len(segs) < 120 and np.all(segs[:, 7] > segs[:, 6])
+    a = OpenCLLookups(scene.grid, bmin, bmax, segs).sums(33, 3, 7)
+    b = lookup_sums(np.asarray(scene.grid, np.float64), bmin, bmax, segs, 33, 3, 7)
     assert np.allclose(a, b, rtol=2e-5, atol=1e-4)
     assert np.all(b > 0)

@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..film import Film
+from ..params import COUNTER_NAMES
 from ..peers import with_render
 from ..peers.compare import rmse_to_reference
 from ..render import batch_schedule, make_backend
@@ -71,15 +72,15 @@ class _VolmcRunner:
 
     def render(self, spp):
         film = Film(self.w, self.h)
-        before = self.be.counter_totals().copy()
+        before = np.array(self.be.counter_totals(), np.int64)
         t = time.perf_counter()
         for n in batch_schedule(self.w * self.h, spp):
             self.be.render(self.next_sample + film.spp, n, film)
             film.spp += n
         sec = time.perf_counter() - t
         self.next_sample += spp  # later renders use fresh, independent samples
-        lookups = int(self.be.counter_totals()[0] - before[0])
-        return film.mean(), sec, lookups
+        delta = np.array(self.be.counter_totals(), np.int64) - before
+        return film.mean(), sec, {k: int(delta[i]) for i, k in enumerate(COUNTER_NAMES)}
 
 
 class _MitsubaRunner:
@@ -122,10 +123,11 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
     for rep in range(repeats):
         for spp in spp_levels:
             for cfg in order:
-                mean, sec, lookups = runners[cfg].render(spp)
+                mean, sec, counts = runners[cfg].render(spp)
                 e = rmse_to_reference(mean, ref_mean, ref_var)
                 points[cfg].append({"spp": spp, "seconds": sec, "rmse": e,
-                                    "lookups": lookups})
+                                    "lookups": counts and counts["lookups"],
+                                    "counters": counts})
             order = order[1:] + order[:1]
         log(f"  repetition {rep + 1}/{repeats} done")
 
@@ -142,6 +144,8 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
                "points": pts, "mse_seconds": c,
                "samples_per_second": pixels * spp_total / secs}
         if pts[0]["lookups"] is not None:
+            row["guards"] = {k: sum(p["counters"][k] for p in pts)
+                             for k in ("capped", "dropped", "over_majorant")}
             lk = sum(p["lookups"] for p in pts)
             row["lookups_per_sample"] = lk / (pixels * spp_total)
             row["lookups_per_second"] = lk / secs
@@ -196,6 +200,11 @@ def print_report(report, log=print):
         log(f"Mitsuba 3 needs {report['mitsuba_time_to_equal_error_vs_best_volmc']:.2f}x the "
             f"time of the best volmc configuration ({report['best_volmc']}) to reach the "
             f"same RMSE")
+    guarded = [r for r in report["results"] if "guards" in r]
+    bad = [r for r in guarded if any(r["guards"].values())]
+    log(f"guard counters (capped, dropped, over majorant): "
+        + ("0 in every volmc configuration" if not bad else "; ".join(
+            f"{r['name']}: {r['guards']}" for r in bad)))
     pairs = majorant_pairs(report)
     if pairs:
         log("majorant grid against global majorant (same backend, free flight, estimator):")
