@@ -14,14 +14,16 @@ BMAX = np.array([1.0, 1.5, 3.0])
 RES = (6, 4, 5)   # (cz, cy, cx)
 
 
-def clip(o, d):
+def clip(o, d, bmin=BMIN, bmax=BMAX):
+    """[t0, t1] of the ray inside the box (t >= 0), or None. Zero components (+-0.0) never
+    cross their slabs; a ray lying in a face plane counts as inside."""
     t0, t1 = -math.inf, math.inf
     for a in range(3):
         if d[a] == 0.0:
-            if not BMIN[a] <= o[a] <= BMAX[a]:
+            if not bmin[a] <= o[a] <= bmax[a]:
                 return None
             continue
-        ta, tb = (BMIN[a] - o[a]) / d[a], (BMAX[a] - o[a]) / d[a]
+        ta, tb = (bmin[a] - o[a]) / d[a], (bmax[a] - o[a]) / d[a]
         t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
     t0 = max(t0, 0.0)
     return (t0, t1) if t1 > t0 else None

@@ -18,6 +18,7 @@ from numba import njit
 from cl_harness import f3, i3, out_buf, run, to_dev
 from stats import ALPHA, chi2_pvalue, sidak, z_bound
 from test_kernels import _ref_tracking
+from test_dda import clip as dda_clip
 from volmc.bench.transmittance_runner import ESTIMATORS, OpenCLEstimator, run_numba
 from volmc.params import C_LOOKUPS, N_COUNTERS
 from volmc.reference.dda import dda_segments
@@ -39,17 +40,8 @@ MAX_STEPS = 1_000_000
 
 
 def clip(o, d):
-    """[t0, t1] of the ray inside the box (t >= 0), or None. Zero components (+-0.0) never
-    cross their slabs; a ray lying in a face plane counts as inside."""
-    t0, t1 = 0.0, math.inf
-    for a in range(3):
-        if d[a] == 0.0:
-            if not BMIN[a] <= o[a] <= BMAX[a]:
-                return None
-            continue
-        ta, tb = (BMIN[a] - o[a]) / d[a], (BMAX[a] - o[a]) / d[a]
-        t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
-    return (t0, t1) if t1 > t0 else None
+    """[t0, t1] of the ray inside this file's box (t >= 0), or None (test_dda's clip)."""
+    return dda_clip(o, d, BMIN, BMAX)
 
 
 def ray_rows(rays):
