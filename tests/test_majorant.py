@@ -37,14 +37,36 @@ def _check_bounds(grid, res, n_points, seed):
     return mx, mn
 
 
-def test_bounds_hold_at_a_million_points_on_the_cloud():
-    from volmc.resources import default_scene
+def _shipped_grid_scenes():
+    from volmc.resources import scenes_dir
     from volmc.scene import load_scene
-    grid = load_scene(default_scene()).grid
-    mx, mn = _check_bounds(grid, None, 1_000_000, 1)
-    assert mx.shape == (16, 16, 16)
-    # Not trivially loose: most of the cloud's cells are empty (bound 0, no lookups needed).
-    assert np.mean(mx == 0) > 0.3 and mx.max() == grid.max()
+    out = []
+    for path in sorted(scenes_dir().glob("*.toml")) + sorted(scenes_dir().glob("tests/*.toml")):
+        if load_scene(path).grid is not None:
+            out.append(path.name)
+    return out
+
+
+SHIPPED_GRIDS = _shipped_grid_scenes()
+
+
+@pytest.mark.parametrize("name", SHIPPED_GRIDS)
+def test_bounds_hold_at_a_million_points_on_every_shipped_grid(name):
+    from volmc.resources import scenes_dir
+    from volmc.scene import load_scene
+    path = scenes_dir() / name if (scenes_dir() / name).exists() else scenes_dir() / "tests" / name
+    scene = load_scene(path)
+    res = scene.render.majorant_resolution or None
+    mx, mn = _check_bounds(scene.grid, res, 1_000_000, 1)
+    assert mx.max() == scene.grid.max()
+    if name == "cloud.toml":
+        assert mx.shape == (16, 16, 16)
+        # Not trivially loose: most of the cloud's cells are empty (bound 0, no lookups).
+        assert np.mean(mx == 0) > 0.3
+
+
+def test_every_kind_of_shipped_grid_is_covered():
+    assert {"cloud.toml", "white_furnace.toml", "constant_grid.toml"} <= set(SHIPPED_GRIDS)
 
 
 @pytest.mark.parametrize("shape,res", [((8, 8, 8), (3, 5, 2)), ((5, 7, 9), None),
