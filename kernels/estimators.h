@@ -48,21 +48,6 @@ inline float transmittance_track_length(EST_ARGS) {
     return 0.0f;
 }
 
-inline float transmittance_ratio_tracking(EST_ARGS) {
-    if (mbar <= 0.0f) return 1.0f;
-    float inv = 1.0f / mbar;
-    float T = 1.0f;
-    float L = t1 - t0, s = 0.0f;
-    for (int i = 0; i < max_steps; ++i) {
-        s -= log1p(-rng_next(rng)) * inv;
-        if (s >= L) return T;
-        T *= 1.0f - lookup(med, grid, dims, o, d, t0 + s, counters, mbar) / mbar;
-        if (!transmittance_roulette(&T, rng)) return T;
-    }
-    counters[C_CAPPED] += 1;
-    return T;
-}
-
 inline float transmittance_residual_ratio(EST_ARGS) {
     float L = fmax(t1 - t0, 0.0f);
     float Tc = exp(-mu_c * L);
@@ -79,6 +64,14 @@ inline float transmittance_residual_ratio(EST_ARGS) {
     }
     counters[C_CAPPED] += 1;
     return T;
+}
+
+/* Ratio tracking is residual ratio tracking with a zero control: exp(-0 L) = 1 and
+ * mu - 0 = mu exactly, so it is the same walk with the same lookups and estimates. Twin of
+ * transmittance_ratio_tracking in estimators.py. */
+inline float transmittance_ratio_tracking(EST_ARGS) {
+    return transmittance_residual_ratio(med, grid, dims, o, d, t0, t1, mbar, 0.0f, rng,
+                                        counters, max_steps);
 }
 
 inline float transmittance_next_flight(EST_ARGS) {

@@ -85,29 +85,6 @@ def transmittance_track_length(med, grid, o, d, t0, t1, mbar, mu_c, rng, counter
 
 
 @njit(cache=True)
-def transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
-    """Ratio tracking (Cramer 1978; Novak, Selle, Jarosz 2014):
-    T = prod_i (1 - mu(x_i) / mbar) over tentative collisions at rate mbar.
-    Mean lookups = mbar (t1 - t0). Homogeneous variance: e^{-2 s L}(e^{s^2 L / mbar} - 1)."""
-    if mbar <= 0.0:
-        return 1.0
-    inv = 1.0 / mbar
-    T = 1.0
-    L = t1 - t0
-    s = 0.0
-    for _ in range(max_steps):
-        s -= math.log1p(-rng_next(rng)) * inv
-        if s >= L:
-            return T
-        T *= 1.0 - lookup(med, grid, o, d, t0 + s, counters, mbar) / mbar
-        alive, T = transmittance_roulette(T, rng)
-        if not alive:
-            return T
-    counters[C_CAPPED] += 1
-    return T
-
-
-@njit(cache=True)
 def transmittance_residual_ratio(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters,
                                  max_steps):
     """Residual ratio tracking (Novak, Selle, Jarosz 2014) with a constant control mu_c:
@@ -132,6 +109,17 @@ def transmittance_residual_ratio(med, grid, o, d, t0, t1, mbar, mu_c, rng, count
             return T
     counters[C_CAPPED] += 1
     return T
+
+
+@njit(cache=True)
+def transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
+    """Ratio tracking (Cramer 1978; Novak, Selle, Jarosz 2014):
+    T = prod_i (1 - mu(x_i) / mbar) over tentative collisions at rate mbar.
+    Mean lookups = mbar (t1 - t0). Homogeneous variance: e^{-2 s L}(e^{s^2 L / mbar} - 1).
+    It is residual ratio tracking with a zero control (mu_c is ignored): exp(-0 L) = 1 and
+    mu - 0 = mu exactly, so the same walk with the same lookups and estimates."""
+    return transmittance_residual_ratio(med, grid, o, d, t0, t1, mbar, 0.0, rng, counters,
+                                        max_steps)
 
 
 @njit(cache=True)
