@@ -5,9 +5,13 @@ import math
 
 import numpy as np
 import pytest
+from numba import njit
 
+from volmc.params import C_LOOKUPS, N_COUNTERS
 from volmc.reference.dda import dda_segments
 from volmc.reference.majorant import cell_of
+from volmc.reference.rng import STREAM_TEST, rng_new
+from volmc.reference.transmittance import EVENT_SCATTER, free_flight_grid
 
 BMIN = np.array([-1.0, -0.5, 0.0])
 BMAX = np.array([1.0, 1.5, 3.0])
@@ -28,6 +32,43 @@ def clip(o, d, bmin=BMIN, bmax=BMAX):
     t0 = max(t0, 0.0)
     return (t0, t1) if t1 > t0 else None
 
+
+
+@njit
+def _flight_run(grid, maj, mnr, scale, o, d, t0, t1, n, decomposition, key, pixel):
+    out = np.empty(n)
+    cnt = np.zeros(N_COUNTERS, np.int64)
+    inv = (1.0 / (BMAX[0] - BMIN[0]), 1.0 / (BMAX[1] - BMIN[1]), 1.0 / (BMAX[2] - BMIN[2]))
+    bmin = (BMIN[0], BMIN[1], BMIN[2])
+    bmax = (BMAX[0], BMAX[1], BMAX[2])
+    for i in range(n):
+        rng = rng_new(key, pixel, i, STREAM_TEST)
+        ev, t = free_flight_grid(grid, bmin, bmax, inv, scale, maj, mnr, decomposition, o, d,
+                                 t0, t1, rng, cnt, 10**6)
+        out[i] = t if ev == EVENT_SCATTER else np.inf
+    return out, cnt[C_LOOKUPS]
+
+
+def _flights(grid, maj, mnr, scale, o, d, t0, t1, n, decomposition, key, pixel):
+    """n free flights (reference, over majorant cells maj/mnr) along one ray in the BMIN-BMAX
+    box with random numbers (key, pixel, i): (collision distances, inf on escape; lookups)."""
+    return _flight_run(grid, maj.astype(np.float64), mnr.astype(np.float64), scale, tuple(o),
+                       tuple(d), t0, t1, n, decomposition, key, pixel)
+
+
+def _distance_fit_pvalue(grid, scale, o, d, t0, t1, t):
+    """Chi-square p-value of collision distances t (inf = escape) against the exact
+    distribution 1 - T(t) along the ray, in 24 equal bins plus escape."""
+    from stats import chi2_pvalue
+    from volmc.reference.optical_depth import optical_depth_exact
+    edges = np.linspace(t0, t1, 25)
+    cdf = np.array([1 - math.exp(-optical_depth_exact(grid, tuple(BMIN), tuple(BMAX), scale,
+                                                      tuple(o), tuple(d), t0, e))
+                    for e in edges])
+    expected = np.append(np.diff(cdf), 1 - cdf[-1]) * len(t)
+    observed = np.append(np.histogram(t[np.isfinite(t)], bins=edges)[0],
+                         np.sum(~np.isfinite(t)))
+    return chi2_pvalue(observed, expected)[0]
 
 def check_ray(o, d):
     seg = clip(o, d)
@@ -92,28 +133,8 @@ def test_free_flight_over_majorant_grid_distribution():
     """Delta tracking over a majorant grid: collision distances pass a chi-square test against
     the exact CDF 1 - T(t) along fixed rays, for several majorant resolutions (including a
     grid with empty cells), and it needs fewer lookups than the global majorant."""
-    from numba import njit as _njit
-
-    from stats import ALPHA, chi2_pvalue, sidak
-    from volmc.params import C_LOOKUPS, N_COUNTERS
+    from stats import ALPHA, sidak
     from volmc.reference.majorant import build_majorant_grid
-    from volmc.reference.optical_depth import optical_depth_exact
-    from volmc.reference.rng import STREAM_TEST, rng_new
-    from volmc.reference.transmittance import EVENT_SCATTER, free_flight_grid
-
-    @_njit
-    def flights(grid, maj, scale, o, d, t0, t1, n):
-        out = np.empty(n)
-        cnt = np.zeros(N_COUNTERS, np.int64)
-        inv = (1.0 / (BMAX[0] - BMIN[0]), 1.0 / (BMAX[1] - BMIN[1]), 1.0 / (BMAX[2] - BMIN[2]))
-        bmin = (BMIN[0], BMIN[1], BMIN[2])
-        bmax = (BMAX[0], BMAX[1], BMAX[2])
-        for i in range(n):
-            rng = rng_new(7, 3, i, STREAM_TEST)
-            ev, t = free_flight_grid(grid, bmin, bmax, inv, scale, maj, maj, False, o, d, t0,
-                                     t1, rng, cnt, 10**6)
-            out[i] = t if ev == EVENT_SCATTER else np.inf
-        return out, cnt[C_LOOKUPS]
 
     rng = np.random.default_rng(4)
     grid = rng.random((12, 10, 8)) ** 4
@@ -129,15 +150,8 @@ def test_free_flight_over_majorant_grid_distribution():
         o = np.array([-0.95, -0.4, 0.1]) if k == 0 else np.array([0.3, -0.45, 0.05])
         t0, t1 = clip(o, d)
         n = 60000
-        t, lk = flights(grid, maj.astype(np.float64), scale, tuple(o), tuple(d), t0, t1, n)
-        edges = np.linspace(t0, t1, 25)
-        cdf = np.array([1 - math.exp(-optical_depth_exact(grid, tuple(BMIN), tuple(BMAX), scale,
-                                                          tuple(o), tuple(d), t0, e))
-                        for e in edges])
-        expected = np.append(np.diff(cdf), 1 - cdf[-1]) * n
-        observed = np.append(np.histogram(t[np.isfinite(t)], bins=edges)[0],
-                             np.sum(~np.isfinite(t)))
-        p, _ = chi2_pvalue(observed, expected)
+        t, lk = _flights(grid, maj, maj, scale, o, d, t0, t1, n, False, 7, 3)
+        p = _distance_fit_pvalue(grid, scale, o, d, t0, t1, t)
         assert p > a, (res, k, p)
         lookups[(res, k)] = lk
     for k in range(2):
@@ -181,28 +195,8 @@ def test_kernel_dda_matches_reference():
 def test_decomposition_tracking_distribution():
     """Decomposition tracking over a majorant grid: collision distances pass the chi-square
     test against 1 - T(t), and the per-cell minorants save lookups on a dense grid."""
-    from numba import njit as _njit
-
-    from stats import ALPHA, chi2_pvalue, sidak
-    from volmc.params import C_LOOKUPS, N_COUNTERS
+    from stats import ALPHA, sidak
     from volmc.reference.majorant import build_majorant_grid
-    from volmc.reference.optical_depth import optical_depth_exact
-    from volmc.reference.rng import STREAM_TEST, rng_new
-    from volmc.reference.transmittance import EVENT_SCATTER, free_flight_grid
-
-    @_njit
-    def flights(grid, maj, mnr, scale, o, d, t0, t1, n, decomposition):
-        out = np.empty(n)
-        cnt = np.zeros(N_COUNTERS, np.int64)
-        inv = (1.0 / (BMAX[0] - BMIN[0]), 1.0 / (BMAX[1] - BMIN[1]), 1.0 / (BMAX[2] - BMIN[2]))
-        bmin = (BMIN[0], BMIN[1], BMIN[2])
-        bmax = (BMAX[0], BMAX[1], BMAX[2])
-        for i in range(n):
-            rng = rng_new(9, 1, i, STREAM_TEST)
-            ev, t = free_flight_grid(grid, bmin, bmax, inv, scale, maj, mnr, decomposition, o,
-                                     d, t0, t1, rng, cnt, 10**6)
-            out[i] = t if ev == EVENT_SCATTER else np.inf
-        return out, cnt[C_LOOKUPS]
 
     grid = 0.5 + 0.5 * np.random.default_rng(5).random((12, 10, 8))   # dense: minorants > 0
     scale = 0.6
@@ -213,17 +207,8 @@ def test_decomposition_tracking_distribution():
         d /= np.linalg.norm(d)
         t0, t1 = clip(o, d)
         n = 60000
-        args = (grid, maj.astype(np.float64), mnr.astype(np.float64), scale, tuple(o), tuple(d),
-                t0, t1, n)
-        t, lk = flights(*args, True)
-        t_delta, lk_delta = flights(*args, False)
+        t, lk = _flights(grid, maj, mnr, scale, o, d, t0, t1, n, True, 9, 1)
+        t_delta, lk_delta = _flights(grid, maj, mnr, scale, o, d, t0, t1, n, False, 9, 1)
         assert np.array_equal(t, t_delta)          # same decisions for the same numbers
         assert lk < 0.7 * lk_delta                 # the control saves lookups
-        edges = np.linspace(t0, t1, 25)
-        cdf = np.array([1 - math.exp(-optical_depth_exact(grid, tuple(BMIN), tuple(BMAX), scale,
-                                                          tuple(o), tuple(d), t0, e))
-                        for e in edges])
-        expected = np.append(np.diff(cdf), 1 - cdf[-1]) * n
-        observed = np.append(np.histogram(t[np.isfinite(t)], bins=edges)[0],
-                             np.sum(~np.isfinite(t)))
-        assert chi2_pvalue(observed, expected)[0] > a
+        assert _distance_fit_pvalue(grid, scale, o, d, t0, t1, t) > a
