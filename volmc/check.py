@@ -75,15 +75,9 @@ def check_scene(scene, backends=("opencl", "numba"), spp=None, device=None):
     """Render ``scene`` with two backends (independent seeds) and compare the images.
 
     Returns (Comparison, result_a, result_b)."""
-    from dataclasses import replace
-
     from .render import make_backend, render
-    from .scene.loading import Scene
-    spec = scene.spec
-    if spp is not None:
-        spec = replace(spec, render=replace(spec.render, spp=spp))
-    sa = Scene(spec, scene.grid)
-    sb = Scene(replace(spec, render=replace(spec.render, seed=(spec.render.seed + 1) % 2**64)), scene.grid)
+    sa = scene if spp is None else scene.with_render(spp=spp)
+    sb = sa.with_render(seed=(sa.render.seed + 1) % 2**64)
     ra = render(sa, backend=make_backend(backends[0], sa, device), progress=False)
     rb = render(sb, backend=make_backend(backends[1], sb, device), progress=False)
     cmp = compare_images(ra.film.mean(), ra.film.variance_of_mean(), rb.film.mean(),

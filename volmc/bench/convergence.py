@@ -24,7 +24,6 @@ import numpy as np
 
 from ..film import Film
 from ..params import COUNTER_NAMES
-from ..peers import with_render
 from ..peers.compare import rmse_to_reference
 from ..render import batch_schedule, make_backend
 
@@ -61,8 +60,8 @@ def make_configs(backends, majorants, free_flights, transmittances, peer):
 
 class _VolmcRunner:
     def __init__(self, scene, cfg, device):
-        self.scene = with_render(scene, majorant=cfg.majorant, free_flight=cfg.free_flight,
-                                 transmittance=cfg.transmittance)
+        self.scene = scene.with_render(majorant=cfg.majorant, free_flight=cfg.free_flight,
+                                       transmittance=cfg.transmittance)
         self.be = make_backend(cfg.backend, self.scene, device)
         self.be.warm_up()
         w, h = self.scene.camera.resolution
@@ -103,7 +102,7 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
     pixels = w * h
     log(f"reference: volmc opencl, {reference_spp} spp (independent seed)")
     t = time.perf_counter()
-    sref = with_render(scene, seed=(scene.render.seed + 0x5EED) % 2**64)
+    sref = scene.with_render(seed=(scene.render.seed + 0x5EED) % 2**64)
     from ..render import render
     ref = render(sref, backend=make_backend("opencl", sref, device), spp=reference_spp,
                  progress=False)

@@ -8,7 +8,7 @@
 
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional
 
 import numpy as np
@@ -47,6 +47,12 @@ class Scene:
     @property
     def render(self):
         return self.spec.render
+
+    def with_render(self, **keys):
+        """This scene with some ``render`` keys replaced (spp, seed, techniques); the
+        grid is shared, not copied. The values are taken as given (not re-validated)."""
+        spec = replace(self.spec, render=replace(self.spec.render, **keys))
+        return Scene(spec, self.grid)
 
 
 def read_toml(path):
