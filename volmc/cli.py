@@ -314,10 +314,7 @@ def cmd_peer(args):
     if args.images and not os.path.isdir(args.images):
         raise SceneError("command line", "--images", f"not a directory: {args.images}")
     scene_path = str(default_scene()) if args.scene is None else args.scene
-    scene = load_scene(scene_path, args.defines)
-    if min(hi - lo for lo, hi in zip(*scene.spec.medium.bounds)) <= 0:
-        raise SceneError(scene_path, "medium.bounds", "a box of zero thickness has no "
-                                                      "Mitsuba equivalent")
+    scene = load_scene(scene_path, args.defines)   # rejects a box of zero thickness
     print(f"volmc peer mitsuba: {scene_path}", flush=True)
     try:
         report, images = compare_with_mitsuba(scene, args.spp, args.passes, args.reference_spp,

@@ -6,15 +6,6 @@ the same spp and reports (a) agreement (mean and per-pixel z-scores with both va
 equal-error time ratio.
 """
 
-from dataclasses import replace
-
-
-def with_render(scene, **keys):
-    """A copy of ``scene`` with some ``render`` keys replaced (spp, seed, ...)."""
-    from ..scene.loading import Scene
-    spec = scene.spec
-    return Scene(replace(spec, render=replace(spec.render, **keys)), scene.grid)
-
 
 def compare_with_mitsuba(scene, spp=None, passes=16, reference_spp=None, device=None,
                          log=print):
@@ -32,19 +23,18 @@ def compare_with_mitsuba(scene, spp=None, passes=16, reference_spp=None, device=
     spp = spp or scene.render.spp
     reference_spp = 8 * spp if reference_spp is None else reference_spp
     seed = scene.render.seed
+    passes = max(2, min(passes, spp))
     log(f"volmc against Mitsuba {version} (volpath, llvm): {spp} spp each, Mitsuba in "
         f"{passes} passes")
 
     peer = MitsubaRenderer(scene)
     peer.warm_up()
-    sv = with_render(scene, seed=seed)
-    be = make_backend("opencl", sv, device)
+    be = make_backend("opencl", scene, device)
     be.warm_up()
-    rv = render(sv, backend=be, spp=spp, progress=False)
+    rv = render(scene, backend=be, spp=spp, progress=False)
     mean_v, var_v = rv.film.mean(), rv.film.variance_of_mean()
     log(f"  volmc:   {rv.seconds:8.2f} s")
 
-    passes = max(2, min(passes, spp))
     mean_p, var_p, sec_p, pass_means = peer.render(spp, seed=seed + 7, passes=passes)
     log(f"  Mitsuba: {sec_p:8.2f} s")
     agr = compare.agreement(mean_v, var_v, mean_p, var_p, pass_means, spp)
@@ -56,7 +46,7 @@ def compare_with_mitsuba(scene, spp=None, passes=16, reference_spp=None, device=
     images = {"volmc": mean_v, "mitsuba": mean_p}
 
     if reference_spp:
-        sr = with_render(scene, seed=(seed + 2) % 2**64)
+        sr = scene.with_render(seed=(seed + 2) % 2**64)
         ref = render(sr, backend=make_backend("opencl", sr, device), spp=reference_spp,
                      progress=False)
         ref_mean, ref_var = ref.film.mean(), ref.film.variance_of_mean()

@@ -126,9 +126,7 @@ def scene_dict(scene, mi=None):
     spec = scene.spec
     cam, med, ren = spec.camera, spec.medium, spec.render
     (x0, y0, z0), (x1, y1, z1) = med.bounds
-    ext = (x1 - x0, y1 - y0, z1 - z0)
-    if min(ext) <= 0:
-        raise ValueError("medium.bounds has zero thickness: Mitsuba's cube cannot be scaled to it")
+    ext = (x1 - x0, y1 - y0, z1 - z0)   # > 0 on every axis: scene validation ensures it
 
     phase = ({"type": "hg", "g": float(med.phase.g)} if med.phase.type == "hg"
              else {"type": "isotropic"})
