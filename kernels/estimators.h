@@ -3,6 +3,7 @@
 #ifndef VOLMC_ESTIMATORS_H
 #define VOLMC_ESTIMATORS_H
 
+#include "params.h" /* TR_RR_THRESHOLD (volmc/constants.py) */
 #include "rng.h"
 #include "extinction.h"
 
@@ -14,7 +15,6 @@
  * +-TR_RR_THRESHOLD (same mean: unbiased), and T == 0 ends it. Dense shadow rays then stop
  * after a few lookups instead of walking the whole majorant optical depth. Returns 0 when the
  * walk ends (T is then 0). Twin of transmittance_roulette in estimators.py. */
-#define TR_RR_THRESHOLD 1e-3f
 inline int transmittance_roulette(float *T, Rng *rng) {
     float a = fabs(*T);
     if (!(a < TR_RR_THRESHOLD)) return 1;

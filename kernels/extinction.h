@@ -4,15 +4,8 @@
 #ifndef VOLMC_EXTINCTION_H
 #define VOLMC_EXTINCTION_H
 
+#include "params.h" /* MED_* (volmc/constants.py) */
 #include "grid.h"
-
-#define MED_GRID 0
-#define MED_CONSTANT 1
-#define MED_RAMP 2
-#define MED_GAUSS_BUMP 3
-#define MED_GAUSS_HOLE 4
-#define MED_COSINE 5
-#define MED_SIZE 8
 
 inline float extinction_profile(global const float *med, float t) {
     int kind = (int)med[0];
@@ -27,7 +20,7 @@ inline float extinction_profile(global const float *med, float t) {
         float x = (t - c) / s;
         return fmax(a - b * exp(-0.5f * x * x), 0.0f);
     }
-    return a * (1.0f + b * cos(6.283185307179586f * c * t / L + s));
+    return a * (1.0f + b * cos(TWO_PI * c * t / L + s));
 }
 
 inline float extinction(global const float *med, global const float *grid, int3 dims, float3 o,

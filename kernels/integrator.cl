@@ -35,8 +35,6 @@
 #define SHADOW_ESTIMATOR_EXTRA
 #endif
 
-#define RR_MAX_SURVIVAL 0.95f
-
 inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 

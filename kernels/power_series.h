@@ -5,20 +5,15 @@
 #ifndef VOLMC_POWER_SERIES_H
 #define VOLMC_POWER_SERIES_H
 
+#include "params.h"
 #include "extinction.h"
 #include "rng.h"
 #include "guards.h"
 
-#define URM_P_ZERO 0.9f
-#define URM_K 2
-#define URM_C 2.0f
-#define URM_MAX_ORDER 16
-/* sum_{k >= 1} P(order >= k) for the three constants above (URM_MEAN_ORDER in Python). */
-#define URM_MEAN_ORDER 0.3194528049465324f
-#define CMF_GOAL 0.99f
+/* URM_*, CMF_GOAL and CMF_FIT_* come from the generated params.h (volmc/constants.py). */
 
 inline int cmf_lookup_budget(float lam) {
-    return (int)ceil(cbrt((0.015f + lam) * (0.65f + lam) * (60.3f + lam)));
+    return (int)ceil(cbrt((CMF_FIT_0 + lam) * (CMF_FIT_1 + lam) * (CMF_FIT_2 + lam)));
 }
 
 inline int urm_comb_size(float lam) {

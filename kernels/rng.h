@@ -6,16 +6,7 @@
 #ifndef VOLMC_RNG_H
 #define VOLMC_RNG_H
 
-#define PHILOX_M0 0xD2511F53u
-#define PHILOX_M1 0xCD9E8D57u
-#define PHILOX_W0 0x9E3779B9u
-#define PHILOX_W1 0xBB67AE85u
-#define PHILOX_ROUNDS 10
-#define UNIFORM_SCALE 5.9604644775390625e-8f /* 2^-24 */
-
-#define STREAM_PATH 0u
-#define STREAM_SHADOW 1u
-#define STREAM_TEST 2u
+#include "params.h" /* PHILOX_*, UNIFORM_SCALE, STREAM_* (volmc/constants.py) */
 
 /* Mirrors the reference's uint32 state array [key0, key1, pixel, sample, stream, n, w0..w3]. */
 typedef struct {

@@ -4,8 +4,7 @@
 #ifndef VOLMC_SAMPLING_H
 #define VOLMC_SAMPLING_H
 
-#define INV_4PI 0.07957747154594767f
-#define TWO_PI 6.283185307179586f
+#include "params.h" /* INV_4PI, TWO_PI (volmc/constants.py) */
 
 inline float sample_exponential(float u, float a, float *pdf) {
     if (a <= 0.0f) {

@@ -5,13 +5,10 @@
 #ifndef VOLMC_TRANSMITTANCE_H
 #define VOLMC_TRANSMITTANCE_H
 
+#include "params.h" /* EVENT_* (volmc/constants.py) */
 #include "rng.h"
 #include "grid.h"
 #include "dda.h"
-
-#define EVENT_ESCAPE 0
-#define EVENT_SCATTER 1
-#define EVENT_CAPPED 2
 
 inline float sigma_t_at(global const float *grid, int3 dims, float3 bmin, float3 inv_extent,
                         float scale, float3 o, float3 d, float t, ulong *counters, float mbar) {

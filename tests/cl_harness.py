@@ -54,3 +54,20 @@ def f3(v):
 def i3(v):
     """int3 kernel argument."""
     return np.array([v[0], v[1], v[2], 0], np.int32)
+
+
+def build_source(name, source, options=()):
+    """Build a test kernel given as source text (it may include the kernel headers)."""
+    ctx, _, _ = harness()
+    prg, _ = build_program(ctx, ctx.devices[0], assemble(name, {name: source}), list(options))
+    return prg
+
+
+def run_kernel(program, name, n, *args, outs=()):
+    """Launch kernel ``name`` of ``program`` over n work items; copy back ``outs``."""
+    _, queue, _ = harness()
+    cl.Kernel(program, name)(queue, (n,), None, *args)
+    for host, buf in outs:
+        cl.enqueue_copy(queue, host, buf)
+    queue.finish()
+    return [h for h, _ in outs]

@@ -4,9 +4,9 @@ import math
 
 import numpy as np
 
-from .params import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, LIGHT_DIRECTIONAL, LIGHT_POINT,
-                     light_dtype, params_dtype)
-from .reference.phase import PHASE_HG, PHASE_ISOTROPIC
+from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, LIGHT_DIRECTIONAL, LIGHT_POINT,
+                        PHASE_HG, PHASE_ISOTROPIC)
+from .params import light_dtype, params_dtype
 from .reference import estimators as E
 from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
 

@@ -12,12 +12,6 @@ the kernels' float32 never sees coordinates far from the origin (HARD_CASES 11, 
 
 import numpy as np
 
-CAMERA_PERSPECTIVE = 0
-CAMERA_ORTHOGRAPHIC = 1
-
-LIGHT_DIRECTIONAL = 0
-LIGHT_POINT = 1
-
 #: (name, kind, count, meaning). kind "real" becomes float64 (reference) or float32 (kernels).
 PARAM_FIELDS = (
     ("width", "i4", 1, "image width in pixels"),

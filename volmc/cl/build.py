@@ -16,7 +16,7 @@ from ..resources import kernels_dir
 from .structs import params_header
 
 CACHE_ENV = "VOLMC_CACHE_DIR"
-_INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*$', re.M)
+_INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)".*$', re.M)
 _memory_cache = {}
 
 #: Options every build gets. No fast-math flags: see the README's "Numerical robustness".

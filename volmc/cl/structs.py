@@ -2,13 +2,13 @@
 
 ``params_header()`` is the text of the virtual header ``params.h`` that kernels include:
 the Params and Light structs (float32 reals, the same field order and alignment as
-``params_dtype(np.float32)``), the counter indices and the enum constants.
+``params_dtype(np.float32)``), the counter indices and every constant of volmc/constants.py.
 """
 
 import numpy as np
 
 from .. import params as P
-from ..reference import phase as phase_mod
+from ..constants import U32, kernel_constants
 
 _C_TYPES = {"i4": "int", "u4": "uint", "real": "float"}
 
@@ -24,20 +24,27 @@ def c_struct(name, fields):
     return "\n".join(lines)
 
 
+def c_literal(value):
+    """A constant of volmc/constants.py as C source: U32 in hex with a u suffix, int in decimal,
+    float with every digit Python keeps and an f suffix (the compiler rounds it to float32
+    exactly as numpy.float32 does)."""
+    if isinstance(value, U32):
+        return f"0x{int(value):X}u"
+    if isinstance(value, int):
+        return str(value)
+    return f"{float(value)!r}f"
+
+
 def params_header():
-    """Text of the generated ``params.h``."""
-    out = ["/* Generated from volmc/params.py by volmc/cl/structs.py: do not edit. */",
-           "#ifndef VOLMC_PARAMS_H", "#define VOLMC_PARAMS_H", ""]
-    consts = {
-        "CAMERA_PERSPECTIVE": P.CAMERA_PERSPECTIVE, "CAMERA_ORTHOGRAPHIC": P.CAMERA_ORTHOGRAPHIC,
-        "LIGHT_DIRECTIONAL": P.LIGHT_DIRECTIONAL, "LIGHT_POINT": P.LIGHT_POINT,
-        "N_COUNTERS": P.N_COUNTERS,
-    }
+    """Text of the generated ``params.h``: every constant of volmc/constants.py, the counter
+    indices, and the Params and Light structs."""
+    out = ["/* Generated from volmc/constants.py and volmc/params.py by volmc/cl/structs.py: "
+           "do not edit. */", "#ifndef VOLMC_PARAMS_H", "#define VOLMC_PARAMS_H", ""]
+    consts = dict(kernel_constants())
+    consts["N_COUNTERS"] = P.N_COUNTERS
     consts.update({k: getattr(P, k) for k in dir(P) if k.startswith("C_")})
-    consts["PHASE_ISOTROPIC"] = phase_mod.PHASE_ISOTROPIC
-    consts["PHASE_HG"] = phase_mod.PHASE_HG
     for k, v in consts.items():
-        out.append(f"#define {k} {v}")
+        out.append(f"#define {k} {c_literal(v)}")
     out += ["", c_struct("Params", P.PARAM_FIELDS), "", c_struct("Light", P.LIGHT_FIELDS), "",
             "#endif", ""]
     return "\n".join(out)

@@ -24,15 +24,12 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ..constants import TR_RR_THRESHOLD
 from ..params import C_CAPPED, N_COUNTERS
 from .extinction import lookup
 from .power_series import transmittance_power_series, transmittance_unbiased_raymarch
 from .rng import STREAM_TEST, rng_new, rng_next
 
-
-#: Guard "transmittance roulette" (HARD_CASES 10): below this running |T| a walk goes on
-#: with probability |T| / TR_RR_THRESHOLD.
-TR_RR_THRESHOLD = 1e-3
 
 
 @njit(cache=True, inline="always")

@@ -27,16 +27,11 @@ import math
 import numpy as np
 from numba import njit
 
+from ..constants import (MED_CONSTANT, MED_COSINE, MED_GAUSS_BUMP, MED_GAUSS_HOLE, MED_GRID,
+                         MED_RAMP, MED_SIZE)
 from ..params import C_LOOKUPS, C_OVER_MAJORANT
 from .grid import grid_lookup
 
-MED_GRID = 0
-MED_CONSTANT = 1
-MED_RAMP = 2
-MED_GAUSS_BUMP = 3
-MED_GAUSS_HOLE = 4
-MED_COSINE = 5
-MED_SIZE = 8
 PROFILE_NAMES = {MED_CONSTANT: "constant", MED_RAMP: "linear ramp",
                  MED_GAUSS_BUMP: "Gaussian bump", MED_GAUSS_HOLE: "Gaussian hole",
                  MED_COSINE: "cosine"}

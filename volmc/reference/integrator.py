@@ -34,20 +34,17 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..params import (C_DROPPED, C_SCATTER, C_SHADOW, CAMERA_ORTHOGRAPHIC, LIGHT_DIRECTIONAL,
-                      N_COUNTERS)
+from ..constants import (CAMERA_ORTHOGRAPHIC, EVENT_CAPPED, EVENT_ESCAPE, INV_4PI,
+                         LIGHT_DIRECTIONAL, RR_MAX_SURVIVAL, STREAM_PATH, STREAM_SHADOW)
+from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
 from .phase import phase_eval, phase_sample
-from .rng import RNG_STATE_SIZE, STREAM_PATH, STREAM_SHADOW, rng_init, rng_next
-from .sampling import INV_4PI, dot, normalize, sample_uniform_sphere
+from .rng import RNG_STATE_SIZE, rng_init, rng_next
+from .sampling import dot, normalize, sample_uniform_sphere
 from .estimators import estimate_one, transmittance_roulette
 from .guards import sample_ok
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
-from .transmittance import (EVENT_CAPPED, EVENT_ESCAPE, free_flight_delta,
-                            free_flight_grid, free_flight_homogeneous,
+from .transmittance import (free_flight_delta, free_flight_grid, free_flight_homogeneous,
                             transmittance_homogeneous)
-
-#: Russian roulette survival probability never exceeds this (Mitsuba's policy).
-RR_MAX_SURVIVAL = 0.95
 
 
 @njit(cache=True, inline="always")

@@ -27,10 +27,8 @@ import math
 
 from numba import njit
 
-from .sampling import INV_4PI, TWO_PI, from_frame, sample_uniform_sphere
-
-PHASE_ISOTROPIC = 0
-PHASE_HG = 1
+from ..constants import INV_4PI, PHASE_HG, PHASE_ISOTROPIC, TWO_PI
+from .sampling import from_frame, sample_uniform_sphere
 
 
 @njit(cache=True, inline="always")

@@ -34,40 +34,12 @@ import math
 import numpy as np
 from numba import njit
 
+from ..constants import (CMF_FIT_0, CMF_FIT_1, CMF_FIT_2, CMF_GOAL, URM_C, URM_K,  # noqa: F401
+                         URM_MAX_ORDER, URM_MEAN_ORDER, URM_P_ZERO)
 from ..params import C_CAPPED
 from .extinction import lookup
 from .guards import finite_bits
 from .rng import rng_next
-
-#: Unbiased ray marching, aggressive roulette: P(order = 0) (Kettunen et al. 2021, p_Z).
-URM_P_ZERO = 0.9
-#: Once past order 0, every order up to URM_K is evaluated.
-URM_K = 2
-#: Beyond URM_K, order k is reached with conditional probability min(1, URM_C / k)
-#: (Bhanot & Kennedy 1985 roulette).
-URM_C = 2.0
-#: Size of the U-statistics buffer. With the defaults P(order >= 14) < 2^-24, which the
-#: v <= P test can never pass, so the order stops at 13 and the cap is never reached.
-URM_MAX_ORDER = 16
-#: P-series CMF: orders are evaluated deterministically until the Poisson(LAMBDA) cumulative
-#: mass reaches this level (Georgiev et al. 2019; their public code uses 0.99).
-CMF_GOAL = 0.99
-
-
-def _mean_order(p_zero, k_det, c):
-    """E[order] = sum_{k >= 1} P(order >= k) of the aggressive roulette."""
-    q, total, k = 1.0 - p_zero, 0.0, 0
-    while q > 1e-300:
-        k += 1
-        if k > k_det:
-            q *= min(1.0, c / k)
-        total += q
-    return total
-
-
-#: Expected expansion order of unbiased ray marching (0.31945... for the defaults); each order
-#: costs one comb, so lookups = M * (1 + URM_MEAN_ORDER) on average.
-URM_MEAN_ORDER = _mean_order(URM_P_ZERO, URM_K, URM_C)
 
 
 @njit(cache=True)
@@ -75,7 +47,7 @@ def cmf_lookup_budget(lam):
     """Expected lookups of the p-series CMF estimator for Poisson parameter (majorant optical
     depth) lam, as the cubic fit used by Kettunen et al. (2021) to give unbiased ray marching
     an equal budget: ceil(cbrt((0.015 + lam) (0.65 + lam) (60.3 + lam)))."""
-    x = (0.015 + lam) * (0.65 + lam) * (60.3 + lam)
+    x = (CMF_FIT_0 + lam) * (CMF_FIT_1 + lam) * (CMF_FIT_2 + lam)
     return int(math.ceil(x ** (1.0 / 3.0)))
 
 

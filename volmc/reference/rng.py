@@ -17,6 +17,8 @@ Convention (shared with ``kernels/rng.h``; tests depend on it):
   decision sequences of one path (see the STREAM_* constants), so that changing how many
   numbers one technique consumes does not shift the numbers another one sees.
 
+The Philox constants, UNIFORM_SCALE and the STREAM_* ids are defined in volmc/constants.py.
+
 The state of one stream lives in a small uint32 array (RNG_STATE_SIZE words):
 ``[key0, key1, pixel, sample, stream, n, w0, w1, w2, w3]`` where w* caches the current block.
 """
@@ -24,25 +26,18 @@ The state of one stream lives in a small uint32 array (RNG_STATE_SIZE words):
 import numpy as np
 from numba import njit
 
-PHILOX_M0 = np.uint64(0xD2511F53)
-PHILOX_M1 = np.uint64(0xCD9E8D57)
-PHILOX_W0 = np.uint64(0x9E3779B9)
-PHILOX_W1 = np.uint64(0xBB67AE85)
+from ..constants import (PHILOX_M0, PHILOX_M1, PHILOX_ROUNDS, PHILOX_W0, PHILOX_W1,  # noqa: F401
+                         STREAM_PATH, STREAM_SHADOW, STREAM_TEST, UNIFORM_SCALE)
+
+_M0 = np.uint64(PHILOX_M0)
+_M1 = np.uint64(PHILOX_M1)
+_W0 = np.uint64(PHILOX_W0)
+_W1 = np.uint64(PHILOX_W1)
 MASK32 = np.uint64(0xFFFFFFFF)
 SHIFT32 = np.uint64(32)
 
-#: Number of Philox rounds; 10 is the count Random123 recommends (passes BigCrush with margin).
-PHILOX_ROUNDS = 10
+#: Words of a stream's state array (layout in the module docstring).
 RNG_STATE_SIZE = 10
-#: 2^-24: one unit of the 24-bit uniform grid.
-UNIFORM_SCALE = 1.0 / 16777216.0
-
-#: Stream ids: path decisions (camera jitter, free flight, phase, roulette, light choice).
-STREAM_PATH = 0
-#: Stream ids: transmittance estimates along shadow rays (next-event estimation).
-STREAM_SHADOW = 1
-#: Stream ids: free tests and benchmarks that drive a single technique.
-STREAM_TEST = 2
 
 
 @njit(cache=True, inline="always")
@@ -57,10 +52,10 @@ def philox4x32_10(c0, c1, c2, c3, k0, k1):
     k1 = np.uint64(k1) & MASK32
     for r in range(PHILOX_ROUNDS):
         if r > 0:
-            k0 = (k0 + PHILOX_W0) & MASK32
-            k1 = (k1 + PHILOX_W1) & MASK32
-        p0 = PHILOX_M0 * c0
-        p1 = PHILOX_M1 * c2
+            k0 = (k0 + _W0) & MASK32
+            k1 = (k1 + _W1) & MASK32
+        p0 = _M0 * c0
+        p1 = _M1 * c2
         hi0 = p0 >> SHIFT32
         lo0 = p0 & MASK32
         hi1 = p1 >> SHIFT32

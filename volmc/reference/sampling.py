@@ -12,8 +12,7 @@ import math
 
 from numba import njit
 
-INV_4PI = 1.0 / (4.0 * math.pi)
-TWO_PI = 2.0 * math.pi
+from ..constants import INV_4PI, TWO_PI
 
 
 @njit(cache=True, inline="always")

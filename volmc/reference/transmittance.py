@@ -16,15 +16,11 @@ import math
 import numpy as np
 from numba import njit
 
+from ..constants import EVENT_CAPPED, EVENT_ESCAPE, EVENT_SCATTER
 from ..params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .grid import grid_lookup
 from .rng import rng_next
-
-#: Free-flight outcomes.
-EVENT_ESCAPE = 0    # the walk passed t1 without a real collision
-EVENT_SCATTER = 1   # real collision at the returned t
-EVENT_CAPPED = 2    # step cap reached; the caller must end the path and it is counted
 
 
 @njit(cache=True, inline="always")

@@ -1,0 +1,134 @@
+"""Every constant the kernels share with Python, defined once.
+
+The OpenCL kernels never define these themselves: ``volmc/cl/structs.py`` writes each
+public upper-case name of this module into the generated header ``params.h`` (an ``int``
+as a decimal literal, a ``U32`` as an unsigned hexadecimal literal, a ``float`` as a
+float literal), and the Numba reference imports them from here. ``tests/test_constants.py``
+fails if a kernel sees a different value than the reference, or if a kernel source file
+``#define``s one of these names by hand.
+
+Constants that only one side needs (for example the C guard ``NO_LIMIT``, which is
+``FLT_MAX`` in the kernels and ``math.inf`` in Python) are not listed here.
+"""
+
+import math
+
+
+class U32(int):
+    """An unsigned 32-bit constant: written into the kernels' header as ``0x...u``."""
+
+    def __new__(cls, value):
+        if not 0 <= value < 2**32:
+            raise ValueError(f"{value} is not a 32-bit unsigned value")
+        return super().__new__(cls, value)
+
+
+# --- Mathematics -----------------------------------------------------------------------------
+
+#: 1 / (4 pi): the isotropic phase function and the uniform-sphere pdf, per steradian.
+INV_4PI = 1.0 / (4.0 * math.pi)
+#: 2 pi: a full turn in radians.
+TWO_PI = 2.0 * math.pi
+
+# --- Random numbers (volmc/reference/rng.py has the convention) ------------------------------
+
+#: Philox4x32 round multipliers (Salmon, Moraes, Dror, Shaw 2011).
+PHILOX_M0 = U32(0xD2511F53)
+PHILOX_M1 = U32(0xCD9E8D57)
+#: Philox4x32 key increments per round (the golden ratio and sqrt(3) - 1, as 32-bit fractions).
+PHILOX_W0 = U32(0x9E3779B9)
+PHILOX_W1 = U32(0xBB67AE85)
+#: Philox rounds: 10 is Random123's recommendation (passes BigCrush with margin).
+PHILOX_ROUNDS = 10
+#: 2^-24, one step of the 24-bit uniform grid: uniforms are (word >> 8) * UNIFORM_SCALE.
+UNIFORM_SCALE = 1.0 / 16777216.0
+
+#: Random-number streams of one sample: the path's decisions (camera jitter, free flight,
+#: phase, roulette, environment sampling) ...
+STREAM_PATH = 0
+#: ... the transmittance estimates of shadow rays ...
+STREAM_SHADOW = 1
+#: ... and tests and benchmarks that drive a single technique.
+STREAM_TEST = 2
+
+# --- Free flight ---------------------------------------------------------------------------
+
+#: Free-flight outcomes: the walk passed the end of its segment without a real collision ...
+EVENT_ESCAPE = 0
+#: ... a real collision (the path scatters there) ...
+EVENT_SCATTER = 1
+#: ... or the step cap ended the walk (counted; the caller ends the path).
+EVENT_CAPPED = 2
+
+# --- Extinction sources (volmc/reference/extinction.py) --------------------------------------
+
+MED_GRID = 0
+MED_CONSTANT = 1
+MED_RAMP = 2
+MED_GAUSS_BUMP = 3
+MED_GAUSS_HOLE = 4
+MED_COSINE = 5
+#: Floats per extinction source.
+MED_SIZE = 8
+
+# --- Phase functions, cameras, lights ---------------------------------------------------------
+
+PHASE_ISOTROPIC = 0
+PHASE_HG = 1
+
+CAMERA_PERSPECTIVE = 0
+CAMERA_ORTHOGRAPHIC = 1
+
+LIGHT_DIRECTIONAL = 0
+LIGHT_POINT = 1
+
+# --- Russian roulette ----------------------------------------------------------------------
+
+#: A path survives roulette with probability min(max(throughput), RR_MAX_SURVIVAL): the cap
+#: ends every path, even at albedo 1 in an unbounded medium (Mitsuba 3's policy).
+RR_MAX_SURVIVAL = 0.95
+#: Guard "transmittance roulette" (docs/robustness.md): below this running |T| a
+#: transmittance walk goes on with probability |T| / TR_RR_THRESHOLD.
+TR_RR_THRESHOLD = 1e-3
+
+# --- Power-series transmittance (volmc/reference/power_series.py) ----------------------------
+
+#: Unbiased ray marching, aggressive roulette: P(order = 0) (Kettunen et al. 2021, p_Z).
+URM_P_ZERO = 0.9
+#: Once past order 0, every order up to URM_K is evaluated.
+URM_K = 2
+#: Beyond URM_K, order k is reached with conditional probability min(1, URM_C / k).
+URM_C = 2.0
+#: Size of the U-statistics buffer. With the constants above P(order >= 14) < 2^-24, which a
+#: 24-bit uniform can never pass, so the order stops at 13 and the cap is never reached.
+URM_MAX_ORDER = 16
+#: P-series CMF: orders are evaluated deterministically until the Poisson cumulative mass
+#: reaches this level (Georgiev et al. 2019; their public code uses 0.99).
+CMF_GOAL = 0.99
+#: Cubic fit of the p-series CMF estimator's expected lookups at Poisson parameter lam:
+#: cbrt((CMF_FIT_0 + lam) (CMF_FIT_1 + lam) (CMF_FIT_2 + lam)) (Kettunen et al. 2021).
+CMF_FIT_0 = 0.015
+CMF_FIT_1 = 0.65
+CMF_FIT_2 = 60.3
+
+
+def _urm_mean_order(p_zero, k_det, c):
+    """E[order] = sum_{k >= 1} P(order >= k) of the aggressive roulette."""
+    q, total, k = 1.0 - p_zero, 0.0, 0
+    while q > 1e-300:
+        k += 1
+        if k > k_det:
+            q *= min(1.0, c / k)
+        total += q
+    return total
+
+
+#: Expected expansion order of unbiased ray marching (0.31945... for the constants above); each
+#: order costs one comb, so an estimate makes M (1 + URM_MEAN_ORDER) lookups on average.
+URM_MEAN_ORDER = _urm_mean_order(URM_P_ZERO, URM_K, URM_C)
+
+
+def kernel_constants():
+    """{name: value} of every constant the kernels' header defines, in definition order."""
+    return {k: v for k, v in globals().items()
+            if k.isupper() and not k.startswith("_") and type(v) in (int, float, U32)}
