@@ -1,49 +1,52 @@
-"""Build kernels/testing.cl once per session and run its wrapper kernels on numpy arrays."""
+"""Test kernels (kernels/testing.cl and sources given as text) on the shared OpenCL context
+(volmc.cl.context): build once per session, launch on numpy arrays."""
 
 import functools
 
 import numpy as np
-import pyopencl as cl
 
-from volmc.cl.build import assemble, build_program
-from volmc.cl.device import select_device
+from volmc.cl.context import cl_context
+
+
+def clc():
+    """The default device's ClContext (shared with the renderer and the benchmarks)."""
+    return cl_context()
 
 
 @functools.lru_cache(maxsize=None)
 def harness(options=("-DFEATURE_PHASE_HG", "-DFEATURE_GRID")):
-    dev = select_device()
-    ctx = cl.Context([dev])
-    queue = cl.CommandQueue(ctx)
-    prg, _ = build_program(ctx, dev, assemble("testing.cl"), list(options))
-    return ctx, queue, prg
+    """The program built from kernels/testing.cl."""
+    return clc().program("testing.cl", options)[0]
 
 
 @functools.lru_cache(maxsize=None)
 def kernel(name):
-    """A kernel object, retrieved once."""
-    return cl.Kernel(harness()[2], name)
+    """A kernel of testing.cl, retrieved once."""
+    return clc().kernel(harness(), name)
 
 
 def to_dev(a):
-    ctx, _, _ = harness()
-    a = np.ascontiguousarray(a)
-    return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
+    return clc().to_device(a)
 
 
 def out_buf(shape, dtype=np.float32):
-    ctx, _, _ = harness()
-    host = np.empty(shape, dtype)
-    return host, cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, max(host.nbytes, 4))
+    return clc().output(shape, dtype)
 
 
 def run(name, n, *args, outs=()):
-    """Launch kernel ``name`` over n work items; copy back the (host, buffer) pairs in outs."""
-    _, queue, prg = harness()
-    kernel(name)(queue, (n,), None, *args)
-    for host, buf in outs:
-        cl.enqueue_copy(queue, host, buf)
-    queue.finish()
-    return [h for h, _ in outs]
+    """Launch testing.cl kernel ``name`` over n work items; copy back the (host, buffer)
+    pairs in outs."""
+    return clc().run(kernel(name), n, None, *args, outs=outs)
+
+
+def build_source(name, source, options=()):
+    """Build a test kernel given as source text (it may include the kernel headers)."""
+    return clc().program(name, options, {name: source})[0]
+
+
+def run_kernel(program, name, n, *args, outs=()):
+    """Launch kernel ``name`` of ``program`` over n work items; copy back ``outs``."""
+    return clc().run(clc().kernel(program, name), n, None, *args, outs=outs)
 
 
 def f3(v):
@@ -54,20 +57,3 @@ def f3(v):
 def i3(v):
     """int3 kernel argument."""
     return np.array([v[0], v[1], v[2], 0], np.int32)
-
-
-def build_source(name, source, options=()):
-    """Build a test kernel given as source text (it may include the kernel headers)."""
-    ctx, _, _ = harness()
-    prg, _ = build_program(ctx, ctx.devices[0], assemble(name, {name: source}), list(options))
-    return prg
-
-
-def run_kernel(program, name, n, *args, outs=()):
-    """Launch kernel ``name`` of ``program`` over n work items; copy back ``outs``."""
-    _, queue, _ = harness()
-    cl.Kernel(program, name)(queue, (n,), None, *args)
-    for host, buf in outs:
-        cl.enqueue_copy(queue, host, buf)
-    queue.finish()
-    return [h for h, _ in outs]

@@ -319,15 +319,9 @@ RAY_STRIDE = 10  # kernels/testing_power_series.cl
 @pytest.fixture(scope="module")
 def cl_prog():
     pytest.importorskip("pyopencl")
-    import pyopencl as cl
-
-    from volmc.cl.build import assemble, build_program
-    from volmc.cl.device import select_device
-    dev = select_device()
-    ctx = cl.Context([dev])
-    queue = cl.CommandQueue(ctx)
-    prg, _ = build_program(ctx, dev, assemble("testing_power_series.cl"), ["-DFEATURE_GRID"])
-    return cl, ctx, queue, cl.Kernel(prg, "t_power_series")
+    from cl_harness import clc
+    prg, _ = clc().program("testing_power_series.cl", ["-DFEATURE_GRID"])
+    return clc().kernel(prg, "t_power_series")
 
 
 def _kernel_cases():
@@ -358,7 +352,8 @@ def test_kernel_matches_reference(cl_prog, kind):
     """Same rays, media and streams on both sides: per-estimate values and lookup counts agree
     for the vast majority (float32 can flip a rare roulette or rounding branch), and each
     ray's mean agrees with the reference's and with the exact transmittance."""
-    cl, ctx, queue, kernel = cl_prog
+    from cl_harness import clc, out_buf, to_dev
+    kernel = cl_prog
     grid, cases = _kernel_cases()
     n_per = 2000
     seed = 17
@@ -368,22 +363,12 @@ def test_kernel_matches_reference(cl_prog, kind):
         meds[r] = med
         rays[r] = [*o, *d, t0, t1, mbar, mu_c]
     n = len(cases) * n_per
-    mf = cl.mem_flags
-
-    def buf(a):
-        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
-
-    out = np.empty(n, np.float32)
-    counts = np.empty(2 * n, np.uint64)
-    ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-    cb = cl.Buffer(ctx, mf.WRITE_ONLY, counts.nbytes)
+    out, ob = out_buf(n, np.float32)
+    counts, cb = out_buf(2 * n, np.uint64)
     dims = np.array([grid.shape[2], grid.shape[1], grid.shape[0], 0], np.int32)
-    kernel(queue, (n,), None, np.int32(kind), buf(meds.ravel()), buf(grid.ravel()),
-                       dims, buf(rays.ravel()), np.int32(n_per), np.uint64(seed),
-                       np.int32(MAX_STEPS), ob, cb)
-    cl.enqueue_copy(queue, out, ob)
-    cl.enqueue_copy(queue, counts, cb)
-    queue.finish()
+    clc().run(kernel, n, None, np.int32(kind), to_dev(meds.ravel()), to_dev(grid.ravel()),
+              dims, to_dev(rays.ravel()), np.int32(n_per), np.uint64(seed),
+              np.int32(MAX_STEPS), ob, cb, outs=[(out, ob), (counts, cb)])
     lk_cl = counts[0::2].astype(np.int64)
     assert counts[1::2].sum() == 0
 

@@ -11,14 +11,11 @@ no fast-math flag (volmc/cl/build.py); volmc/bench/fastmath.py measures what tha
 import math
 
 import numpy as np
-import pyopencl as cl
 import pytest
 from numba import njit
 
 from volmc.bench.fastmath import FAST_MATH
 from volmc.cl.backend import OpenCLBackend
-from volmc.cl.build import assemble, build_program
-from volmc.cl.device import select_device
 from volmc.reference.backend import NumbaBackend
 from volmc.reference.guards import sample_ok
 from volmc.reference.integrator import render_pixel
@@ -62,22 +59,14 @@ def test_case20_opencl_guard_survives_fast_math(options):
     zeros, -0.0, subnormals and the largest finite values; then whole renders with NaN, +Inf
     and negative environment radiance drop and count every sample (image 0, finite), and a
     normal render (white furnace) still equals L."""
-    dev = select_device()
-    ctx = cl.Context([dev])
-    q = cl.CommandQueue(ctx)
-    prg, _ = build_program(ctx, dev, assemble("t_guard.cl", {"t_guard.cl": _SOURCE}),
-                           list(options))
+    from cl_harness import build_source, out_buf, run_kernel, to_dev
+    prg = build_source("t_guard.cl", _SOURCE, options)
     rows = _samples()
     c = np.array(rows, np.float32)
-    mf = cl.mem_flags
-    cb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=c.ravel())
-    out = np.empty(len(rows), np.int32)
-    ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-    kern = cl.Kernel(prg, "t_sample_ok")
+    cb = to_dev(c.ravel())
+    out, ob = out_buf(len(rows), np.int32)
     for signed in (0, 1):
-        kern(q, (len(rows),), None, cb, np.int32(signed), ob)
-        cl.enqueue_copy(q, out, ob)
-        q.finish()
+        run_kernel(prg, "t_sample_ok", len(rows), cb, np.int32(signed), ob, outs=[(out, ob)])
         want = [_expected([float(x) for x in r], signed) for r in c]
         assert [bool(x) for x in out] == want, (signed, list(zip(c.tolist(), out, want)))
 

@@ -77,38 +77,25 @@ class OpenCLLookups:
     """The lookup kernel built for one device, bound to one grid and its segments."""
 
     def __init__(self, grid, bmin, bmax, segs, device=None, local_size=1):
-        import pyopencl as cl
-
-        from ..cl.build import assemble, build_program
-        from ..cl.device import select_device
-        self.cl = cl
-        dev = device if device is not None and not isinstance(device, str) \
-            else select_device(device)
-        self.ctx = cl.Context([dev])
-        self.queue = cl.CommandQueue(self.ctx)
-        prg, _ = build_program(self.ctx, dev, assemble("bench.cl"), [])
-        self.kernel = cl.Kernel(prg, "lookup_throughput")
+        from ..cl.context import cl_context
+        self.clc = cl_context(device)
+        prg, _ = self.clc.program("bench.cl")
+        self.kernel = self.clc.kernel(prg, "lookup_throughput")
         g = np.ascontiguousarray(grid, np.float32)
         nz, ny, nx = g.shape
         self.dims = np.array([nx, ny, nz, 0], np.int32)
         self.bmin = np.array(list(bmin) + [0.0], np.float32)
         self.bmax = np.array(list(bmax) + [0.0], np.float32)
-        mf = cl.mem_flags
-        self.grid_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g)
+        self.grid_buf = self.clc.to_device(g)
         self.n = len(segs)
-        self.seg_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                                 hostbuf=np.ascontiguousarray(segs, np.float32))
-        self.out = np.empty(self.n, np.float32)
-        self.out_buf = cl.Buffer(self.ctx, mf.WRITE_ONLY, self.out.nbytes)
+        self.seg_buf = self.clc.to_device(segs, np.float32)
+        self.out, self.out_buf = self.clc.output(self.n)
         self.local_size = local_size
 
     def sums(self, n_lookups, passes, seed):
-        local = None if self.local_size is None else (self.local_size,)
-        self.kernel(self.queue, (self.n,), local, self.grid_buf, self.dims, self.bmin,
-                    self.bmax, self.seg_buf, np.uint32(n_lookups), np.uint32(passes),
-                    np.uint32(seed), self.out_buf)
-        self.cl.enqueue_copy(self.queue, self.out, self.out_buf)
-        self.queue.finish()
+        self.clc.run(self.kernel, self.n, self.local_size, self.grid_buf, self.dims, self.bmin,
+                     self.bmax, self.seg_buf, np.uint32(n_lookups), np.uint32(passes),
+                     np.uint32(seed), self.out_buf, outs=[(self.out, self.out_buf)])
         return self.out.copy()
 
 

@@ -26,45 +26,29 @@ class OpenCLEstimator:
     """One estimator compiled into kernels/estimators.cl on the default (or given) device."""
 
     def __init__(self, name, device=None, extra=None):
-        import pyopencl as cl
-
-        from ..cl.build import assemble, build_program
-        from ..cl.device import select_device
-        self.cl = cl
-        self.device = device if device is not None else select_device()
-        self.ctx = cl.Context([self.device])
-        self.queue = cl.CommandQueue(self.ctx)
+        from ..cl.context import cl_context
+        self.clc = cl_context(device)
         fn = ESTIMATORS[name][1]
         opts = [f"-DESTIMATOR={fn}"]
         if name == "biased_raymarch":
             opts.append(f"-DESTIMATOR_EXTRA=,{float(1.0 if extra is None else extra)!r}f")
-        source = assemble("estimators.cl")
-        self.program, _ = build_program(self.ctx, self.device, source, opts)
-        self.kernel = self.cl.Kernel(self.program, "estimate_batch")
+        self.program, _ = self.clc.program("estimators.cl", opts)
+        self.kernel = self.clc.kernel(self.program, "estimate_batch")
 
     def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0):
         """Same contract as run_numba; returns (estimates float64, counters int64)."""
-        cl = self.cl
-        mf = cl.mem_flags
-
-        def buf(a, dtype):
-            a = np.ascontiguousarray(a, dtype)
-            return cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
-        grid = np.ascontiguousarray(grid, np.float32)
+        clc = self.clc
         med = np.asarray(med, np.float32)
         if med.ndim == 1:
             med = np.repeat(med[None, :], len(rays), axis=0)
+        grid = np.ascontiguousarray(grid, np.float32)
         nz, ny, nx = grid.shape
         n = len(rays) * n_per_ray
-        out = np.empty(n, np.float32)
-        cnt = np.empty((n, N_COUNTERS), np.uint64)
-        ob = cl.Buffer(self.ctx, mf.WRITE_ONLY, out.nbytes)
-        cb = cl.Buffer(self.ctx, mf.WRITE_ONLY, cnt.nbytes)
-        self.kernel(self.queue, (n,), (1,), buf(med, np.float32), buf(grid, np.float32),
-                    np.array([nx, ny, nz, 0], np.int32), buf(rays, np.float32),
-                    buf(bounds, np.float32), np.int32(n_per_ray), np.uint64(seed),
-                    np.uint32(sample_offset), np.int32(MAX_STEPS), ob, cb)
-        cl.enqueue_copy(self.queue, out, ob)
-        cl.enqueue_copy(self.queue, cnt, cb)
-        self.queue.finish()
+        out, ob = clc.output(n, np.float32)
+        cnt, cb = clc.output((n, N_COUNTERS), np.uint64)
+        clc.run(self.kernel, n, 1, clc.to_device(med, np.float32),
+                clc.to_device(grid, np.float32), np.array([nx, ny, nz, 0], np.int32),
+                clc.to_device(rays, np.float32), clc.to_device(bounds, np.float32),
+                np.int32(n_per_ray), np.uint64(seed), np.uint32(sample_offset),
+                np.int32(MAX_STEPS), ob, cb, outs=[(out, ob), (cnt, cb)])
         return out.astype(np.float64), cnt.astype(np.int64)

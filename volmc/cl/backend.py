@@ -6,8 +6,7 @@ import numpy as np
 from ..pack import medium_array, pack_majorant, pack_scene
 from ..params import N_COUNTERS
 from ..scene.features import define_flags, features
-from .build import assemble, build_program
-from .device import select_device
+from .context import cl_context
 
 #: Work-group size of the render kernel (None lets the driver choose). On PoCL, 1 is about
 #: 1.2x faster than the driver default for these divergent loops (`volmc bench workgroup`).
@@ -21,13 +20,9 @@ class OpenCLBackend:
 
     def __init__(self, scene, device=None, feature_set=None, local_size=DEFAULT_LOCAL_SIZE,
                  options=()):
-        import pyopencl as cl
-        self.cl = cl
         self.scene = scene
-        self.device = device if device is not None and not isinstance(device, str) \
-            else select_device(device)
-        self.ctx = cl.Context([self.device])
-        self.queue = cl.CommandQueue(self.ctx)
+        self.clc = cl_context(device)
+        self.device = self.clc.device
         needed = features(scene)
         self.features = needed if feature_set is None else frozenset(feature_set)
         if not needed <= self.features:
@@ -46,30 +41,22 @@ class OpenCLBackend:
         self.params = params
         w, h = scene.camera.resolution
         self.n_pix = w * h
-        mf = cl.mem_flags
-        if len(lights) == 0:
-            lights = np.zeros(1, lights.dtype)  # OpenCL buffers cannot be empty
-        self.lights_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=lights)
-        self.grid_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=grid)
+        clc = self.clc
+        self.lights_buf = clc.to_device(lights)
+        self.grid_buf = clc.to_device(grid)
         maj_max, maj_min = pack_majorant(scene, np.float32)
-        self.maj_max_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=maj_max)
-        self.maj_min_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=maj_min)
-        med = medium_array(params).astype(np.float32)
-        self.med_buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=med)
+        self.maj_max_buf = clc.to_device(maj_max)
+        self.maj_min_buf = clc.to_device(maj_min)
+        self.med_buf = clc.to_device(medium_array(params), np.float32)
         nz, ny, nx = grid.shape
         self.dims = np.array([nx, ny, nz, 0], np.int32)
         # Batch outputs: per-pixel mean and sum of squared deviations (Welford).
-        self.mean_host = np.empty((h, w, 3), np.float32)
-        self.m2_host = np.empty((h, w, 3), np.float32)
-        self.mean_buf = cl.Buffer(self.ctx, mf.WRITE_ONLY, self.mean_host.nbytes)
-        self.m2_buf = cl.Buffer(self.ctx, mf.WRITE_ONLY, self.m2_host.nbytes)
+        self.mean_host, self.mean_buf = clc.output((h, w, 3))
+        self.m2_host, self.m2_buf = clc.output((h, w, 3))
         self.counters = np.zeros((self.n_pix, N_COUNTERS), np.uint64)
-        self.cnt_buf = cl.Buffer(self.ctx, mf.READ_WRITE | mf.COPY_HOST_PTR,
-                                 hostbuf=self.counters)
-        self.source = assemble("integrator.cl")
-        self.program, self.build_how = build_program(self.ctx, self.device, self.source,
-                                                     self.options)
-        self.kernel = self.program.render_batch
+        self.cnt_buf = clc.to_device(self.counters, writable=True)
+        self.program, self.build_how = clc.program("integrator.cl", self.options)
+        self.kernel = clc.kernel(self.program, "render_batch")
         from ..reference.backend import techniques
         self.techniques = techniques(scene)
         self.techniques["features"] = " ".join(sorted(self.features)) or "none"
@@ -77,30 +64,18 @@ class OpenCLBackend:
     def warm_up(self):
         """The program is built in the constructor; nothing left to compile."""
 
-    def _global_size(self):
-        if self.local_size is None:
-            return (self.n_pix,), None
-        ls = int(self.local_size)
-        return (-(-self.n_pix // ls) * ls,), (ls,)
-
     def render(self, sample_start, n_samples, film):
         """Add samples [sample_start, sample_start + n_samples) of every pixel to ``film``."""
-        cl = self.cl
-        gsize, lsize = self._global_size()
-        self.kernel(self.queue, gsize, lsize, self.params[0], self.lights_buf, self.med_buf,
-                    self.grid_buf,
-                    self.dims, self.maj_max_buf, self.maj_min_buf, np.uint32(sample_start),
-                    np.uint32(n_samples), self.mean_buf,
-                    self.m2_buf, self.cnt_buf)
-        cl.enqueue_copy(self.queue, self.mean_host, self.mean_buf)
-        cl.enqueue_copy(self.queue, self.m2_host, self.m2_buf)
-        self.queue.finish()
+        self.clc.run(self.kernel, self.n_pix, self.local_size, self.params[0], self.lights_buf,
+                     self.med_buf, self.grid_buf, self.dims, self.maj_max_buf, self.maj_min_buf,
+                     np.uint32(sample_start), np.uint32(n_samples), self.mean_buf, self.m2_buf,
+                     self.cnt_buf, outs=[(self.mean_host, self.mean_buf),
+                                         (self.m2_host, self.m2_buf)])
         mean = self.mean_host.astype(np.float64)
         film.sum += n_samples * mean
         film.sum_sq += self.m2_host.astype(np.float64) + n_samples * mean * mean
 
     def counter_totals(self):
         """Counters summed over pixels (see params.COUNTER_NAMES)."""
-        self.cl.enqueue_copy(self.queue, self.counters, self.cnt_buf)
-        self.queue.finish()
+        self.clc.read(self.counters, self.cnt_buf)
         return self.counters.sum(axis=0).astype(np.int64)
