@@ -1,110 +1,119 @@
-/* Transmittance estimators on a common interface. Twin of volmc/reference/estimators.py
- * (formulas, parameters and sources are documented there): same names, same arguments. */
+/* Transmittance estimators on one interface:
+ *   float transmittance_<name>(const MediumData *med, float3 o, float3 d, float t0, float t1,
+ *                              Rng *rng, ulong *counters, int max_steps)
+ * Twin of volmc/reference/estimators.py (the two families, the per-segment driver and the
+ * exact treatment of homogeneous segments are described there); the registry of names is
+ * volmc/techniques.py. The power series (power_series.h) are compiled in only with
+ * -DVOLMC_POWER_SERIES, the build option their registry records carry. */
 #ifndef VOLMC_ESTIMATORS_H
 #define VOLMC_ESTIMATORS_H
 
-#include "params.h" /* TR_RR_THRESHOLD (volmc/constants.py) */
+#include "params.h"
 #include "rng.h"
-#include "extinction.h"
+#include "medium.h"
+#include "tracking.h"
+#ifdef VOLMC_POWER_SERIES
+#include "power_series.h"
+#endif
 
-#define EST_ARGS global const float *med, global const float *grid, int3 dims, float3 o, \
-    float3 d, float t0, float t1, float mbar, float mu_c, Rng *rng, ulong *counters, int max_steps
-
-/* Guard "transmittance roulette" (HARD_CASES 10): once a running transmittance weight |T| is
- * below TR_RR_THRESHOLD the walk goes on with probability |T| / TR_RR_THRESHOLD carrying
- * +-TR_RR_THRESHOLD (same mean: unbiased), and T == 0 ends it. Dense shadow rays then stop
- * after a few lookups instead of walking the whole majorant optical depth. Returns 0 when the
- * walk ends (T is then 0). Twin of transmittance_roulette in estimators.py. */
-inline int transmittance_roulette(float *T, Rng *rng) {
-    float a = fabs(*T);
-    if (!(a < TR_RR_THRESHOLD)) return 1;
-    if (a == 0.0f || rng_next(rng) * TR_RR_THRESHOLD >= a) {
-        *T = 0.0f;
-        return 0;
-    }
-    *T = *T > 0.0f ? TR_RR_THRESHOLD : -TR_RR_THRESHOLD;
-    return 1;
-}
-
-/* Guard "local distances" (HARD_CASES 11): every tracking loop accumulates the distance s
- * from the segment start t0, never t itself, so a far ray origin (t0 = 1e5 with a majorant
- * of 1e3: t + dt == t in float32) cannot stall the walk. */
-
-inline float transmittance_analytic(EST_ARGS) {
-    return exp(-mbar * fmax(t1 - t0, 0.0f));
-}
-
-inline float transmittance_track_length(EST_ARGS) {
-    if (mbar <= 0.0f) return 1.0f;
-    float inv = 1.0f / mbar;
-    float L = t1 - t0, s = 0.0f;
-    for (int i = 0; i < max_steps; ++i) {
-        s -= log1p(-rng_next(rng)) * inv;
-        if (s >= L) return 1.0f;
-        if (rng_next(rng) * mbar < lookup(med, grid, dims, o, d, t0 + s, counters, mbar))
-            return 0.0f;
-    }
-    counters[C_CAPPED] += 1;
-    return 0.0f;
-}
-
-inline float transmittance_residual_ratio(EST_ARGS) {
-    float L = fmax(t1 - t0, 0.0f);
-    float Tc = exp(-mu_c * L);
-    float mr = mbar - mu_c;
-    if (mr <= 0.0f) return Tc;
-    float inv = 1.0f / mr;
-    float T = Tc;
-    float s = 0.0f;
-    for (int i = 0; i < max_steps; ++i) {
-        s -= log1p(-rng_next(rng)) * inv;
-        if (s >= L) return T;
-        T *= 1.0f - (lookup(med, grid, dims, o, d, t0 + s, counters, mbar) - mu_c) / mr;
-        if (!transmittance_roulette(&T, rng)) return T;
-    }
-    counters[C_CAPPED] += 1;
-    return T;
-}
-
-/* Ratio tracking is residual ratio tracking with a zero control: exp(-0 L) = 1 and
- * mu - 0 = mu exactly, so it is the same walk with the same lookups and estimates. Twin of
- * transmittance_ratio_tracking in estimators.py. */
-inline float transmittance_ratio_tracking(EST_ARGS) {
-    return transmittance_residual_ratio(med, grid, dims, o, d, t0, t1, mbar, 0.0f, rng,
-                                        counters, max_steps);
-}
-
-inline float transmittance_next_flight(EST_ARGS) {
-    if (mbar <= 0.0f) return 1.0f;
-    float inv = 1.0f / mbar;
-    float w = 1.0f;
-    float L = t1 - t0, s = 0.0f;
-    float T = exp(-mbar * fmax(L, 0.0f));
-    for (int i = 0; i < max_steps; ++i) {
-        s -= log1p(-rng_next(rng)) * inv;
-        if (s >= L) return T;
-        w *= 1.0f - lookup(med, grid, dims, o, d, t0 + s, counters, mbar) / mbar;
-        if (!transmittance_roulette(&w, rng)) return T;
-        T += w * exp(-mbar * (L - s));
-    }
-    counters[C_CAPPED] += 1;
-    return T;
-}
-
-inline float transmittance_biased_raymarch(EST_ARGS, float samples_per_mfp) {
+inline float biased_raymarch_segment(const MediumData *med, float3 o, float3 d, float t0,
+                                     float t1, float mbar, float mu_c, Rng *rng,
+                                     ulong *counters, int max_steps) {
     float L = fmax(t1 - t0, 0.0f);
     if (mbar <= 0.0f || L <= 0.0f) return 1.0f;
-    int n = max(1, (int)ceil(samples_per_mfp * mbar * L));
+    int n = max(1, (int)ceil(RAYMARCH_SAMPLES_PER_MFP * mbar * L));
     if (n > max_steps) {
         counters[C_CAPPED] += 1;
         n = max_steps;
     }
-    float dt = L / (float)n;
-    float u = rng_next(rng);
-    float tau = 0.0f;
-    for (int j = 0; j < n; ++j) tau += lookup(med, grid, dims, o, d, t0 + ((float)j + u) * dt,
-                                              counters, mbar);
-    return exp(-tau * dt);
+    return exp(-optical_depth_comb(med, o, d, t0, L, n, rng_next(rng), mbar, counters));
 }
+
+inline float segment_estimate(int kind, const MediumData *med, float3 o, float3 d, float t0,
+                              float t1, float s_maj, float s_min, Rng *rng, ulong *counters,
+                              int max_steps) {
+    if (kind == SEGMENT_BIASED_RAYMARCH)
+        return biased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
+                                       max_steps);
+#ifdef VOLMC_POWER_SERIES
+    if (kind == SEGMENT_POWER_SERIES)
+        return power_series_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps);
+    if (kind == SEGMENT_UNBIASED_RAYMARCH)
+        return unbiased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
+                                         max_steps);
+#endif
+    return exp(-s_maj * (t1 - t0)); /* SEGMENT_ANALYTIC */
+}
+
+inline float transmittance_by_segments(const MediumData *med, float3 o, float3 d, float t0,
+                                       float t1, int kind, Rng *rng, ulong *counters,
+                                       int max_steps) {
+    o = o + t0 * d;
+    MajorantIter it;
+    majorant_iter_init(&it, med, o, d, 0.0f, t1 - t0);
+    float T = 1.0f;
+    int sampled = 0;
+    Segment seg;
+    while (majorant_next(&it, med, &seg)) {
+        if (seg.sigma_min >= seg.sigma_maj) {
+            T *= exp(-seg.sigma_maj * (seg.t_max - seg.t_min));
+            continue;
+        }
+        if (sampled && !transmittance_roulette(&T, rng)) return T;
+        sampled = 1;
+        T *= segment_estimate(kind, med, o, d, seg.t_min, seg.t_max, seg.sigma_maj,
+                              seg.sigma_min, rng, counters, max_steps);
+    }
+    return T;
+}
+
+#define TRANSMITTANCE_ARGS const MediumData *med, float3 o, float3 d, float t0, float t1, \
+    Rng *rng, ulong *counters, int max_steps
+
+inline float transmittance_analytic(TRANSMITTANCE_ARGS) {
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_ANALYTIC, rng, counters,
+                                     max_steps);
+}
+
+inline float tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
+    float t, T;
+    track(med, o, d, t0, t1, technique, 0, rng, counters, max_steps, &t, &T);
+    return T;
+}
+
+inline float transmittance_track_length(TRANSMITTANCE_ARGS) {
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_LENGTH);
+}
+
+inline float transmittance_ratio_tracking(TRANSMITTANCE_ARGS) {
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_RATIO);
+}
+
+inline float transmittance_residual_ratio(TRANSMITTANCE_ARGS) {
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps,
+                                 TRACK_RESIDUAL_RATIO);
+}
+
+inline float transmittance_next_flight(TRANSMITTANCE_ARGS) {
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps,
+                                 TRACK_NEXT_FLIGHT);
+}
+
+inline float transmittance_biased_raymarch(TRANSMITTANCE_ARGS) {
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_BIASED_RAYMARCH, rng,
+                                     counters, max_steps);
+}
+
+#ifdef VOLMC_POWER_SERIES
+inline float transmittance_power_series(TRANSMITTANCE_ARGS) {
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_POWER_SERIES, rng, counters,
+                                     max_steps);
+}
+
+inline float transmittance_unbiased_raymarch(TRANSMITTANCE_ARGS) {
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_UNBIASED_RAYMARCH, rng,
+                                     counters, max_steps);
+}
+#endif
 
 #endif

@@ -1,6 +1,6 @@
 /* Numerical guards shared by the kernels. Twin of volmc/reference/guards.py.
  *
- * Guard "sample filter" (HARD_CASES 20): a sample that is NaN, infinite or (unless the shadow
+ * Guard "sample filter" (robustness case 20): a sample that is NaN, infinite or (unless the shadow
  * estimator is signed) negative is dropped and counted. The finiteness test reads the exponent
  * bits as an integer instead of calling isfinite(): -cl-fast-relaxed-math implies
  * -cl-finite-math-only, under which the compiler may fold isnan/isinf/isfinite to constants,

@@ -1,41 +1,23 @@
 /* Volumetric path tracer kernel. Twin of volmc/reference/integrator.py: the algorithm, the
  * order of random numbers and the Russian-roulette policy are described there.
  *
- * Built with -D flags derived from the scene (volmc/scene/features.py), so a scene pays
- * only for what it uses. A flag compiles a code path in; the parameters still decide at run
- * time whether it is taken, so a build with every flag on renders any scene (the "generic"
- * build the specialisation benchmark compares against). The flags:
- *   FEATURE_GRID          density from the grid (else homogeneous, analytic tracking)
- *   FEATURE_MAJORANT_GRID per-cell majorants along a 3-D DDA walk (render.majorant = "grid")
- *   FEATURE_PHASE_HG      Henyey-Greenstein phase function (else isotropic)
- *   FEATURE_ENV           an environment light (NEE by sphere sampling + MIS, escape term)
- *   FEATURE_DELTA_LIGHTS  directional and/or point lights in the light array
- *   FEATURE_POINT         point lights among them (else all directional)
- *   FEATURE_RR            Russian roulette can trigger (rr_depth below max_depth)
- *   FEATURE_ORTHO         orthographic camera (else perspective)
- *   FEATURE_SCATTER       scattering can reach the image (albedo > 0 and max_depth != 0);
- *                         without it a pixel is environment x transmittance
- * params.h (generated from volmc/params.py) defines Params, Light and the constants. */
+ * Built for the scene: the -DFEATURE_X=0/1 options (volmc/scene/features.py; features.h
+ * defaults every one to 1) turn a code path off where the scene cannot take it. Each is a
+ * plain constant in an ordinary `if`, so the compiler drops the dead path, and a build with
+ * every feature on renders any scene (the generic build `volmc bench specialise` measures
+ * against). SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance). params.h
+ * (generated from volmc/params.py and volmc/constants.py) defines the records and constants. */
 
 #include "params.h"
+#include "features.h"
+#include "guards.h"
 #include "rng.h"
 #include "sampling.h"
 #include "phase.h"
-#include "grid.h"
-#include "transmittance.h"
+#include "medium.h"
+#include "free_flight.h"
 #include "estimators.h"
-#include "power_series.h"
-#include "guards.h"
 
-/* The shadow-ray estimator of grids (render.transmittance), chosen at build time. */
-#ifndef SHADOW_ESTIMATOR
-#define SHADOW_ESTIMATOR transmittance_ratio_tracking
-#endif
-#ifndef SHADOW_ESTIMATOR_EXTRA
-#define SHADOW_ESTIMATOR_EXTRA
-#endif
-
-inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 
 /* Returns t_enter, writes t_exit; no hit when t_enter >= t_exit. Zero direction components
@@ -62,7 +44,7 @@ inline float ray_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t_exit
     return t0;
 }
 
-/* Guard "entry re-basing" (HARD_CASES 10, 11, 13): clips ray o + t d to the box and, when the
+/* Guard "entry re-basing" (robustness case 10, 11, 13): clips ray o + t d to the box and, when the
  * box is entered from outside (t_enter > 0), moves the origin to the entry point, snapped onto
  * the box (clamped into it, and exactly onto the entry face), and clips again from there.
  * Every later distance is then local to the box: no tracking loop accumulates a large t (a
@@ -106,79 +88,75 @@ inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, 
     float sx = (2.0f * ((float)px + u1) / (float)prm->width - 1.0f) * prm->half_height * prm->aspect;
     float sy = (1.0f - 2.0f * ((float)py + u2) / (float)prm->height) * prm->half_height;
     float3 f = vec3(prm->forward), r = vec3(prm->right), u = vec3(prm->up), e = vec3(prm->eye);
-#ifdef FEATURE_ORTHO
-    if (prm->cam_type == CAMERA_ORTHOGRAPHIC) {
+    if (FEATURE_ORTHO && prm->cam_type == CAMERA_ORTHOGRAPHIC) {
         *dir = f;
         return e + sx * r + sy * u;
     }
-#endif
     *dir = normalize(f + sx * r + sy * u);
     return e;
 }
 
-inline float shadow_transmittance(const Params *prm, global const float *med,
-                                  global const float *grid, int3 dims, global const float *maj_max,
-                                  global const float *maj_min, float3 o, float3 d, float t_max,
-                                  Rng *rng_s, ulong *counters) {
-    float3 bmin = vec3(prm->bmin), bmax = vec3(prm->bmax);
+inline float shadow_transmittance(const Params *prm, const MediumData *med, float3 o, float3 d,
+                                  float t_max, Rng *rng_s, ulong *counters) {
     float t0, t1, shift;
-    o = enter_box(o, d, bmin, bmax, &t0, &t1, &shift);
+    o = enter_box(o, d, vec3(med->m->bmin), vec3(med->m->bmax), &t0, &t1, &shift);
     t1 = fmin(t1, t_max - shift);
     if (t1 <= t0) return 1.0f;
     counters[C_SHADOW] += 1;
-#ifdef FEATURE_MAJORANT_GRID
-    if (prm->has_grid && prm->has_majorant_grid) {
-        /* Per DDA segment with the cell's bounds: a product of independent unbiased
-         * estimates; empty cells give 1 with no lookup. */
-        int3 res = (int3)(prm->maj_res[0], prm->maj_res[1], prm->maj_res[2]);
-        Dda s;
-        dda_init(&s, o, d, t0, t1, bmin, bmax, res);
-        float T = 1.0f, ta, tb;
-        int3 cell;
-        while (dda_next(&s, &ta, &tb, &cell)) {
-            int k = dda_cell_index(cell, res);
-            float m = prm->scale * maj_max[k];
-            if (m <= 0.0f || tb <= ta) continue;
-            T *= SHADOW_ESTIMATOR(med, grid, dims, o, d, ta, tb, m, prm->scale * maj_min[k],
-                                  rng_s, counters, prm->max_steps SHADOW_ESTIMATOR_EXTRA);
-            /* Transmittance roulette over the product of segments (T == 0 ends it too). */
-            if (!transmittance_roulette(&T, rng_s)) break;
-        }
-        return T;
-    }
-#endif
-#ifdef FEATURE_GRID
-    if (prm->has_grid)
-        return SHADOW_ESTIMATOR(med, grid, dims, o, d, t0, t1, prm->majorant, prm->minorant,
-                                rng_s, counters, prm->max_steps SHADOW_ESTIMATOR_EXTRA);
-#endif
-    return transmittance_homogeneous(prm->scale * prm->density, t0, t1);
+    return SHADOW_ESTIMATOR(med, o, d, t0, t1, rng_s, counters, prm->max_steps);
 }
 
-inline float3 trace_path(const Params *prm, global const Light *lights, global const float *med,
-                         global const float *grid, int3 dims, global const float *maj_max,
-                         global const float *maj_min, int px, int py, Rng *rng, Rng *rng_s,
-                         ulong *counters) {
-    float3 bmin = vec3(prm->bmin), bmax = vec3(prm->bmax), inv_ext = vec3(prm->inv_extent);
+/* Direct light at p towards -d per unit throughput (twin of sample_direct in integrator.py). */
+inline float3 sample_direct(const Params *prm, global const Light *lights, const MediumData *med,
+                            float3 p, float3 d, Rng *rng, Rng *rng_s, ulong *counters) {
+    const Medium *m = med->m;
+    float3 L = (float3)(0.0f);
+    for (int i = 0; FEATURE_DELTA_LIGHTS && i < prm->n_lights; ++i) {
+        float3 wl;
+        float dist = NO_LIMIT, falloff = 1.0f;
+        if (!FEATURE_POINT || lights[i].type == LIGHT_DIRECTIONAL) {
+            wl = -vec3g(lights[i].vec);
+        } else {
+            float3 v = vec3g(lights[i].vec) - p;
+            float dist2 = dot(v, v);
+            if (dist2 <= 0.0f) continue;
+            dist = sqrt(dist2);
+            wl = v / dist;
+            falloff = 1.0f / dist2;
+        }
+        float f = phase_eval(m->phase_kind, m->g, dot(d, wl)) * falloff;
+        float tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
+        L += vec3g(lights[i].color) * (f * tr);
+    }
+    if (FEATURE_ENV && prm->has_env) {
+        float ua = rng_next(rng);
+        float ub = rng_next(rng);
+        float pdf_l;
+        float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
+        float f = phase_eval(m->phase_kind, m->g, dot(d, wl));
+        float tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
+        L += vec3(prm->env) * (f * tr * mis_balance(pdf_l, f) / pdf_l);
+    }
+    return L;
+}
+
+inline float3 trace_path(const Params *prm, global const Light *lights, const MediumData *med,
+                         int px, int py, Rng *rng, Rng *rng_s, ulong *counters) {
+    const Medium *m = med->m;
+    float3 bmin = vec3(m->bmin), bmax = vec3(m->bmax);
+    float3 albedo = vec3(m->albedo);
     float3 env = vec3(prm->env);
     float3 L = (float3)(0.0f);
+    float3 beta = (float3)(1.0f);
     float u1 = rng_next(rng);
     float u2 = rng_next(rng);
     float3 d;
     float3 o = camera_ray(prm, px, py, u1, u2, &d);
-    float3 albedo = vec3(prm->albedo);
-#ifdef FEATURE_SCATTER
-    if (prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f)
-#endif
-    {
-#ifdef FEATURE_ENV
-        if (prm->has_env)
-            return env * shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, o, d, NO_LIMIT, rng_s, counters);
-#endif
-        return L;
+    if (!FEATURE_SCATTER || prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f) {
+        /* No scattering can contribute: environment times transmittance (see integrator.py). */
+        if (!(FEATURE_ENV && prm->has_env)) return L;
+        return env * shadow_transmittance(prm, med, o, d, NO_LIMIT, rng_s, counters);
     }
-#ifdef FEATURE_SCATTER
-    float3 beta = (float3)(1.0f);
     int depth = 0;
     float pdf_phase = 0.0f;
     while (true) {
@@ -186,31 +164,15 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
         o = enter_box(o, d, bmin, bmax, &t0, &t1, &shift);
         int event = EVENT_ESCAPE;
         float t = t1;
-        if (t1 > t0) {
-#ifdef FEATURE_MAJORANT_GRID
-            if (prm->has_grid && prm->has_majorant_grid)
-                event = free_flight_grid(
-                    grid, dims, bmin, bmax, inv_ext, prm->scale, maj_max, maj_min,
-                    prm->decomposition, (int3)(prm->maj_res[0], prm->maj_res[1], prm->maj_res[2]),
-                    o, d, t0, t1, rng, counters, prm->max_steps, &t);
-            else
-#endif
-#ifdef FEATURE_GRID
-            if (prm->has_grid)
-                event = free_flight_delta(grid, dims, bmin, inv_ext, prm->scale, prm->majorant,
-                                          o, d, t0, t1, rng, counters, prm->max_steps, &t);
-            else
-#endif
-                event = free_flight_homogeneous(prm->scale * prm->density, t0, t1, rng, &t);
-        }
+        if (t1 > t0)
+            event = free_flight(med, o, d, t0, t1, prm->decomposition, rng, counters,
+                                prm->max_steps, &t);
         if (event == EVENT_CAPPED) break;
         if (event == EVENT_ESCAPE) {
-#ifdef FEATURE_ENV
-            if (prm->has_env) {
-                float w = depth > 0 ? pdf_phase / (pdf_phase + INV_4PI) : 1.0f;
-                L += beta * env * w;
+            if (FEATURE_ENV && prm->has_env) {
+                float w = depth > 0 ? mis_balance(pdf_phase, uniform_sphere_pdf()) : 1.0f;
+                L += beta * (env * w);
             }
-#endif
             break;
         }
         depth += 1;
@@ -219,54 +181,18 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
         beta *= albedo;
         if (fmax(beta.x, fmax(beta.y, beta.z)) <= 0.0f) break;
         float3 p = o + t * d;
-#ifdef FEATURE_DELTA_LIGHTS
-        for (int i = 0; i < prm->n_lights; ++i) {
-            float3 wl;
-            float dist = NO_LIMIT, falloff = 1.0f;
-#ifdef FEATURE_POINT
-            if (lights[i].type == LIGHT_DIRECTIONAL) {
-                wl = -vec3g(lights[i].vec);
-            } else {
-                float3 v = vec3g(lights[i].vec) - p;
-                float dist2 = dot(v, v);
-                if (dist2 <= 0.0f) continue;
-                dist = sqrt(dist2);
-                wl = v / dist;
-                falloff = 1.0f / dist2;
-            }
-#else
-            wl = -vec3g(lights[i].vec);
-#endif
-            float f = phase_eval(prm->phase_kind, prm->g, dot(d, wl)) * falloff;
-            float tr = shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, p, wl, dist, rng_s, counters);
-            L += beta * (f * tr) * vec3g(lights[i].color);
-        }
-#endif
-#ifdef FEATURE_ENV
-        if (prm->has_env) {
-            float ua = rng_next(rng);
-            float ub = rng_next(rng);
-            float pdf_l;
-            float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
-            float f = phase_eval(prm->phase_kind, prm->g, dot(d, wl));
-            float tr = shadow_transmittance(prm, med, grid, dims, maj_max, maj_min, p, wl, NO_LIMIT, rng_s, counters);
-            L += beta * (f * tr / (pdf_l + f)) * env;
-        }
-#endif
-#ifdef FEATURE_RR
-        if (depth >= prm->rr_depth) {
+        L += beta * sample_direct(prm, lights, med, p, d, rng, rng_s, counters);
+        if (FEATURE_RR && depth >= prm->rr_depth) {
             float q = fmin(fmax(beta.x, fmax(beta.y, beta.z)), RR_MAX_SURVIVAL);
             if (rng_next(rng) >= q) break;
             beta /= q;
         }
-#endif
         u1 = rng_next(rng);
         u2 = rng_next(rng);
-        d = phase_sample(prm->phase_kind, prm->g, u1, u2, d, &pdf_phase);
+        d = phase_sample(m->phase_kind, m->g, u1, u2, d, &pdf_phase);
         o = p;
     }
     return L;
-#endif
 }
 
 /* One work item per pixel: samples [sample_start, sample_start + n_samples). Writes the
@@ -274,15 +200,16 @@ inline float3 trace_path(const Params *prm, global const Light *lights, global c
  * batch keeps the variance accurate even when it is tiny next to the mean); the host turns
  * them into float64 sums. A NaN, infinite or negative sample counts as 0 and is counted
  * as dropped, exactly as in the reference. */
-kernel void render_batch(const Params prm, global const Light *lights, global const float *med,
-                         global const float *grid, int3 dims, global const float *maj_max,
-                         global const float *maj_min, uint sample_start, uint n_samples,
-                         global float *out_mean,
-                         global float *out_m2, global ulong *counters_out) {
+kernel void render_batch(const Params prm, const Medium medium, global const Light *lights,
+                         global const float *grid, global const float *maj,
+                         global const float *mnr, uint sample_start, uint n_samples,
+                         global float *out_mean, global float *out_m2,
+                         global ulong *counters_out) {
     int pix = get_global_id(0);
     if (pix >= prm.width * prm.height) return;
     int py = pix / prm.width;
     int px = pix - py * prm.width;
+    MediumData med = {&medium, grid, maj, mnr};
     ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
@@ -291,8 +218,7 @@ kernel void render_batch(const Params prm, global const Light *lights, global co
     for (uint i = 0; i < n_samples; ++i) {
         rng_init(&rng, seed, (uint)pix, sample_start + i, STREAM_PATH);
         rng_init(&rng_s, seed, (uint)pix, sample_start + i, STREAM_SHADOW);
-        float3 c = trace_path(&prm, lights, med, grid, dims, maj_max, maj_min, px, py, &rng, &rng_s,
-                              cnt);
+        float3 c = trace_path(&prm, lights, &med, px, py, &rng, &rng_s, cnt);
         if (!sample_ok(c, prm.signed_samples)) {
             cnt[C_DROPPED] += 1;
             c = (float3)(0.0f);

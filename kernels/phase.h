@@ -1,9 +1,10 @@
 /* Phase functions: isotropic and Henyey-Greenstein. Twin of volmc/reference/phase.py, where
  * the convention (propagation directions, g > 0 forward) and the cancellation-free
- * inversion are derived. With FEATURE_PHASE_HG undefined only the isotropic code is built. */
+ * inversion are derived. A build with FEATURE_PHASE_HG = 0 compiles only the isotropic code. */
 #ifndef VOLMC_PHASE_H
 #define VOLMC_PHASE_H
 
+#include "features.h"
 #include "sampling.h"
 
 /* PHASE_ISOTROPIC and PHASE_HG come from the generated params.h. */
@@ -35,16 +36,12 @@ inline float3 hg_sample(float u1, float u2, float3 d_in, float g, float *pdf) {
 }
 
 inline float phase_eval(int kind, float g, float cos_theta) {
-#ifdef FEATURE_PHASE_HG
-    if (kind == PHASE_HG) return hg_eval(cos_theta, g);
-#endif
+    if (FEATURE_PHASE_HG && kind == PHASE_HG) return hg_eval(cos_theta, g);
     return INV_4PI;
 }
 
 inline float3 phase_sample(int kind, float g, float u1, float u2, float3 d_in, float *pdf) {
-#ifdef FEATURE_PHASE_HG
-    if (kind == PHASE_HG) return hg_sample(u1, u2, d_in, g, pdf);
-#endif
+    if (FEATURE_PHASE_HG && kind == PHASE_HG) return hg_sample(u1, u2, d_in, g, pdf);
     return sample_uniform_sphere(u1, u2, pdf);
 }
 

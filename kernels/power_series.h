@@ -1,12 +1,12 @@
-/* Power-series transmittance estimators: unbiased ray marching (Kettunen et al. 2021) and the
- * p-series CMF estimator (Georgiev et al. 2019). Twin of volmc/reference/power_series.py,
+/* Power-series transmittance estimators on one majorant segment: unbiased ray marching
+ * (Kettunen et al. 2021) and the p-series CMF estimator (Georgiev et al. 2019). Twin of volmc/reference/power_series.py,
  * where the formulas, parameters, caps and numerical guards are documented; the operation
  * order and the random-number consumption here follow it step by step. */
 #ifndef VOLMC_POWER_SERIES_H
 #define VOLMC_POWER_SERIES_H
 
 #include "params.h"
-#include "extinction.h"
+#include "medium.h"
 #include "rng.h"
 #include "guards.h"
 
@@ -62,19 +62,9 @@ inline float urm_series(float x0, const float *ys, int n) {
     return finite_bits(est) ? est : 0.0f;  /* guards.h: survives fast-math */
 }
 
-inline float ps_comb(global const float *med, global const float *grid, int3 dims, float3 o,
-                     float3 d, float t0, float L, int m, float u, float mbar, ulong *counters) {
-    float h = L / (float)m;
-    float s = 0.0f;
-    for (int j = 0; j < m; ++j)
-        s += lookup(med, grid, dims, o, d, t0 + ((float)j + u) * h, counters, mbar);
-    return s * h;
-}
-
-inline float transmittance_unbiased_raymarch(global const float *med, global const float *grid,
-                                             int3 dims, float3 o, float3 d, float t0, float t1,
-                                             float mbar, float mu_c, Rng *rng,
-                                             ulong *counters, int max_steps) {
+inline float unbiased_raymarch_segment(const MediumData *med, float3 o, float3 d, float t0,
+                                       float t1, float mbar, float mu_c, Rng *rng,
+                                       ulong *counters, int max_steps) {
     float L = t1 - t0;
     if (!(L > 0.0f) || !(mbar > 0.0f)) return 1.0f;
     if (max_steps < 1) {
@@ -107,17 +97,16 @@ inline float transmittance_unbiased_raymarch(global const float *med, global con
         }
     }
     if (capped) counters[C_CAPPED] += 1;
-    float x0 = ps_comb(med, grid, dims, o, d, t0, L, m, rng_next(rng), mbar, counters);
+    float x0 = optical_depth_comb(med, o, d, t0, L, m, rng_next(rng), mbar, counters);
     float ys[URM_MAX_ORDER];
     for (int i = 0; i < n; ++i)
-        ys[i] = x0 - ps_comb(med, grid, dims, o, d, t0, L, m, rng_next(rng), mbar, counters);
+        ys[i] = x0 - optical_depth_comb(med, o, d, t0, L, m, rng_next(rng), mbar, counters);
     return urm_series(x0, ys, n);
 }
 
-inline float transmittance_power_series(global const float *med, global const float *grid,
-                                        int3 dims, float3 o, float3 d, float t0, float t1,
-                                        float mbar, float mu_c, Rng *rng, ulong *counters,
-                                        int max_steps) {
+inline float power_series_segment(const MediumData *med, float3 o, float3 d, float t0,
+                                  float t1, float mbar, float mu_c, Rng *rng, ulong *counters,
+                                  int max_steps) {
     float L = t1 - t0;
     if (!(L > 0.0f) || !(mbar > 0.0f)) return 1.0f;
     if (max_steps < 1) {
@@ -141,7 +130,7 @@ inline float transmittance_power_series(global const float *med, global const fl
         }
         k += 1;
         float x = t0 + rng_next(rng) * L;
-        float y = (mbar - lookup(med, grid, dims, o, d, x, counters, mbar)) * L;
+        float y = (mbar - extinction(med, o + x * d, mbar, counters)) * L;
         prod *= g * y / (float)k;
         acc = acc * g + prod;
         if (prod == 0.0f) return acc * pown(g, n_det - k);
@@ -156,7 +145,7 @@ inline float transmittance_power_series(global const float *med, global const fl
         }
         k += 1;
         float x = t0 + rng_next(rng) * L;
-        float y = (mbar - lookup(med, grid, dims, o, d, x, counters, mbar)) * L;
+        float y = (mbar - extinction(med, o + x * d, mbar, counters)) * L;
         prod *= y / (float)k;
         acc += prod / q;
         if (prod == 0.0f) break;

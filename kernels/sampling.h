@@ -46,4 +46,7 @@ inline float3 from_frame(float3 n, float cos_theta, float sin_theta, float phi) 
     return (cos(phi) * sin_theta) * s + (sin(phi) * sin_theta) * t + cos_theta * n;
 }
 
+/* Balance-heuristic weight of strategy a against b, one sample each (Veach 1997). */
+inline float mis_balance(float pdf_a, float pdf_b) { return pdf_a / (pdf_a + pdf_b); }
+
 #endif

@@ -6,8 +6,8 @@
 #include "sampling.h"
 #include "phase.h"
 #include "grid.h"
-#include "transmittance.h"
-#include "estimators.h"
+#include "medium.h"
+#include "tracking.h"
 #include "dda.h"
 
 kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out) {
@@ -74,33 +74,28 @@ kernel void t_grid_lookup(global const float *grid, int3 dims, float3 bmin, floa
     out[i] = grid_lookup(grid, dims, bmin, inv_extent, vload3(i, p));
 }
 
-/* kind: 0 ratio tracking, 1 track length, 2 delta-tracking free flight (writes t or -1).
- * One work item per estimate; ray r = i / n_per_ray uses sample index i % n_per_ray. */
-kernel void t_tracking(int kind, global const float *med, global const float *grid, int3 dims,
-                       float3 bmin, float3 inv_extent, float scale, float mbar,
-                       global const float *rays,
-                       int n_per_ray, ulong seed, int max_steps, global float *out,
-                       global ulong *lookups) {
+/* The tracking loop with technique TRACK_* (use_control: the minorant as control in free
+ * flight). One work item per walk; ray r = i / n_per_ray (9 floats: o, d, t0, t1, pad) goes
+ * through media[r] and uses sample index i % n_per_ray. Writes the distance (-1 on escape,
+ * -2 if capped), the transmittance estimate and the lookups of each walk. */
+kernel void t_track(int technique, int use_control, global const Medium *media,
+                    global const float *grid, global const float *maj, global const float *mnr,
+                    global const float *rays, int n_per_ray, ulong seed, int max_steps,
+                    global float *out_t, global float *out_T, global ulong *lookups) {
     int i = get_global_id(0);
     int r = i / n_per_ray;
+    Medium m = media[r];
+    MediumData med = {&m, grid, maj, mnr};
     float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
     float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
     Rng rng;
     rng_init(&rng, seed, (uint)r, (uint)(i % n_per_ray), STREAM_TEST);
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
-    if (kind == 0) {
-        out[i] = transmittance_ratio_tracking(med, grid, dims, o, d, t0, t1, mbar, 0.0f, &rng,
-                                              cnt, max_steps);
-    } else if (kind == 1) {
-        out[i] = transmittance_track_length(med, grid, dims, o, d, t0, t1, mbar, 0.0f, &rng, cnt,
-                                            max_steps);
-    } else {
-        float t;
-        int ev = free_flight_delta(grid, dims, bmin, inv_extent, scale, mbar, o, d, t0, t1,
-                                   &rng, cnt, max_steps, &t);
-        out[i] = ev == EVENT_SCATTER ? t : -1.0f;
-    }
+    float t, T;
+    int ev = track(&med, o, d, t0, t1, technique, use_control, &rng, cnt, max_steps, &t, &T);
+    out_t[i] = ev == EVENT_SCATTER ? t : (ev == EVENT_CAPPED ? -2.0f : -1.0f);
+    out_T[i] = T;
     lookups[i] = cnt[C_LOOKUPS];
 }
 
@@ -124,27 +119,4 @@ kernel void t_dda(global const float *rays, float3 bmin, float3 bmax, int3 res_z
         ++k;
     }
     count[r] = k;
-}
-
-/* Free flight over a majorant grid (delta tracking, or decomposition tracking when
- * use_control): rays as t_tracking; writes the collision distance, or -1 on escape (-2 if
- * capped), and the lookups of each walk. maj and mnr are [cz][cy][cx] density bounds. */
-kernel void t_free_flight_grid(global const float *grid, int3 dims, float3 bmin, float3 bmax,
-                               float3 inv_extent, float scale, global const float *maj,
-                               global const float *mnr, int use_control, int3 maj_res,
-                               global const float *rays, int n_per_ray, ulong seed,
-                               int max_steps, global float *out, global ulong *lookups) {
-    int i = get_global_id(0);
-    int r = i / n_per_ray;
-    float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
-    float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
-    Rng rng;
-    rng_init(&rng, seed, (uint)r, (uint)(i % n_per_ray), STREAM_TEST);
-    ulong cnt[N_COUNTERS];
-    for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
-    float t;
-    int ev = free_flight_grid(grid, dims, bmin, bmax, inv_extent, scale, maj, mnr, use_control,
-                              maj_res, o, d, t0, t1, &rng, cnt, max_steps, &t);
-    out[i] = ev == EVENT_SCATTER ? t : (ev == EVENT_CAPPED ? -2.0f : -1.0f);
-    lookups[i] = cnt[C_LOOKUPS];
 }

@@ -115,7 +115,7 @@ def test_compare_images_detects_a_bias():
 def test_generic_build_renders_like_the_specialised_one(tmp_path):
     """A build with every feature flag on (the specialisation benchmark's baseline) takes the
     run-time branches the scene asks for: same streams, same image, for every variant."""
-    from volmc.cl.backend import OpenCLBackend
+    from volmc.backends.opencl import OpenCLBackend
     from volmc.render import render
     for name, scene in _variants(tmp_path).items():
         spec = render(scene, backend=OpenCLBackend(scene), spp=16, progress=False)
@@ -131,24 +131,32 @@ def test_generic_build_renders_like_the_specialised_one(tmp_path):
 def test_shadow_estimator_option(estimator):
     """render.transmittance selects the shadow-ray estimator (kernel built for it): both
     backends agree, and with an unbiased estimator the white furnace still gives L."""
-    from volmc.reference.estimators import ESTIMATORS
+    from volmc.techniques import ESTIMATORS
     scene = load_scene(scenes_dir() / "tests" / "white_furnace.toml",
                        [f"render.transmittance={estimator}", "render.spp=96",
                         "camera.resolution=[8, 8]"])
     cmp, ra, rb = check_scene(scene)
     assert cmp.passed, cmp.summary("opencl", "numba")
     assert estimator in ra.techniques["transmittance"]
-    if ESTIMATORS[estimator][2]:
+    if ESTIMATORS[estimator].unbiased:
         for res in (ra, rb):
             c = compare_images(res.image, res.film.variance_of_mean(),
                                np.full_like(res.image, 0.5), np.zeros_like(res.image))
             assert c.passed, (estimator, c.summary())
 
 
-def test_schema_lists_every_shadow_estimator():
-    from volmc.reference.estimators import ESTIMATORS
-    from volmc.scene.schema import TRANSMITTANCE_ESTIMATORS
-    assert set(TRANSMITTANCE_ESTIMATORS) == {n for n, v in ESTIMATORS.items() if not v[3]}
+def test_schema_takes_shadow_estimators_from_the_registry():
+    """Every registered estimator that works on grids is a valid render.transmittance; one
+    exact only on homogeneous segments is rejected with the one-line error."""
+    from volmc.scene import SceneError
+    from volmc.techniques import ESTIMATORS
+    path = scenes_dir() / "tests" / "white_furnace.toml"
+    for name, est in ESTIMATORS.items():
+        if est.homogeneous_only:
+            with pytest.raises(SceneError, match="render.transmittance"):
+                load_scene(path, [f"render.transmittance={name}"])
+        else:
+            assert load_scene(path, [f"render.transmittance={name}"]).render.transmittance == name
 
 
 @pytest.mark.parametrize("backend", ["opencl", "numba"])

@@ -12,11 +12,12 @@ import pytest
 from volmc.cl import build
 from volmc.cl.device import select_device
 from volmc.cl.structs import c_struct, kernel_light_dtype, kernel_params_dtype
-from volmc.params import PARAM_FIELDS
+from volmc.params import PARAM_FIELDS, medium_dtype
 from volmc.scene import SceneError
 
 
 @pytest.mark.parametrize("name,dtype", [("Params", kernel_params_dtype()),
+                                        ("Medium", medium_dtype(np.float32)),
                                         ("Light", kernel_light_dtype())])
 def test_struct_layout_matches_device(name, dtype):
     """The device compiler lays out the generated C struct exactly as the numpy dtype: the
@@ -157,7 +158,7 @@ def test_bench_transmittance_cli(tmp_path):
     for row in rep["profiles"]:
         # Ratio tracking's lookups are Poisson(mbar L) with L = 1 and
         # mbar = mean mu / tightness = tau / effective tightness (2048 estimates per case).
-        # Transmittance roulette (HARD_CASES 10) ends a walk early once T = 0 or T < 1e-3
+        # Transmittance roulette (robustness case 10) ends a walk early once T = 0 or T < 1e-3
         # (where mu reaches the majorant, e.g. at the peak of a bump), so the count is at
         # most that; on the constant profile under a loose majorant every factor is
         # 1 - tightness and no walk gets there, so the count is exactly Poisson(mbar L).

@@ -1,17 +1,15 @@
 """3-D DDA over majorant cells against a brute-force walk, including degenerate rays
-(HARD_CASES 6): axis-parallel, -0.0 components, starting on box and cell faces, inside."""
+(robustness case 6): axis-parallel, -0.0 components, starting on box and cell faces, inside."""
 
 import math
 
 import numpy as np
 import pytest
-from numba import njit
 
-from volmc.params import C_LOOKUPS, N_COUNTERS
+from tracking_runs import grid_media, walks
+from volmc.constants import TRACK_FREE_FLIGHT
 from volmc.reference.dda import dda_segments
 from volmc.reference.majorant import cell_of
-from volmc.reference.rng import STREAM_TEST, rng_new
-from volmc.reference.transmittance import EVENT_SCATTER, free_flight_grid
 
 BMIN = np.array([-1.0, -0.5, 0.0])
 BMAX = np.array([1.0, 1.5, 3.0])
@@ -34,26 +32,13 @@ def clip(o, d, bmin=BMIN, bmax=BMAX):
 
 
 
-@njit
-def _flight_run(grid, maj, mnr, scale, o, d, t0, t1, n, decomposition, key, pixel):
-    out = np.empty(n)
-    cnt = np.zeros(N_COUNTERS, np.int64)
-    inv = (1.0 / (BMAX[0] - BMIN[0]), 1.0 / (BMAX[1] - BMIN[1]), 1.0 / (BMAX[2] - BMIN[2]))
-    bmin = (BMIN[0], BMIN[1], BMIN[2])
-    bmax = (BMAX[0], BMAX[1], BMAX[2])
-    for i in range(n):
-        rng = rng_new(key, pixel, i, STREAM_TEST)
-        ev, t = free_flight_grid(grid, bmin, bmax, inv, scale, maj, mnr, decomposition, o, d,
-                                 t0, t1, rng, cnt, 10**6)
-        out[i] = t if ev == EVENT_SCATTER else np.inf
-    return out, cnt[C_LOOKUPS]
-
-
-def _flights(grid, maj, mnr, scale, o, d, t0, t1, n, decomposition, key, pixel):
+def _flights(grid, maj, mnr, scale, o, d, t0, t1, n, decomposition, key, pixel=0):
     """n free flights (reference, over majorant cells maj/mnr) along one ray in the BMIN-BMAX
-    box with random numbers (key, pixel, i): (collision distances, inf on escape; lookups)."""
-    return _flight_run(grid, maj.astype(np.float64), mnr.astype(np.float64), scale, tuple(o),
-                       tuple(d), t0, t1, n, decomposition, key, pixel)
+    box with random numbers (key, ray 0, i): (collision distances, inf on escape; lookups)."""
+    media = grid_media(BMIN, BMAX, scale, grid, 1, maj_res=maj.shape)
+    t, _, lk = walks("numba", TRACK_FREE_FLIGHT, decomposition, media, grid,
+                     [[*o, *d, t0, t1, 0.0]], n, key, maj=maj, mnr=mnr)
+    return np.where(t >= 0.0, t, np.inf), int(lk.sum())
 
 
 def _distance_fit_pvalue(grid, scale, o, d, t0, t1, t):
@@ -144,13 +129,13 @@ def test_free_flight_over_majorant_grid_distribution():
     a = sidak(ALPHA, len(cases))
     lookups = {}
     for res, k in cases:
-        maj, _ = build_majorant_grid(grid, res)
+        maj, mnr = build_majorant_grid(grid, res)
         d = np.array([0.8, 0.3, 0.5]) if k == 0 else np.array([-0.0, 0.6, 0.8])
         d /= np.linalg.norm(d)
         o = np.array([-0.95, -0.4, 0.1]) if k == 0 else np.array([0.3, -0.45, 0.05])
         t0, t1 = clip(o, d)
         n = 60000
-        t, lk = _flights(grid, maj, maj, scale, o, d, t0, t1, n, False, 7, 3)
+        t, lk = _flights(grid, maj, mnr, scale, o, d, t0, t1, n, False, 7, 3)
         p = _distance_fit_pvalue(grid, scale, o, d, t0, t1, t)
         assert p > a, (res, k, p)
         lookups[(res, k)] = lk

@@ -9,10 +9,11 @@ import pytest
 
 from stats import ALPHA, z_bound
 from volmc.bench.transmittance import SHAPES, grid_rays, profile_case
-from volmc.bench.transmittance_runner import ESTIMATORS, OpenCLEstimator, run_numba
-from volmc.reference import extinction as X
+from volmc.bench.transmittance_runner import OpenCLEstimator, run_numba
+from volmc.techniques import ESTIMATORS
+from volmc.reference import medium as X
 
-UNBIASED = [n for n, v in ESTIMATORS.items() if v[2] and not v[3]]
+UNBIASED = [n for n, e in ESTIMATORS.items() if e.unbiased and not e.homogeneous_only]
 RAY = np.array([[0, 0, 0, 1, 0, 0, 0, 1, 0]], np.float64)
 CASES = [(shape, T, k) for shape in SHAPES for T in (0.05, 0.5, 0.95) for k in (0.2, 1.0)]
 
@@ -77,7 +78,7 @@ def test_unbiased_on_grid_rays(backend, name):
 def test_analytic_is_exact_on_homogeneous_segments():
     for T in (0.01, 0.5, 0.99):
         med, _, _, exact, _ = profile_case("constant", T, 1.0)
-        mu = med[1]  # the analytic estimator is given the segment's extinction itself
+        mu = float(med["density"])  # the analytic estimator is given the extinction itself
         for backend in ("numba", "opencl"):
             est, cnt = _run(backend, "analytic", med, np.zeros((1, 1, 1)), RAY,
                             np.array([[mu, mu]]), 16)
@@ -87,7 +88,7 @@ def test_analytic_is_exact_on_homogeneous_segments():
 def test_lookup_counts():
     """Ratio and next-flight tracking: Poisson(mbar L) lookups; residual ratio: Poisson((mbar -
     mu_c) L); biased ray marching: ceil(mbar L); track length: at most ratio tracking's."""
-    med = X.make_profile(X.MED_RAMP, 1.0, 3.0, L=1.0)
+    med = X.make_profile(X.DENSITY_RAMP, 1.0, 3.0, L=1.0)
     mbar, mu_c, n = 6.0, 1.0, 40000
     bounds = np.array([[mbar, mu_c]])
     g = np.zeros((1, 1, 1))
@@ -104,7 +105,7 @@ def test_next_flight_variance_in_empty_space():
     """Closed form: with mu = 0 and majorant m over length L, next-flight ratio tracking has
     mean 1 and variance (1 - e^{-2 m L}) / 2 (a Poisson sum of e^{-m (L - t_i)}); ratio
     tracking has variance 0. This is why next-flight loses on loose majorants."""
-    med = X.make_profile(X.MED_CONSTANT, 0.0)
+    med = X.make_profile(X.DENSITY_CONSTANT, 0.0)
     m, n = 3.0, 200000
     est, _ = run_numba("next_flight", med, np.zeros((1, 1, 1)), RAY, np.array([[m, 0.0]]), n)
     assert est.mean() == pytest.approx(1.0, abs=4 * math.sqrt(0.5 / n))
@@ -114,11 +115,13 @@ def test_next_flight_variance_in_empty_space():
 
 
 def test_biased_raymarch_converges_as_the_step_shrinks():
+    """Its comb has ceil(RAYMARCH_SAMPLES_PER_MFP x sigma_maj L) points, so scaling the
+    majorant by spm gives spm times as many comb points per mean free path."""
     med, mbar, mu_c, exact, _ = profile_case("hole", 0.3, 1.0)
     biases = []
     for spm in (0.25, 1.0, 4.0, 16.0):
         est, _ = run_numba("biased_raymarch", med, np.zeros((1, 1, 1)), RAY,
-                           np.array([[mbar, mu_c]]), 20000, extra=spm)
+                           np.array([[mbar * spm, mu_c]]), 20000)
         biases.append(abs(est.mean() - exact))
     assert biases[0] > 1e-3                       # biased at a coarse step ...
     assert all(b2 < b1 for b1, b2 in zip(biases, biases[1:]))   # ... and converging
@@ -132,7 +135,7 @@ def test_kernel_matches_reference(name):
     mbar = scene.medium.scale * float(scene.grid.max())
     label, rays, exact = sets[1]
     bounds = np.tile([mbar, 0.0], (len(rays), 1))
-    if ESTIMATORS[name][3]:
+    if ESTIMATORS[name].homogeneous_only:
         bounds = np.tile([mbar, mbar], (len(rays), 1))
     a, ca = run_numba(name, med, scene.grid, rays, bounds, 128)
     b, cb = _ocl(name).run(med, scene.grid, rays, bounds, 128)

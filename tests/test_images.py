@@ -31,7 +31,7 @@ def _z(res, expected):
 
 
 def test_white_furnace_every_pixel_equals_L(backend):
-    """HARD_CASES 14: albedo 1, heterogeneous grid, HG g = 0.6, max_depth -1: pixel = L."""
+    """robustness case 14: albedo 1, heterogeneous grid, HG g = 0.6, max_depth -1: pixel = L."""
     scene = load_scene(scenes_dir() / "tests" / "white_furnace.toml", ["render.spp=256"])
     L = scene.lights[0].radiance[0]
     res = render(scene, progress=False, backend=backend)
@@ -53,7 +53,7 @@ def test_white_furnace_phase_and_depth(g, backend):
     samples become heavy-tailed and a per-pixel z-test at 128 spp no longer has its stated
     false-failure rate. Without roulette every sample is a sum of bounded MIS-weighted terms.
     Roulette itself is tested against no roulette in test_russian_roulette_unbiased and
-    HARD_CASES 18."""
+    robustness case 18."""
     scene = load_scene(scenes_dir() / "tests" / "white_furnace.toml",
                        [f"medium.phase.g={g}" if g else "medium.phase={type='isotropic'}",
                         "medium.scale=12", "render.spp=128", "camera.resolution=[8, 8]",
@@ -64,7 +64,7 @@ def test_white_furnace_phase_and_depth(g, backend):
 
 
 def test_pure_absorber_exact(backend):
-    """HARD_CASES 15: albedo 0 homogeneous slab, orthographic: pixel = L exp(-tau) exactly."""
+    """robustness case 15: albedo 0 homogeneous slab, orthographic: pixel = L exp(-tau) exactly."""
     scene = load_scene(scenes_dir() / "tests" / "absorber.toml")
     res = render(scene, progress=False, backend=backend)
     expected = 0.8 * math.exp(-0.75 * 2.0)
@@ -143,7 +143,7 @@ def _single_scatter_expected(sigma_t, sigma_s, g, E, light_dir, width, height, s
 
 @pytest.mark.parametrize("g", [0.0, 0.6, -0.6])
 def test_single_scattering_closed_form(g, backend):
-    """HARD_CASES 16: max_depth 1, homogeneous cube, directional light: the NEE estimate
+    """robustness case 16: max_depth 1, homogeneous cube, directional light: the NEE estimate
     matches the single-scattering integral per pixel (checks light units and the HG sign)."""
     sigma_t, albedo, E = 1.2, 0.7, 2.0
     light = np.array([0.0, -1.0, 1.0]) / math.sqrt(2.0)   # downwards and towards the camera
@@ -161,7 +161,7 @@ def test_single_scattering_closed_form(g, backend):
 
 
 def test_constant_grid_equals_homogeneous(tmp_path, backend):
-    """HARD_CASES 17: a constant grid renders like the homogeneous medium (two-sample z)."""
+    """robustness case 17: a constant grid renders like the homogeneous medium (two-sample z)."""
     np.save(tmp_path / "c.npy", np.full((3, 4, 5), 0.5, np.float32))
     base = {"camera": {"eye": [0.3, 0.2, 3.0], "target": [0, 0, 0], "fov": 50,
                        "resolution": [8, 8]},
@@ -180,7 +180,7 @@ def test_constant_grid_equals_homogeneous(tmp_path, backend):
 
 
 def test_russian_roulette_unbiased(backend):
-    """HARD_CASES 18: Russian roulette from depth 0 vs (effectively) never: same image."""
+    """robustness case 18: Russian roulette from depth 0 vs (effectively) never: same image."""
     base = load_scene(scenes_dir() / "tests" / "white_furnace.toml",
                       ["medium.albedo=[0.9, 0.7, 0.5]", "render.spp=256", "render.max_depth=40",
                        "camera.resolution=[8, 8]", "render.rr_depth=0"])

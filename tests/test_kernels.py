@@ -1,23 +1,20 @@
 """Kernel-vs-reference, function level: the OpenCL twins fed the same inputs as the Numba
-functions agree within float32 tolerance, including the HARD_CASES inputs."""
+functions agree within float32 tolerance, including the docs/robustness.md inputs."""
 
 import math
 
 import numpy as np
 import pytest
-from numba import njit
 
 from cl_harness import f3, i3, out_buf, run, to_dev
 from stats import ALPHA, z_bound
-from volmc.params import N_COUNTERS
 from volmc.reference.grid import grid_lookup
 from volmc.reference.phase import hg_eval, hg_sample, hg_sample_cos
-from volmc.reference.rng import STREAM_TEST, philox4x32_10, rng_new, uniforms
+from volmc.reference.rng import philox4x32_10, uniforms
 from volmc.reference.sampling import (coordinate_system, sample_exponential,
                                       sample_uniform_sphere)
-from volmc.reference.estimators import transmittance_ratio_tracking, transmittance_track_length
-from volmc.reference.extinction import make_grid_medium
-from volmc.reference.transmittance import EVENT_SCATTER, free_flight_delta
+from tracking_runs import grid_media, walks
+from volmc.constants import TRACK_FREE_FLIGHT, TRACK_LENGTH, TRACK_RATIO
 
 EDGE_U = np.array([0.0, 2.0**-24, 0.25, 0.5, 0.75, 1 - 2.0**-24], np.float64)
 
@@ -73,7 +70,7 @@ HARD_G = [0.0, 1e-6, -1e-6, 1e-4, -1e-4, 1e-3, -1e-3, 0.3, -0.3, 0.6, -0.6, 0.9,
 
 
 def test_hg_sample_cos_hard_cases():
-    """HARD_CASES 1-2: cos in [-1, 1], finite pdf, agreement with the float64 twin."""
+    """robustness case 1-2: cos in [-1, 1], finite pdf, agreement with the float64 twin."""
     gs, us = np.meshgrid(np.array(HARD_G, np.float32), EDGE_U.astype(np.float32))
     gs, us = gs.ravel(), us.ravel()
     out, ob = out_buf((gs.size, 3))
@@ -146,32 +143,6 @@ def test_grid_lookup_including_faces():
     assert np.allclose(out, ref, rtol=1e-5, atol=1e-6)
 
 
-@njit(cache=True)
-def _ref_tracking(kind, med, grid, scale, mbar, rays, n_per_ray, seed, max_steps):
-    n = rays.shape[0] * n_per_ray
-    out = np.empty(n)
-    lookups = np.empty(n, np.int64)
-    for i in range(n):
-        r = i // n_per_ray
-        o = (rays[r, 0], rays[r, 1], rays[r, 2])
-        d = (rays[r, 3], rays[r, 4], rays[r, 5])
-        t0, t1 = rays[r, 6], rays[r, 7]
-        rng = rng_new(seed, r, i % n_per_ray, STREAM_TEST)
-        cnt = np.zeros(N_COUNTERS, np.int64)
-        if kind == 0:
-            out[i] = transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, 0.0, rng, cnt,
-                                                  max_steps)
-        elif kind == 1:
-            out[i] = transmittance_track_length(med, grid, o, d, t0, t1, mbar, 0.0, rng, cnt,
-                                                max_steps)
-        else:
-            ev, t = free_flight_delta(grid, BMIN, INV_EXT, scale, mbar, o, d, t0, t1, rng, cnt,
-                                      max_steps)
-            out[i] = t if ev == EVENT_SCATTER else -1.0
-        lookups[i] = cnt[0]
-    return out, lookups
-
-
 def _rays(n, seed):
     rng = np.random.default_rng(seed)
     rays = np.zeros((n, 9))
@@ -186,7 +157,8 @@ def _rays(n, seed):
     return rays.astype(np.float32).astype(np.float64)
 
 
-@pytest.mark.parametrize("kind", [0, 1, 2], ids=["ratio", "track_length", "free_flight"])
+@pytest.mark.parametrize("kind", [TRACK_RATIO, TRACK_LENGTH, TRACK_FREE_FLIGHT],
+                         ids=["ratio", "track_length", "free_flight"])
 def test_tracking_per_ray_and_in_mean(kind):
     """Same rays, same streams: the estimates agree per estimate for the vast majority (float32
     rounding can flip a rare accept test), and the means agree statistically."""
@@ -196,23 +168,18 @@ def test_tracking_per_ray_and_in_mean(kind):
     mbar = float(np.float32(scale * grid.max() * 1.3))
     rays = _rays(16, 7)
     n_per = 4000
-    n = len(rays) * n_per
-    out, ob = out_buf(n)
-    lk, lb = out_buf(n, np.uint64)
-    med = make_grid_medium(BMIN, BMAX, scale)
-    run("t_tracking", n, np.int32(kind), to_dev(med.astype(np.float32)), to_dev(grid),
-        i3((7, 6, 5)), f3(BMIN), f3(INV_EXT),
-        np.float32(scale), np.float32(mbar), to_dev(rays.astype(np.float32).ravel()),
-        np.int32(n_per), np.uint64(11), np.int32(1_000_000), ob, lb, outs=[(out, ob), (lk, lb)])
-    ref, ref_lk = _ref_tracking(kind, med, grid.astype(np.float64), scale, mbar, rays, n_per, 11,
-                                1_000_000)
-    close = np.isclose(out, ref, rtol=1e-3, atol=1e-5) & (lk.astype(np.int64) == ref_lk)
+    media = grid_media(BMIN, BMAX, scale, grid, len(rays), sigma_maj=mbar)
+    runs = {b: walks(b, kind, False, media, grid, rays, n_per, 11) for b in ("opencl", "numba")}
+    pick = 0 if kind == TRACK_FREE_FLIGHT else 1
+    out, lk = runs["opencl"][pick], runs["opencl"][2]
+    ref, ref_lk = runs["numba"][pick], runs["numba"][2]
+    close = np.isclose(out, ref, rtol=1e-3, atol=1e-5) & (lk == ref_lk)
     assert close.mean() > 0.995, close.mean()
     bound = z_bound(ALPHA, len(rays))
     for r in range(len(rays)):
         a = out[r * n_per:(r + 1) * n_per].astype(np.float64)
         b = ref[r * n_per:(r + 1) * n_per]
-        if kind == 2:  # compare the probability of a collision
+        if kind == TRACK_FREE_FLIGHT:  # compare the probability of a collision
             a, b = (a >= 0).astype(float), (b >= 0).astype(float)
         se = math.sqrt(a.var(ddof=1) / n_per + b.var(ddof=1) / n_per)
         if se > 0:

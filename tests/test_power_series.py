@@ -10,14 +10,15 @@ from numba import njit
 
 from stats import ALPHA, z_bound
 from volmc.params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT, N_COUNTERS
-from volmc.reference.extinction import (MED_CONSTANT, MED_COSINE, MED_GAUSS_BUMP,
-                                        MED_GAUSS_HOLE, MED_RAMP, MED_SIZE, make_grid_medium,
-                                        make_profile, optical_depth_profile, profile_bounds)
+from volmc.constants import (DENSITY_CONSTANT, DENSITY_COSINE, DENSITY_GAUSS_BUMP,
+                             DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP)
+from volmc.params import medium_dtype
+from volmc.reference.medium import (MediumData, make_grid_medium, make_profile,
+                                    optical_depth_profile, profile_bounds)
 from volmc.reference.optical_depth import optical_depth_exact
 from volmc.reference.power_series import (URM_MEAN_ORDER, cmf_deterministic_terms,
-                                          transmittance_power_series,
-                                          transmittance_unbiased_raymarch, urm_comb_size,
-                                          urm_series)
+                                          power_series_segment, unbiased_raymarch_segment,
+                                          urm_comb_size, urm_series)
 from volmc.reference.rng import STREAM_TEST, rng_new
 
 URM, PSERIES = 0, 1
@@ -34,32 +35,42 @@ BMAX = (1.0, 1.5, 0.0)
 
 
 @njit(cache=True)
-def _estimates(kind, med, grid, o, d, t0, t1, mbar, mu_c, n, seed, max_steps, pixel=0):
-    """n estimates on streams (seed, pixel, i, STREAM_TEST); per-estimate lookups; counters."""
+def _run(kind, media, grid, o, d, t0, t1, mbar, mu_c, n, seed, max_steps, pixel):
     out = np.empty(n)
     lookups = np.empty(n, np.int64)
     counters = np.zeros(N_COUNTERS, np.int64)
+    med = MediumData(media[0], grid, grid, grid)
     for i in range(n):
         rng = rng_new(seed, pixel, i, STREAM_TEST)
         before = counters[C_LOOKUPS]
         if kind == 0:
-            out[i] = transmittance_unbiased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng,
-                                                     counters, max_steps)
+            out[i] = unbiased_raymarch_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters,
+                                               max_steps)
         else:
-            out[i] = transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng,
-                                                counters, max_steps)
+            out[i] = power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters,
+                                          max_steps)
         lookups[i] = counters[C_LOOKUPS] - before
     return out, lookups, counters
+
+
+def _estimates(kind, med, grid, o, d, t0, t1, mbar, mu_c, n, seed, max_steps, pixel=0):
+    """n estimates of one segment on streams (seed, pixel, i, STREAM_TEST); per-estimate
+    lookups; counters. ``med`` is a medium record (its grid dimensions taken from grid)."""
+    media = np.atleast_1d(np.asarray(med)).astype(medium_dtype(np.float64))
+    nz, ny, nx = np.shape(grid)
+    media["dims"] = (nx, ny, nz)
+    return _run(kind, media, np.asarray(grid, np.float64), o, d, t0, t1, mbar, mu_c, n, seed,
+                max_steps, pixel)
 
 
 # Profile shapes on [T0, T1] before scaling to a target optical depth: (kind, a, b, c, s, L).
 # The cosine has a non-integer number of periods so no comb integrates it exactly.
 SHAPES = {
-    "constant": (MED_CONSTANT, 1.0, 0.0, 0.0, 1.0, 1.0),
-    "ramp": (MED_RAMP, 0.05, 1.0, 0.0, 1.0, 1.5),
-    "gauss_bump": (MED_GAUSS_BUMP, 0.1, 2.0, 1.2, 0.15, 1.0),
-    "gauss_hole": (MED_GAUSS_HOLE, 1.0, 0.95, 1.0, 0.2, 1.0),
-    "cosine": (MED_COSINE, 1.0, 0.8, 2.3, 0.4, 1.5),
+    "constant": (DENSITY_CONSTANT, 1.0, 0.0, 0.0, 1.0, 1.0),
+    "ramp": (DENSITY_RAMP, 0.05, 1.0, 0.0, 1.0, 1.5),
+    "gauss_bump": (DENSITY_GAUSS_BUMP, 0.1, 2.0, 1.2, 0.15, 1.0),
+    "gauss_hole": (DENSITY_GAUSS_HOLE, 1.0, 0.95, 1.0, 0.2, 1.0),
+    "cosine": (DENSITY_COSINE, 1.0, 0.8, 2.3, 0.4, 1.5),
 }
 
 
@@ -68,7 +79,7 @@ def _profile(name, tau):
     kind, a, b, c, s, L = SHAPES[name]
     unit = optical_depth_profile(make_profile(kind, a, b, c, s, L), T0, T1)
     k = tau / unit
-    b_scaled = b if kind == MED_COSINE else b * k  # cosine: b is a relative amplitude
+    b_scaled = b if kind == DENSITY_COSINE else b * k  # cosine: b is a relative amplitude
     return make_profile(kind, a * k, b_scaled, c, s, L)
 
 
@@ -98,7 +109,7 @@ def _aliased_cosine(T, f):
     L_med, b = 1.5, 0.8
     a = -math.log(T) / (T1 - T0)
     m = urm_comb_size(a * (1.0 + b) * f * (T1 - T0))
-    return make_profile(MED_COSINE, a, b, L_med * m / (T1 - T0), 0.4, L_med)
+    return make_profile(DENSITY_COSINE, a, b, L_med * m / (T1 - T0), 0.4, L_med)
 
 
 @pytest.mark.parametrize("kind", ESTIMATORS, ids=IDS)
@@ -163,7 +174,7 @@ def test_unbiased_raymarch_zero_variance_for_constant_extinction():
     for T in TARGETS:
         tau = -math.log(T)
         med = _profile("constant", tau)
-        mu = med[1]
+        mu = float(med["density"])
         for f in TIGHTNESS:
             for mu_c in (0.0, mu):
                 est, lk, _ = _estimates(URM, med, NO_GRID, O, D, T0, T1, mu * f, mu_c, 5000, 7,
@@ -185,7 +196,7 @@ def test_unbiased_raymarch_zero_variance_for_constant_extinction():
 def test_pseries_constant_tight_majorant_is_exact_in_one_lookup():
     """mu = mbar makes the first factor zero: the series is exp(-tau) and the walk stops."""
     med = _profile("constant", 1.2)
-    est, lk, _ = _estimates(PSERIES, med, NO_GRID, O, D, T0, T1, med[1], 0.0, 2000, 3,
+    est, lk, _ = _estimates(PSERIES, med, NO_GRID, O, D, T0, T1, float(med["density"]), 0.0, 2000, 3,
                             MAX_STEPS)
     assert np.all(lk == 1)
     assert np.allclose(est, math.exp(-1.2), rtol=1e-13, atol=0)
@@ -230,7 +241,7 @@ def test_urm_order_distribution():
     """Orders read back from the lookups (M (N + 1) per estimate) follow P(N >= k) of the
     paper's roulette, k = 1..5 (one-sided tail frequencies within the Sidak bound)."""
     med = _profile("constant", 1.0)
-    mbar = 2.0 * med[1]
+    mbar = 2.0 * float(med["density"])
     m = urm_comb_size(mbar * (T1 - T0))
     n = 200000
     _, lk, _ = _estimates(URM, med, NO_GRID, O, D, T0, T1, mbar, 0.0, n, 13, MAX_STEPS)
@@ -334,7 +345,7 @@ def _kernel_cases():
         lo, hi, mean = profile_bounds(med, T0, T1)
         cases.append((med, O, D, T0, T1, hi * 1.5, lo))
         cases.append((med, O, D, T0, T1, hi, mean))
-    gmed = make_grid_medium(BMIN, BMAX, 2.0)
+    gmed = make_grid_medium(BMIN, BMAX, 2.0, (grid.shape[2], grid.shape[1], grid.shape[0]))
     for f in (1.0, 2.0):
         for _ in range(2):
             o, d, t0, t1 = _grid_ray(rng)
@@ -342,7 +353,8 @@ def _kernel_cases():
     f32 = lambda x: np.float64(np.float32(x))  # noqa: E731
     out = []
     for med, o, d, t0, t1, mbar, mu_c in cases:
-        out.append((np.asarray(med, np.float32).astype(np.float64), tuple(map(f32, o)),
+        med = np.asarray(med).astype(medium_dtype(np.float32)).astype(medium_dtype(np.float64))
+        out.append((med, tuple(map(f32, o)),
                     tuple(map(f32, d)), f32(t0), f32(t1), f32(mbar), f32(mu_c)))
     return grid, out
 
@@ -357,7 +369,7 @@ def test_kernel_matches_reference(cl_prog, kind):
     grid, cases = _kernel_cases()
     n_per = 2000
     seed = 17
-    meds = np.zeros((len(cases), MED_SIZE), np.float32)
+    meds = np.zeros(len(cases), medium_dtype(np.float32))
     rays = np.zeros((len(cases), RAY_STRIDE), np.float32)
     for r, (med, o, d, t0, t1, mbar, mu_c) in enumerate(cases):
         meds[r] = med
@@ -365,9 +377,8 @@ def test_kernel_matches_reference(cl_prog, kind):
     n = len(cases) * n_per
     out, ob = out_buf(n, np.float32)
     counts, cb = out_buf(2 * n, np.uint64)
-    dims = np.array([grid.shape[2], grid.shape[1], grid.shape[0], 0], np.int32)
-    clc().run(kernel, n, None, np.int32(kind), to_dev(meds.ravel()), to_dev(grid.ravel()),
-              dims, to_dev(rays.ravel()), np.int32(n_per), np.uint64(seed),
+    clc().run(kernel, n, None, np.int32(kind), to_dev(meds), to_dev(grid.ravel()),
+              to_dev(rays.ravel()), np.int32(n_per), np.uint64(seed),
               np.int32(MAX_STEPS), ob, cb, outs=[(out, ob), (counts, cb)])
     lk_cl = counts[0::2].astype(np.int64)
     assert counts[1::2].sum() == 0
@@ -384,7 +395,7 @@ def test_kernel_matches_reference(cl_prog, kind):
         a = out[sl].astype(np.float64)
         # float32 agrees to ~1e-5 relative (measured <= 9e-5); a wrong tail term would not
         agree.append(np.isclose(a, ref, rtol=3e-4, atol=1e-6) & (lk_cl[sl] == lk_ref))
-        if int(med[0]) == 0:
+        if int(med["density_kind"]) == DENSITY_GRID:
             exact = math.exp(-optical_depth_exact(g64, BMIN, BMAX, 2.0, o, d, t0, t1))
         else:
             exact = math.exp(-optical_depth_profile(med, t0, t1))

@@ -4,16 +4,13 @@ import math
 
 import numpy as np
 import pytest
-from numba import njit
-
 from stats import ALPHA, sidak, z_bound
-from volmc.params import C_CAPPED, C_LOOKUPS, N_COUNTERS
+from tracking_runs import grid_media, walks
+from volmc.bench.transmittance_runner import run_numba
+from volmc.constants import TRACK_FREE_FLIGHT
+from volmc.params import C_CAPPED, C_LOOKUPS
 from volmc.reference.grid import grid_lookup
 from volmc.reference.optical_depth import optical_depth_exact
-from volmc.reference.rng import STREAM_TEST, rng_new
-from volmc.reference.estimators import transmittance_ratio_tracking, transmittance_track_length
-from volmc.reference.extinction import make_grid_medium
-from volmc.reference.transmittance import EVENT_SCATTER, free_flight_delta
 
 BMIN = (-1.0, -0.5, -2.0)
 BMAX = (1.0, 1.5, 0.0)
@@ -21,24 +18,15 @@ INV_EXT = tuple(1.0 / (b - a) for a, b in zip(BMIN, BMAX))
 MAX_STEPS = 1_000_000
 
 
-@njit(cache=True)
-def _estimates_med(kind, med, grid, mbar, o, d, t0, t1, n, seed):
-    out = np.empty(n)
-    counters = np.zeros(N_COUNTERS, np.int64)
-    for i in range(n):
-        rng = rng_new(seed, 0, i, STREAM_TEST)
-        if kind == 0:
-            out[i] = transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, 0.0, rng,
-                                                  counters, MAX_STEPS)
-        else:
-            out[i] = transmittance_track_length(med, grid, o, d, t0, t1, mbar, 0.0, rng,
-                                                counters, MAX_STEPS)
-    return out, counters
-
-
 def _estimates(kind, grid, scale, mbar, o, d, t0, t1, n, seed):
-    return _estimates_med(kind, make_grid_medium(BMIN, BMAX, scale), grid, mbar, o, d, t0, t1,
-                          n, seed)
+    """n estimates (ratio tracking: kind 0, track length: 1) along one ray through the grid
+    under the global majorant mbar; (estimates, counters summed over them)."""
+    nz, ny, nx = grid.shape
+    media = grid_media(BMIN, BMAX, scale, grid, 1, sigma_maj=mbar)
+    ray = np.array([[*o, *d, t0, t1, 0.0]])
+    est, cnt = run_numba(("ratio", "track_length")[kind], media, grid, ray, [[mbar, 0.0]], n,
+                         seed)
+    return est, cnt.sum(axis=0)
 
 
 def _ray(rng):
@@ -128,16 +116,12 @@ def test_optical_depth_exact_against_fine_quadrature():
         assert exact == pytest.approx(coarse, rel=2e-3)
 
 
-@njit(cache=True)
 def _free_flights(grid, scale, mbar, o, d, t1, n, seed):
-    out = np.empty(n)
-    counters = np.zeros(N_COUNTERS, np.int64)
-    for i in range(n):
-        rng = rng_new(seed, 1, i, STREAM_TEST)
-        ev, t = free_flight_delta(grid, BMIN, INV_EXT, scale, mbar, o, d, 0.0, t1, rng, counters,
-                                  MAX_STEPS)
-        out[i] = t if ev == EVENT_SCATTER else math.inf
-    return out
+    """Delta-tracking collision distances (inf on escape) under the global majorant mbar."""
+    media = grid_media(BMIN, BMAX, scale, grid, 1, sigma_maj=mbar)
+    t, _, _ = walks("numba", TRACK_FREE_FLIGHT, False, media, grid,
+                    [[*o, *d, 0.0, t1, 0.0]], n, seed)
+    return np.where(t >= 0.0, t, math.inf)
 
 
 def test_delta_tracking_distance_distribution():

@@ -75,7 +75,8 @@ def check_scene(scene, backends=("opencl", "numba"), spp=None, device=None):
     """Render ``scene`` with two backends (independent seeds) and compare the images.
 
     Returns (Comparison, result_a, result_b)."""
-    from .render import make_backend, render
+    from .backends import make_backend
+    from .render import render
     sa = scene if spp is None else scene.with_render(spp=spp)
     sb = sa.with_render(seed=(sa.render.seed + 1) % 2**64)
     ra = render(sa, backend=make_backend(backends[0], sa, device), progress=False)

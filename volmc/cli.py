@@ -62,7 +62,7 @@ def _exposure(text):
 
 
 def build_parser():
-    from .render import BACKENDS
+    from .backends import BACKENDS
     p = _Parser(prog="volmc", description="Monte Carlo volume path tracer")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
@@ -163,6 +163,9 @@ def build_parser():
     br.add_argument("--plot", help="write the RMSE-against-time figure (PNG) here")
     br.add_argument("--no-ceiling", action="store_true",
                     help="skip the raw-lookup ceiling measurement")
+    br.add_argument("--baseline", action="append", default=[], metavar="DIR",
+                    help="also render with the volmc checkout in DIR (an earlier version, "
+                         "OpenCL, the scene's own techniques); repeatable")
     for name, helptext in (
             ("specialise", "samples/s of the scene-specialised build vs every feature on"),
             ("workgroup", "samples/s of the OpenCL kernel per work-group size")):
@@ -244,7 +247,7 @@ def cmd_render(args):
         w, h = scene.camera.resolution
         print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "
               f"backend {args.backend})", file=sys.stderr, flush=True)
-    from .render import make_backend
+    from .backends import make_backend
     backend = make_backend(args.backend, scene, args.device)
     res = render(scene, backend=backend, progress=False if args.quiet else None,
                  on_start=None if args.quiet else _announce_start)
@@ -265,7 +268,7 @@ def cmd_render(args):
     if args.stats:
         for k, v in res.stats().items():
             print(f"  {k:24s} {v:.6g}" if isinstance(v, float) else f"  {k:24s} {v}")
-    # Guard "reported counters" (HARD_CASES 10, 19, 20): a render that cut paths, dropped
+    # Guard "reported counters" (robustness case 10, 19, 20): a render that cut paths, dropped
     # samples or met extinction above its majorant says so even without --stats or with
     # --quiet (the counts are also in the EXR metadata): never a silent bias.
     c = res.counters
@@ -280,7 +283,7 @@ def cmd_render(args):
 
 def cmd_check(args):
     from .check import check_scene
-    from .render import BACKENDS
+    from .backends import BACKENDS
     from .resources import default_scene
     from .scene import load_scene
     names = [b.strip() for b in args.backends.split(",")]
@@ -339,7 +342,7 @@ def _rgb(v):
 
 def cmd_bench_transmittance(args):
     from .bench import transmittance as bt
-    from .bench.transmittance_runner import ESTIMATORS
+    from .techniques import ESTIMATORS
     from .resources import default_scene, scenes_dir
     from .scene import load_scene
     names = list(ESTIMATORS)
@@ -389,7 +392,7 @@ def _list(text, flag, allowed):
 def cmd_bench_render(args):
     from .bench import convergence as cv
     from .bench.render import write_json
-    from .render import BACKENDS
+    from .backends import BACKENDS
     from .resources import default_scene
     from .scene import load_scene
     from .scene.schema import ConstantDensity
@@ -412,7 +415,7 @@ def cmd_bench_render(args):
     if args.transmittances == "scene":
         ests = [scene.render.transmittance]
     elif args.transmittances:
-        from .reference.estimators import ESTIMATORS
+        from .techniques import ESTIMATORS
         ests = _list(args.transmittances, "--transmittances", tuple(ESTIMATORS))
     else:
         ests = (["analytic"] if homogeneous else []) + cv.grid_estimators()
@@ -426,7 +429,7 @@ def cmd_bench_render(args):
                 raise SceneError("command line", "--peer", str(e)) from None
             print(f"peer: none ({e})", flush=True)
             peer = False
-    configs = cv.make_configs(backends, majorants, flights, ests, peer)
+    configs = cv.make_configs(backends, majorants, flights, ests, peer, args.baseline)
     w, h = scene.camera.resolution
     print(f"volmc bench render: {scene_path}: {w}x{h}, {len(configs)} configurations",
           flush=True)
@@ -435,7 +438,7 @@ def cmd_bench_render(args):
         from .bench.lookups import lookup_ceiling
         ceiling = lookup_ceiling(scene, backends, device=args.device)
     report = cv.run(scene, configs, levels, args.reference_spp, args.repeats, args.device,
-                    ceiling)
+                    ceiling, defines=args.defines)
     cv.print_report(report)
     if args.json:
         write_json(args.json, report)

@@ -60,16 +60,58 @@ EVENT_SCATTER = 1
 #: ... or the step cap ended the walk (counted; the caller ends the path).
 EVENT_CAPPED = 2
 
-# --- Extinction sources (volmc/reference/extinction.py) --------------------------------------
+# --- Media (volmc/reference/medium.py) ------------------------------------------------------
 
-MED_GRID = 0
-MED_CONSTANT = 1
-MED_RAMP = 2
-MED_GAUSS_BUMP = 3
-MED_GAUSS_HOLE = 4
-MED_COSINE = 5
-#: Floats per extinction source.
-MED_SIZE = 8
+#: Where a medium's density comes from: one value everywhere (a homogeneous medium) ...
+DENSITY_CONSTANT = 0
+#: ... a voxel grid, trilinear between voxel centres ...
+DENSITY_GRID = 1
+#: ... or a 1-D test profile of x alone (tests and the estimator benchmark).
+DENSITY_RAMP = 2
+DENSITY_GAUSS_BUMP = 3
+DENSITY_GAUSS_HOLE = 4
+DENSITY_COSINE = 5
+
+#: The majorant structure: one segment with the medium's global bounds ...
+MAJORANT_GLOBAL = 0
+#: ... or a coarse grid of per-cell bounds, walked cell by cell with a 3-D DDA.
+MAJORANT_GRID = 1
+
+# --- Tracking (volmc/reference/tracking.py) ----------------------------------------------------
+
+#: What the one tracking loop does at a tentative collision: free flight (a real collision
+#: ends the walk, the path scatters there) ...
+TRACK_FREE_FLIGHT = 0
+#: ... track-length transmittance (a real collision ends the walk with T = 0) ...
+TRACK_LENGTH = 1
+#: ... ratio tracking (T *= 1 - mu / sigma_maj) ...
+TRACK_RATIO = 2
+#: ... residual ratio tracking with the segment's minorant as control ...
+TRACK_RESIDUAL_RATIO = 3
+#: ... or next-flight ratio tracking (each vertex adds the chance the next flight escapes).
+TRACK_NEXT_FLIGHT = 4
+
+#: Per-segment transmittance estimators, run on each majorant segment in turn: exp(-sigma L)
+#: (exact only on homogeneous segments) ...
+SEGMENT_ANALYTIC = 0
+#: ... biased ray marching ...
+SEGMENT_BIASED_RAYMARCH = 1
+#: ... the p-series CMF power series ...
+SEGMENT_POWER_SERIES = 2
+#: ... and unbiased ray marching.
+SEGMENT_UNBIASED_RAYMARCH = 3
+#: Transmittance-estimator ids: the reference dispatches on them (estimators.transmittance);
+#: volmc/techniques.py gives each its name and properties.
+ESTIMATOR_ANALYTIC = 0
+ESTIMATOR_TRACK_LENGTH = 1
+ESTIMATOR_RATIO = 2
+ESTIMATOR_RESIDUAL_RATIO = 3
+ESTIMATOR_NEXT_FLIGHT = 4
+ESTIMATOR_BIASED_RAYMARCH = 5
+ESTIMATOR_POWER_SERIES = 6
+ESTIMATOR_UNBIASED_RAYMARCH = 7
+#: Biased ray marching's comb: points per majorant mean free path (ceil(this x sigma_maj L)).
+RAYMARCH_SAMPLES_PER_MFP = 1.0
 
 # --- Phase functions, cameras, lights ---------------------------------------------------------
 

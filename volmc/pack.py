@@ -1,34 +1,28 @@
-"""Pack a Scene into the parameter record, light array and grid every backend consumes."""
+"""Pack a Scene into the records and arrays every backend consumes: the parameter record,
+the light array, the medium record, the density grid and the majorant grid."""
 
 import math
+from collections import namedtuple
 
 import numpy as np
 
-from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, LIGHT_DIRECTIONAL, LIGHT_POINT,
+from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_CONSTANT, DENSITY_GRID,
+                        LIGHT_DIRECTIONAL, LIGHT_POINT, MAJORANT_GLOBAL, MAJORANT_GRID,
                         PHASE_HG, PHASE_ISOTROPIC)
-from .params import light_dtype, params_dtype
-from .reference import estimators as E
+from .params import light_dtype, medium_dtype, params_dtype
+from .techniques import ESTIMATORS
 from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
 
 def pack_majorant(scene, real=np.float64):
-    """(maxima, minima) density bounds per majorant cell [cz, cy, cx] for render.majorant =
-    "grid" with a density grid, else 1x1x1 arrays holding the global bounds."""
+    """(maxima, minima): per-cell density bounds [cz, cy, cx] of the majorant grid when the
+    scene has a density grid and render.majorant = "grid", else 1x1x1 placeholders (the
+    global bounds travel in the medium record)."""
     from .reference.majorant import build_majorant_grid
-    if scene.grid is None:
+    if scene.grid is None or scene.render.majorant != "grid":
         return np.zeros((1, 1, 1), real), np.zeros((1, 1, 1), real)
-    if scene.render.majorant != "grid":
-        return (np.full((1, 1, 1), scene.grid.max(), real),
-                np.full((1, 1, 1), scene.grid.min(), real))
     res = scene.render.majorant_resolution
     mx, mn = build_majorant_grid(scene.grid, tuple(reversed(res)) if res else None)
     return np.ascontiguousarray(mx, real), np.ascontiguousarray(mn, real)
-
-
-def medium_array(params):
-    """The extinction-source array (reference/extinction.py layout) of a packed grid scene."""
-    from .reference.extinction import make_grid_medium
-    p = params[0]
-    return make_grid_medium(tuple(p["bmin"]), tuple(p["bmax"]), float(p["scale"]))
 
 
 def _normalize(v):
@@ -47,7 +41,7 @@ def camera_basis(camera):
 
 
 def scene_frame(scene):
-    """Guard "scene frame" (HARD_CASES 11, 12): the frame every backend renders in.
+    """Guard "scene frame" (robustness case 11, 12): the frame every backend renders in.
 
     Returns (centre, unit): the centre of the medium box and a power of two close to its
     largest half-extent. Positions are packed as (x - centre) / unit (in float64, before any
@@ -63,21 +57,23 @@ def scene_frame(scene):
     return centre, 2.0 ** round(math.log2(half))
 
 
-def pack_scene(scene, real=np.float64, spp_seed=None):
-    """Return (params[1], lights[n], grid) for a Scene.
+#: A scene packed for a backend: the parameter record [1], the light array, the medium record
+#: [1], the density grid [nz, ny, nx] and the majorant grid's per-cell maxima and minima.
+Packed = namedtuple("Packed", ["params", "lights", "medium", "grid", "maj", "mnr"])
 
-    ``params`` is a one-element array of ``params_dtype(real)``; ``lights`` holds the
-    directional and point lights (environment lights are summed into params.env);
-    ``grid`` is a C-contiguous [z, y, x] array of ``real`` (a 1x1x1 dummy when homogeneous).
-    Positions and extinction are in the scene frame (``scene_frame``).
-    """
-    cam, med, rnd = scene.camera, scene.medium, scene.render
+
+def pack_scene(scene, real=np.float64, spp_seed=None):
+    """A ``Packed`` scene with reals of type ``real`` (float64: the reference; float32: the
+    kernels). Environment lights are summed into params.env; the light array holds the
+    directional and point lights; the grid is a C-contiguous [z, y, x] array (a 1x1x1
+    placeholder when homogeneous). Positions and extinction are in the scene frame
+    (``scene_frame``)."""
+    cam, rnd = scene.camera, scene.render
     centre, unit = scene_frame(scene)
 
     def local(x):
         return [(x[i] - centre[i]) / unit for i in range(3)]
 
-    sigma_scale = med.scale * unit
     p = np.zeros(1, params_dtype(real))[0]
     w, h = cam.resolution
     p["width"], p["height"] = w, h
@@ -91,25 +87,6 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
         p["cam_type"] = CAMERA_PERSPECTIVE
         p["half_height"] = math.tan(math.radians(cam.fov) * 0.5)
     p["aspect"] = w / h
-    lo, hi = local(med.bounds[0]), local(med.bounds[1])
-    p["bmin"], p["bmax"] = lo, hi
-    p["inv_extent"] = [1.0 / (hi[i] - lo[i]) for i in range(3)]
-    p["scale"] = sigma_scale
-    if scene.grid is None:
-        p["has_grid"] = 0
-        p["density"] = med.density.value
-        p["majorant"] = sigma_scale * med.density.value
-        grid = np.zeros((1, 1, 1), real)
-    else:
-        p["has_grid"] = 1
-        grid = np.ascontiguousarray(scene.grid, dtype=real)
-        # Trilinear interpolation never exceeds the largest voxel: a true global bound.
-        p["majorant"] = sigma_scale * float(scene.grid.max())
-        p["minorant"] = sigma_scale * float(scene.grid.min())
-        p["density"] = 0.0
-    p["albedo"] = med.albedo
-    p["phase_kind"] = PHASE_HG if med.phase.type == "hg" else PHASE_ISOTROPIC
-    p["g"] = med.phase.g
     env = [0.0, 0.0, 0.0]
     lights = []
     for lt in scene.lights:
@@ -129,19 +106,56 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["max_depth"] = rnd.max_depth
     p["rr_depth"] = rnd.rr_depth
     p["max_steps"] = rnd.max_steps
-    p["shadow_estimator"] = E.ESTIMATORS[rnd.transmittance][0]
-    if scene.grid is not None and rnd.majorant == "grid":
-        from .reference.majorant import auto_resolution
-        p["has_majorant_grid"] = 1
-        p["decomposition"] = int(rnd.free_flight == "decomposition")
-        res = rnd.majorant_resolution
-        p["maj_res"] = tuple(reversed(res)) if res else auto_resolution(scene.grid.shape)
-    else:
-        p["maj_res"] = (1, 1, 1)
-    p["signed_samples"] = int(rnd.transmittance in E.SIGNED and scene.grid is not None)
+    est = ESTIMATORS[rnd.transmittance]
+    p["shadow_estimator"] = est.id
+    p["decomposition"] = int(scene.grid is not None and rnd.majorant == "grid"
+                             and rnd.free_flight == "decomposition")
+    p["signed_samples"] = int(est.signed and scene.grid is not None)
     seed = rnd.seed if spp_seed is None else spp_seed
     p["seed_lo"] = seed & 0xFFFFFFFF
     p["seed_hi"] = seed >> 32
     params = np.zeros(1, params_dtype(real))
     params[0] = p
-    return params, larr, grid
+    medium, grid = pack_medium(scene, real, local, unit)
+    maj, mnr = pack_majorant(scene, real)
+    return Packed(params, larr, medium, grid, maj, mnr)
+
+
+def pack_medium(scene, real, local, unit):
+    """(medium record [1], density grid) of the scene's medium in the scene frame."""
+    med, rnd = scene.medium, scene.render
+    m = np.zeros(1, medium_dtype(real))[0]
+    lo, hi = local(med.bounds[0]), local(med.bounds[1])
+    m["bmin"], m["bmax"] = lo, hi
+    m["inv_extent"] = [1.0 / (hi[i] - lo[i]) for i in range(3)]
+    sigma_scale = med.scale * unit
+    m["scale"] = sigma_scale
+    m["maj_res"] = (1, 1, 1)
+    m["majorant_kind"] = MAJORANT_GLOBAL
+    if scene.grid is None:
+        m["density_kind"] = DENSITY_CONSTANT
+        m["density"] = med.density.value
+        m["dims"] = (1, 1, 1)
+        # In the backend's precision, so the bound is the product the kernels form.
+        sigma = real(m["scale"]) * real(m["density"])
+        m["sigma_maj"] = m["sigma_min"] = sigma
+        grid = np.zeros((1, 1, 1), real)
+    else:
+        m["density_kind"] = DENSITY_GRID
+        grid = np.ascontiguousarray(scene.grid, dtype=real)
+        nz, ny, nx = grid.shape
+        m["dims"] = (nx, ny, nz)
+        # Trilinear interpolation never exceeds the largest voxel: a true global bound.
+        m["sigma_maj"] = sigma_scale * float(scene.grid.max())
+        m["sigma_min"] = sigma_scale * float(scene.grid.min())
+        if rnd.majorant == "grid":
+            from .reference.majorant import auto_resolution
+            res = rnd.majorant_resolution
+            m["majorant_kind"] = MAJORANT_GRID
+            m["maj_res"] = tuple(reversed(res)) if res else auto_resolution(scene.grid.shape)
+    m["albedo"] = med.albedo
+    m["phase_kind"] = PHASE_HG if med.phase.type == "hg" else PHASE_ISOTROPIC
+    m["g"] = med.phase.g
+    medium = np.zeros(1, medium_dtype(real))
+    medium[0] = m
+    return medium, grid

@@ -7,7 +7,7 @@ field list (with ``np.float32`` reals), so the layout is never written twice by 
 Units: lengths in world units, extinction in 1/world unit, angles as cosines or tangents,
 radiance/irradiance/intensity in the scene's linear RGB units. "World" is the scene frame of
 ``pack.scene_frame``: the scene re-centred on the medium box and scaled by a power of two, so
-the kernels' float32 never sees coordinates far from the origin (HARD_CASES 11, 12).
+the kernels' float32 never sees coordinates far from the origin (robustness case 11, 12).
 """
 
 import numpy as np
@@ -23,22 +23,9 @@ PARAM_FIELDS = (
     ("up", "real", 3, "unit vector along the image's up direction (bottom to top)"),
     ("half_height", "real", 1, "tan(fov / 2) (perspective) or size / 2 (orthographic)"),
     ("aspect", "real", 1, "width / height"),
-    ("bmin", "real", 3, "medium box minimum corner"),
-    ("bmax", "real", 3, "medium box maximum corner"),
-    ("inv_extent", "real", 3, "1 / (bmax - bmin) per axis"),
-    ("has_grid", "i4", 1, "1: density from the grid buffer; 0: homogeneous"),
-    ("density", "real", 1, "homogeneous density (unused with a grid)"),
-    ("scale", "real", 1, "extinction = scale * density, 1/world unit"),
-    ("majorant", "real", 1, "global extinction majorant (scale * max density)"),
-    ("minorant", "real", 1, "global extinction minorant (scale * min density), the control"),
-    ("has_majorant_grid", "i4", 1, "1: per-cell majorants and minorants with a DDA walk"),
-    ("maj_res", "i4", 3, "majorant grid cells (cz, cy, cx)"),
-    ("decomposition", "i4", 1, "1: decomposition tracking (per-cell minorant as control)"),
-    ("shadow_estimator", "i4", 1, "transmittance estimator id of shadow rays in grids"),
+    ("decomposition", "i4", 1, "1: free flight uses each segment's minorant as its control"),
+    ("shadow_estimator", "i4", 1, "ESTIMATOR_* id of shadow rays (the kernels build it in)"),
     ("signed_samples", "i4", 1, "1 if samples may be negative (a signed shadow estimator)"),
-    ("albedo", "real", 3, "single-scattering albedo per channel"),
-    ("phase_kind", "i4", 1, "PHASE_ISOTROPIC or PHASE_HG"),
-    ("g", "real", 1, "Henyey-Greenstein asymmetry"),
     ("has_env", "i4", 1, "1 if an environment light is present"),
     ("env", "real", 3, "environment radiance (sum of all environment lights)"),
     ("n_lights", "i4", 1, "number of directional and point lights in the light array"),
@@ -47,6 +34,26 @@ PARAM_FIELDS = (
     ("max_steps", "i4", 1, "step cap per free-flight walk and per transmittance estimate"),
     ("seed_lo", "u4", 1, "low 32 bits of the seed"),
     ("seed_hi", "u4", 1, "high 32 bits of the seed"),
+)
+
+#: The medium record (volmc/reference/medium.py, kernels/medium.h): what is where, and what
+#: bounds it. Arrays travel beside it: the density grid and the per-cell majorant grid.
+MEDIUM_FIELDS = (
+    ("density_kind", "i4", 1, "DENSITY_CONSTANT, DENSITY_GRID or a 1-D test profile"),
+    ("majorant_kind", "i4", 1, "MAJORANT_GLOBAL (one segment) or MAJORANT_GRID (DDA cells)"),
+    ("bmin", "real", 3, "medium box minimum corner"),
+    ("bmax", "real", 3, "medium box maximum corner"),
+    ("inv_extent", "real", 3, "1 / (bmax - bmin) per axis"),
+    ("dims", "i4", 3, "DENSITY_GRID: voxels (nx, ny, nz)"),
+    ("density", "real", 1, "DENSITY_CONSTANT: the density"),
+    ("profile", "real", 5, "1-D profiles: a, b, c, s, L (density as a function of x)"),
+    ("scale", "real", 1, "extinction = scale * density, 1/world unit"),
+    ("sigma_maj", "real", 1, "MAJORANT_GLOBAL: extinction majorant of the whole medium"),
+    ("sigma_min", "real", 1, "MAJORANT_GLOBAL: extinction minorant (the control)"),
+    ("maj_res", "i4", 3, "MAJORANT_GRID: cells (cz, cy, cx)"),
+    ("albedo", "real", 3, "single-scattering albedo per channel"),
+    ("phase_kind", "i4", 1, "PHASE_ISOTROPIC or PHASE_HG"),
+    ("g", "real", 1, "Henyey-Greenstein asymmetry"),
 )
 
 LIGHT_FIELDS = (
@@ -79,6 +86,11 @@ def _dtype(fields, real):
 def params_dtype(real=np.float64):
     """Structured dtype of the parameter record with reals of type ``real``."""
     return _dtype(PARAM_FIELDS, real)
+
+
+def medium_dtype(real=np.float64):
+    """Structured dtype of the medium record with reals of type ``real``."""
+    return _dtype(MEDIUM_FIELDS, real)
 
 
 def light_dtype(real=np.float64):

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .backends import make_backend
 from .film import Film
 from .params import COUNTER_NAMES
 
@@ -32,20 +33,6 @@ def batch_schedule(n_pixels, spp):
         done += n
         size *= 2
     return out
-
-BACKENDS = ("opencl", "numba")
-
-
-def make_backend(name, scene, device=None):
-    """Instantiate a render backend by name ("opencl" on ``device``, or "numba")."""
-    if name == "numba":
-        from .reference.backend import NumbaBackend
-        return NumbaBackend(scene)
-    if name == "opencl":
-        from .cl.backend import OpenCLBackend
-        return OpenCLBackend(scene, device=device)
-    raise ValueError(f"unknown backend {name!r} (available: {', '.join(BACKENDS)})")
-
 
 @dataclass
 class RenderResult:

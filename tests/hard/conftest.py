@@ -1,4 +1,4 @@
-"""Every test under tests/hard is one of HARD_CASES.md's cases and carries the ``hard`` marker.
+"""Every test under tests/hard is one of docs/robustness.md's cases and carries the ``hard`` marker.
 
 ``pytest -m hard`` runs exactly this suite; plain ``pytest`` (the CI command) runs it too.
 """

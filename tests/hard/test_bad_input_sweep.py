@@ -3,7 +3,7 @@
 Random, mostly invalid scenes, grid files, TOML texts and command lines are fed to the
 loader and the CLI. Every input must either
 
-- load into a scene that is valid: it packs (``pack_scene`` and ``pack_majorant``, in
+- load into a scene that is valid: it packs (``pack_scene``, with its majorant grid, in
   float64 and float32) into finite parameters and a finite, non-negative float32 grid, and
   its resolved TOML round-trips; or
 - raise exactly ``SceneError`` whose one-line message names the file and the key (the key
@@ -38,7 +38,7 @@ from hypothesis import HealthCheck, assume, event, example, given, settings
 from hypothesis import strategies as st
 
 from volmc.cli import main as cli_main
-from volmc.pack import pack_majorant, pack_scene
+from volmc.pack import pack_scene
 from volmc.scene import SceneError, load_scene
 from volmc.scene.features import features
 from volmc.scene.grids import VOL_HEADER, load_grid
@@ -161,9 +161,8 @@ def assert_valid_scene(scene):
         assert np.all(np.isfinite(g)) and g.min() >= 0
     for real in (np.float64, np.float32):
         with np.errstate(over="ignore", invalid="ignore"):
-            params, lights, grid = pack_scene(scene, real)
-            maj, mnr = pack_majorant(scene, real)
-        for arr in (params, lights):
+            params, lights, medium, grid, maj, mnr = pack_scene(scene, real)
+        for arr in (params, lights, medium):
             for name in arr.dtype.names:
                 if arr.dtype[name].base.kind == "f":
                     assert np.all(np.isfinite(arr[name])), (real, name, arr[name])

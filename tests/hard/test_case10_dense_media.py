@@ -1,4 +1,4 @@
-"""HARD_CASES 10: extremely dense media (scale * density = 1e30; majorant optical depth 1e6).
+"""robustness case 10: extremely dense media (scale * density = 1e30; majorant optical depth 1e6).
 
 Guards exercised: "transmittance roulette" (estimators.py / estimators.h and the per-segment
 product in shadow_transmittance), the step cap (counted in ``capped``), "entry re-basing"
@@ -14,8 +14,8 @@ import pytest
 from stats import ALPHA, z_bound
 from volmc.bench.transmittance_runner import OpenCLEstimator, run_numba
 from volmc.params import C_CAPPED, C_LOOKUPS
-from volmc.reference import extinction as X
-from volmc.reference.estimators import TR_RR_THRESHOLD
+from volmc.reference import medium as X
+from volmc.constants import TR_RR_THRESHOLD
 from volmc.render import mean_and_stderr, render
 from volmc.scene import scene_from_dict
 
@@ -39,20 +39,20 @@ def _estimate(backend, name, med, L, mbar, mu_c, n, seed):
 # (estimator, profile, L, mbar, mu_c, lookups without roulette)
 ROULETTE_CASES = [
     # T = e^-10 under a majorant twice the extinction: every walk falls below the threshold.
-    ("ratio", X.make_profile(X.MED_CONSTANT, 5.0), 2.0, 10.0, 0.0, 20.0),
-    ("next_flight", X.make_profile(X.MED_CONSTANT, 5.0), 2.0, 10.0, 0.0, 20.0),
-    ("residual_ratio", X.make_profile(X.MED_CONSTANT, 5.0), 2.0, 10.0, 1.0, 18.0),
+    ("ratio", X.make_profile(X.DENSITY_CONSTANT, 5.0), 2.0, 10.0, 0.0, 20.0),
+    ("next_flight", X.make_profile(X.DENSITY_CONSTANT, 5.0), 2.0, 10.0, 0.0, 20.0),
+    ("residual_ratio", X.make_profile(X.DENSITY_CONSTANT, 5.0), 2.0, 10.0, 1.0, 18.0),
     # T = e^-8, near the threshold, on a ramp: roulette decides in part of the walks (the
     # mean is what is checked there).
-    ("ratio", X.make_profile(X.MED_RAMP, 2.0, 14.0, L=1.0), 1.0, 28.0, 0.0, None),
-    ("next_flight", X.make_profile(X.MED_RAMP, 2.0, 14.0, L=1.0), 1.0, 28.0, 0.0, None),
-    ("residual_ratio", X.make_profile(X.MED_RAMP, 2.0, 14.0, L=1.0), 1.0, 28.0, 2.0, None),
+    ("ratio", X.make_profile(X.DENSITY_RAMP, 2.0, 14.0, L=1.0), 1.0, 28.0, 0.0, None),
+    ("next_flight", X.make_profile(X.DENSITY_RAMP, 2.0, 14.0, L=1.0), 1.0, 28.0, 0.0, None),
+    ("residual_ratio", X.make_profile(X.DENSITY_RAMP, 2.0, 14.0, L=1.0), 1.0, 28.0, 2.0, None),
 ]
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case10_transmittance_roulette_is_unbiased_and_cheap(backend):
-    """HARD_CASES 10, estimator level: ratio, next-flight and residual ratio tracking end their
+    """robustness case 10, estimator level: ratio, next-flight and residual ratio tracking end their
     walks by Russian roulette once the running transmittance is below TR_RR_THRESHOLD. The
     mean stays exp(-tau) (Sidak z-test against the closed form) while the mean lookup count
     falls well below the roulette-free expectation (majorant optical depth); at a majorant
@@ -71,7 +71,7 @@ def test_case10_transmittance_roulette_is_unbiased_and_cheap(backend):
         assert cnt[:, C_CAPPED].sum() == 0
     # Majorant optical depth 1e6 (extinction 5e5 under a majorant 1e6 over unit length).
     for k, name in enumerate(("ratio", "next_flight", "residual_ratio")):
-        med = X.make_profile(X.MED_CONSTANT, 5e5)
+        med = X.make_profile(X.DENSITY_CONSTANT, 5e5)
         est, cnt = _estimate(backend, name, med, 1.0, 1e6, 1.0, 2000, seed=200 + k)
         assert np.all(np.isfinite(est)) and est.min() >= 0.0
         assert est.max() <= TR_RR_THRESHOLD * 1.0001   # e^-5e5 = 0: nothing large survives
@@ -104,7 +104,7 @@ def _sane(res):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case10_dense_media_render(backend, tmp_path):
-    """HARD_CASES 10, image level, on both backends:
+    """robustness case 10, image level, on both backends:
 
     * white furnace (albedo 1, environment L, unbounded depth) at extinction 1e30, homogeneous,
       as a constant grid and as a random grid: every pixel equals L (per-pixel z-test and

@@ -1,4 +1,4 @@
-"""HARD_CASES 11: the same scene translated 1e5 and 1e7 units from the origin renders the same
+"""robustness case 11: the same scene translated 1e5 and 1e7 units from the origin renders the same
 image; float32 distance accumulation must not stall (at t = 1e5 with majorant 1e3, t + dt == t).
 
 Guards exercised:
@@ -10,7 +10,7 @@ Guards exercised:
   the translation is removed exactly, so the image agrees statistically with the origin one.
 * "entry re-basing" (enter_box, integrator.py / integrator.cl): a ray entering the box from
   far away restarts at the entry point, so tracking distances stay local to the box.
-* "local distances" (estimators, free_flight_delta, free_flight_grid): every tracking loop
+* "local distances" (the tracking loop and the per-segment estimators): every tracking loop
   accumulates the distance from the segment start, so a segment starting at t0 = 1e5 with a
   majorant of 1e3 does not stall.
 """
@@ -19,16 +19,14 @@ import math
 
 import numpy as np
 import pytest
-from numba import njit
 
-import cl_harness as H
 from stats import ALPHA, z_bound
 from volmc.bench import transmittance_runner as TR
 from volmc.check import compare_images
-from volmc.params import C_CAPPED, C_LOOKUPS, N_COUNTERS
-from volmc.reference import extinction as X
-from volmc.reference.rng import STREAM_TEST, rng_new
-from volmc.reference.transmittance import EVENT_SCATTER, free_flight_delta
+from tracking_runs import grid_media, walks
+from volmc.constants import DENSITY_CONSTANT, TRACK_FREE_FLIGHT
+from volmc.params import C_CAPPED, C_LOOKUPS
+from volmc.reference import medium as X
 from volmc.render import render
 from volmc.scene import scene_from_dict
 
@@ -60,7 +58,7 @@ def _two_sample_ok(a, b, m_tests):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case11_translated_scene_renders_the_same_image(backend, tmp_path):
-    """HARD_CASES 11: a heterogeneous scene with every light type (environment, directional,
+    """robustness case 11: a heterogeneous scene with every light type (environment, directional,
     point), an off-centre box and an HG phase renders, translated by 1e5 and by 1e7 along
     (1, 0.5, -0.75), the same image as at the origin: per-pixel two-sample z-tests with both
     variances (independent seeds) and image means, Sidak over both translations; nothing
@@ -93,7 +91,7 @@ def test_case11_translated_scene_renders_the_same_image(backend, tmp_path):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case11_far_camera_does_not_stall(backend, tmp_path):
-    """HARD_CASES 11, rays that travel 1e5 before the medium: a perspective camera 1e5 units
+    """robustness case 11, rays that travel 1e5 before the medium: a perspective camera 1e5 units
     from a grid whose global majorant is 1e3 (mean extinction about 2) sees the same image as
     an orthographic camera 4 units away framing the same square (at 1e5 the perspective rays
     are parallel to 1e-5). Without local distances delta tracking from t0 = 1e5 stalls
@@ -132,33 +130,18 @@ def test_case11_far_camera_does_not_stall(backend, tmp_path):
 FAR_T0, FAR_T1, FAR_MBAR, FAR_STEPS = 1e5 - 1.0, 1e5 + 1.0, 1e3, 20000
 FAR_RAY = np.array([[0, 0, 0, 1, 0, 0, FAR_T0, FAR_T1, 0]], np.float64)
 FAR_BMIN, FAR_BMAX = (1e5 - 1.0, -1.0, -1.0), (1e5 + 1.0, 1.0, 1.0)
-FAR_INV = tuple(1.0 / (b - a) for a, b in zip(FAR_BMIN, FAR_BMAX))
-
-
-@njit(cache=True)
-def _ref_free_flights(grid, n, seed):
-    out = np.empty(n)
-    capped = 0
-    for i in range(n):
-        rng = rng_new(seed, 0, i, STREAM_TEST)
-        cnt = np.zeros(N_COUNTERS, np.int64)
-        ev, t = free_flight_delta(grid, FAR_BMIN, FAR_INV, 1.0, FAR_MBAR, (0.0, 0.0, 0.0),
-                                  (1.0, 0.0, 0.0), FAR_T0, FAR_T1, rng, cnt, FAR_STEPS)
-        out[i] = t if ev == EVENT_SCATTER else -1.0
-        capped += cnt[2]
-    return out, capped
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case11_tracking_far_along_the_ray(backend, monkeypatch):
-    """HARD_CASES 11, function level: ratio tracking and track-length estimation over
+    """robustness case 11, function level: ratio tracking and track-length estimation over
     [1e5 - 1, 1e5 + 1] with extinction 1 and majorant 1e3 give T = e^-2 (Sidak z-test), with
     Poisson(2000) lookups for ratio tracking and no capped walk; delta-tracking free flight
     over a unit grid there collides with probability 1 - e^-2 (binomial z-test) and every
     collision lies in the segment."""
     monkeypatch.setattr(TR, "MAX_STEPS", FAR_STEPS)
     bound = z_bound(ALPHA, 4)
-    med = X.make_profile(X.MED_CONSTANT, 1.0)
+    med = X.make_profile(DENSITY_CONSTANT, 1.0)
     bounds = np.array([[FAR_MBAR, 0.0]])
     n = 3000
     for name in ("ratio", "track_length"):
@@ -175,19 +158,9 @@ def test_case11_tracking_far_along_the_ray(backend, monkeypatch):
             assert abs(lk - 2000.0) < bound * math.sqrt(2000.0 / n), lk
     grid = np.ones((2, 2, 2))
     n = 4000
-    if backend == "numba":
-        t, capped = _ref_free_flights(grid, n, 9)
-    else:
-        t, lk = H.out_buf(n)
-        lkh, lkb = H.out_buf(n, np.uint64)
-        H.run("t_tracking", n, np.int32(2), H.to_dev(X.make_profile(X.MED_CONSTANT, 0.0)
-                                                     .astype(np.float32)),
-              H.to_dev(grid.astype(np.float32)), H.i3((2, 2, 2)), H.f3(FAR_BMIN), H.f3(FAR_INV),
-              np.float32(1.0), np.float32(FAR_MBAR), H.to_dev(FAR_RAY.astype(np.float32).ravel()),
-              np.int32(n), np.uint64(9), np.int32(FAR_STEPS), lk, lkb,
-              outs=[(t, lk), (lkh, lkb)])
-        t = t.astype(np.float64)
-        capped = int(np.sum(lkh >= FAR_STEPS))
+    media = grid_media(FAR_BMIN, FAR_BMAX, 1.0, grid, 1, sigma_maj=FAR_MBAR)
+    t, _, _ = walks(backend, TRACK_FREE_FLIGHT, False, media, grid, FAR_RAY, n, 9, FAR_STEPS)
+    capped = int(np.sum(t == -2.0))
     assert capped == 0
     hit = t >= 0
     p = 1 - math.exp(-2.0)

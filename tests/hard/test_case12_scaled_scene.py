@@ -1,4 +1,4 @@
-"""HARD_CASES 12: the scene scaled by s in {1e-4, 1e4} about the origin, with extinction scaled
+"""robustness case 12: the scene scaled by s in {1e-4, 1e4} about the origin, with extinction scaled
 by 1 / s, renders the same image.
 
 Radiance is invariant under this change for environment and directional lights; a point light
@@ -40,7 +40,7 @@ def _scaled(raw, s):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case12_scaled_scene_renders_the_same_image(backend, tmp_path):
-    """HARD_CASES 12 on both backends:
+    """robustness case 12 on both backends:
 
     * a heterogeneous grid scene with environment, directional and point lights, HG phase and
       an off-centre box, scaled by 1e-4 and 1e4: per-pixel two-sample z-tests (both

@@ -1,4 +1,4 @@
-"""HARD_CASES 13: camera inside the medium, rays starting on a box face, grazing rays, boxes of
+"""robustness case 13: camera inside the medium, rays starting on a box face, grazing rays, boxes of
 (nearly) zero thickness and a light inside the medium, each against an exact answer on both
 backends (a camera inside the medium renders black in at least one well-known renderer).
 
@@ -173,9 +173,9 @@ def _thin_and_zero_thickness(backend, tmp_path):
     # extent inf), sees no medium: every pixel is exactly L, nothing NaN, nothing dropped.
     scene = scene_from_dict(raw)
     be = make_backend(backend, scene)
-    p = be.params[0]
-    p["bmax"][2] = p["bmin"][2]
-    p["inv_extent"][2] = np.inf
+    m = (be.packed if backend == "numba" else be).medium[0]
+    m["bmax"][2] = m["bmin"][2]
+    m["inv_extent"][2] = np.inf
     res = render(scene, backend=be, progress=False)
     exact_L = L if backend == "numba" else float(np.float32(L))
     assert np.allclose(res.film.mean(), exact_L, rtol=1e-12, atol=0), res.film.mean()[..., 0]
@@ -217,7 +217,7 @@ def _light_inside(backend, tmp_path):
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("situation", SITUATIONS)
 def test_case13_inside_faces_grazing_thin(situation, backend, tmp_path):
-    """HARD_CASES 13 on both backends, each situation against an exact answer (per-pixel
+    """robustness case 13 on both backends, each situation against an exact answer (per-pixel
     z-tests, Sidak over the pixels and channels; exact equality where every sample is exact):
 
     * camera_inside_absorber: perspective camera at the centre of a homogeneous absorber and

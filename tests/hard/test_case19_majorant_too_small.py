@@ -1,4 +1,4 @@
-"""HARD_CASES 19: a majorant that is too small (the density changed after the majorant was
+"""robustness case 19: a majorant that is too small (the density changed after the majorant was
 built) is detected, never a silent bias.
 
 volmc builds every majorant from the grid when a backend is created, so a scene file cannot
@@ -34,19 +34,18 @@ def _raw(grid_path, majorant):
 def _edit_grid_in_place(be, factor):
     """Scale the density a built backend renders, leaving its majorants as they were."""
     if be.name == "numba":
-        be.grid *= factor
+        be.packed.grid[...] *= factor
     else:
-        import pyopencl as cl
         g = np.empty(be.grid_buf.size // 4, np.float32)
-        cl.enqueue_copy(be.queue, g, be.grid_buf)
-        cl.enqueue_copy(be.queue, be.grid_buf, g * np.float32(factor))
-        be.queue.finish()
+        be.clc.read(g, be.grid_buf)
+        be.clc.cl.enqueue_copy(be.clc.queue, be.grid_buf, g * np.float32(factor))
+        be.clc.queue.finish()
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("majorant", ["global", "grid"])
 def test_case19_density_edited_after_the_majorant_is_reported(backend, majorant, tmp_path):
-    """HARD_CASES 19, both backends, global and grid majorants: the same scene renders with
+    """robustness case 19, both backends, global and grid majorants: the same scene renders with
     over_majorant == 0; with the grid scaled by 3 in place after the backend (and so the
     majorant) was built, over_majorant > 0 and the count appears in stats() and, written and
     read back, in the EXR metadata."""
@@ -68,12 +67,11 @@ def test_case19_density_edited_after_the_majorant_is_reported(backend, majorant,
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case19_cli_reports_over_majorant(backend, tmp_path, monkeypatch, capsys):
-    """HARD_CASES 19 through the command line: with majorant cells built too small (half the
-    true bound, patched into both backends' pack_majorant), ``volmc render --stats`` prints a
+    """robustness case 19 through the command line: with majorant cells built too small (half the
+    true bound, patched into volmc.pack.pack_majorant, which both backends use), ``volmc render --stats`` prints a
     positive lookups_over_majorant, warns on stderr, and the EXR carries the count; the same
     render with correct majorants prints 0 and no warning."""
-    import volmc.cl.backend as clb
-    import volmc.reference.backend as nbb
+    import volmc.pack
     from volmc.pack import pack_majorant
     from volmc.scene.serialize import to_toml
 
@@ -99,8 +97,7 @@ def test_case19_cli_reports_over_majorant(backend, tmp_path, monkeypatch, capsys
     def too_small(scene, real=np.float64):
         mx, mn = pack_majorant(scene, real)
         return mx * real(0.5), mn * real(0.5)
-    monkeypatch.setattr(clb, "pack_majorant", too_small)
-    monkeypatch.setattr(nbb, "pack_majorant", too_small)
+    monkeypatch.setattr(volmc.pack, "pack_majorant", too_small)
     count, err, meta = run("bad")
     assert count > 0
     assert f"volmc: warning: {count} density lookups exceeded the majorant" in err

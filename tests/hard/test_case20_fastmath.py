@@ -1,4 +1,4 @@
-"""HARD_CASES 20: with and without -cl-fast-relaxed-math (OpenCL) and fastmath=True (Numba),
+"""robustness case 20: with and without -cl-fast-relaxed-math (OpenCL) and fastmath=True (Numba),
 the NaN/Inf guard still drops and counts bad samples.
 
 Finite-math-only lets a compiler assume no NaN or Inf exists and fold isnan/isinf/isfinite to
@@ -15,8 +15,8 @@ import pytest
 from numba import njit
 
 from volmc.bench.fastmath import FAST_MATH
-from volmc.cl.backend import OpenCLBackend
-from volmc.reference.backend import NumbaBackend
+from volmc.backends.opencl import OpenCLBackend
+from volmc.backends.numba import NumbaBackend
 from volmc.reference.guards import sample_ok
 from volmc.reference.integrator import render_pixel
 from volmc.render import render
@@ -54,7 +54,7 @@ def _samples():
 
 @pytest.mark.parametrize("options", [(), (FAST_MATH,)], ids=["default", "fast-relaxed-math"])
 def test_case20_opencl_guard_survives_fast_math(options):
-    """HARD_CASES 20, OpenCL: sample_ok (kernels/guards.h) built with and without
+    """robustness case 20, OpenCL: sample_ok (kernels/guards.h) built with and without
     -cl-fast-relaxed-math rejects NaN, +-Inf and negative channels (unless signed) and keeps
     zeros, -0.0, subnormals and the largest finite values; then whole renders with NaN, +Inf
     and negative environment radiance drop and count every sample (image 0, finite), and a
@@ -100,7 +100,7 @@ def _check_furnace(res):
 
 
 def test_case20_numba_guard_survives_fastmath():
-    """HARD_CASES 20, Numba: the reference guard compiled with fastmath=True (directly, and
+    """robustness case 20, Numba: the reference guard compiled with fastmath=True (directly, and
     inlined into a fastmath=True render_pixel, the function that applies it) drops and counts
     NaN, +Inf and negative samples exactly like the normal build; the fastmath render of a
     white furnace still equals L."""
@@ -118,14 +118,15 @@ def test_case20_numba_guard_survives_fastmath():
         q = np.zeros((h, w, 3))
         cnt = np.zeros((w * h, be.counters.shape[1]), np.int64)
         for pix in range(w * h):
-            fm_pixel(be.params, be.lights, be.med, be.grid, be.maj_max, be.maj_min, pix, 0, spp,
+            pk = be.packed
+            fm_pixel(pk.params, pk.lights, pk.medium, pk.grid, pk.maj, pk.mnr, pix, 0, spp,
                      s, q, cnt)
         return s / spp, q, cnt.sum(axis=0)
 
     from volmc.params import C_DROPPED
     for env in ([math.nan] * 3, [math.inf, 1.0, 1.0], [1.0, -1.0, 1.0]):
         be = NumbaBackend(scene_from_dict(_furnace()))
-        be.params[0]["env"] = env
+        be.packed.params[0]["env"] = env
         mean, _, cnt = run(be, 8)
         assert cnt[C_DROPPED] == 8 * 16, (env, cnt)
         assert np.all(mean == 0.0)

@@ -1,8 +1,8 @@
-"""HARD_CASES 6, 8 and 9: degenerate rays through majorant grids, empty and single-voxel
+"""robustness case 6, 8 and 9: degenerate rays through majorant grids, empty and single-voxel
 grids, and grid files holding NaN, infinities or negative values.
 
-Function-level checks run the OpenCL twins through kernels/testing.cl (t_dda, t_tracking,
-t_free_flight_grid; float32) and the Numba reference functions (float64) on the same rays
+Function-level checks run the OpenCL twins through kernels/testing.cl (t_dda, t_track;
+float32) and the Numba reference functions (float64) on the same rays
 and Philox streams. Image-level checks render tiny scenes on both backends.
 """
 
@@ -13,20 +13,18 @@ import sys
 
 import numpy as np
 import pytest
-from numba import njit
 
 from cl_harness import f3, i3, out_buf, run, to_dev
 from stats import ALPHA, chi2_pvalue, sidak, z_bound
-from test_kernels import _ref_tracking
 from test_dda import clip as dda_clip
-from volmc.bench.transmittance_runner import ESTIMATORS, OpenCLEstimator, run_numba
-from volmc.params import C_LOOKUPS, N_COUNTERS
+from tracking_runs import grid_media, walks
+from volmc.bench.transmittance_runner import OpenCLEstimator, run_numba
+from volmc.constants import TRACK_FREE_FLIGHT, TRACK_RATIO
+from volmc.params import C_LOOKUPS
 from volmc.reference.dda import dda_segments
-from volmc.reference.extinction import make_grid_medium
 from volmc.reference.majorant import build_majorant_grid, cell_of
 from volmc.reference.optical_depth import optical_depth_exact
-from volmc.reference.rng import STREAM_TEST, rng_new
-from volmc.reference.transmittance import EVENT_CAPPED, EVENT_SCATTER, free_flight_grid
+from volmc.techniques import ESTIMATORS
 from volmc.render import render
 from volmc.scene import SceneError, load_scene, scene_from_dict
 from volmc.scene.grids import write_vol
@@ -56,44 +54,14 @@ def ray_rows(rays):
     return np.array(rows)
 
 
-@njit(cache=True)
-def _ref_free_flight_grid(grid, scale, maj, mnr, use_control, bmin, bmax, rays, n_per_ray,
-                          seed, max_steps):
-    """Twin of the t_free_flight_grid test kernel: distance, -1 (escape) or -2 (capped)."""
-    n = rays.shape[0] * n_per_ray
-    out = np.empty(n)
-    lookups = np.empty(n, np.int64)
-    inv = (1.0 / (bmax[0] - bmin[0]), 1.0 / (bmax[1] - bmin[1]), 1.0 / (bmax[2] - bmin[2]))
-    for i in range(n):
-        r = i // n_per_ray
-        o = (rays[r, 0], rays[r, 1], rays[r, 2])
-        d = (rays[r, 3], rays[r, 4], rays[r, 5])
-        rng = rng_new(seed, r, i % n_per_ray, STREAM_TEST)
-        cnt = np.zeros(N_COUNTERS, np.int64)
-        ev, t = free_flight_grid(grid, bmin, bmax, inv, scale, maj, mnr, use_control, o, d,
-                                 rays[r, 6], rays[r, 7], rng, cnt, max_steps)
-        out[i] = t if ev == EVENT_SCATTER else (-2.0 if ev == EVENT_CAPPED else -1.0)
-        lookups[i] = cnt[C_LOOKUPS]
-    return out, lookups
-
-
 def free_flights(backend, grid, scale, res, rays, n_per_ray, seed):
     """(distances or -1 / -2, lookups) of n_per_ray delta-tracking walks per ray over the
     majorant grid of resolution res (cz, cy, cx)."""
     maj, mnr = build_majorant_grid(grid, res)
-    if backend == "numba":
-        return _ref_free_flight_grid(grid.astype(np.float64), scale, maj.astype(np.float64),
-                                     mnr.astype(np.float64), False, tuple(BMIN), tuple(BMAX),
-                                     rays, n_per_ray, seed, MAX_STEPS)
-    n = len(rays) * n_per_ray
-    out, ob = out_buf(n)
-    lk, lb = out_buf(n, np.uint64)
-    nz, ny, nx = grid.shape
-    run("t_free_flight_grid", n, to_dev(grid.astype(np.float32)), i3((nx, ny, nz)), f3(BMIN),
-        f3(BMAX), f3(INV_EXT), np.float32(scale), to_dev(maj), to_dev(mnr), np.int32(0),
-        i3(res), to_dev(rays.astype(np.float32).ravel()), np.int32(n_per_ray),
-        np.uint64(seed), np.int32(MAX_STEPS), ob, lb, outs=[(out, ob), (lk, lb)])
-    return out.astype(np.float64), lk.astype(np.int64)
+    media = grid_media(BMIN, BMAX, scale, grid, len(rays), maj_res=res)
+    t, _, lk = walks(backend, TRACK_FREE_FLIGHT, False, media, grid, rays, n_per_ray, seed,
+                     MAX_STEPS, maj, mnr)
+    return t, lk
 
 
 def dda_walks(backend, rays, res, max_segments=64):
@@ -162,7 +130,7 @@ def _case6_grid():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case06_dda_degenerate_rays_never_stall_or_skip(backend):
-    """HARD_CASES 6: for axis-parallel rays, rays with -0.0 components, rays starting on box
+    """robustness case 6: for axis-parallel rays, rays with -0.0 components, rays starting on box
     faces, corners and voxel faces, and rays lying in faces or edges, over majorant grids of
     8^3, 4^3 and 3 x 5 x 2 cells: the DDA segments tile [t0, t1] exactly (first enters at
     t0, last exits at t1, each starts where the previous ended, none backwards), the walk
@@ -202,7 +170,7 @@ def test_case06_dda_degenerate_rays_never_stall_or_skip(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case06_degenerate_rays_same_optical_depth_as_perturbed(backend):
-    """HARD_CASES 6: along each degenerate ray and along the same ray perturbed by 1e-5, delta
+    """robustness case 6: along each degenerate ray and along the same ray perturbed by 1e-5, delta
     tracking over the 8^3 majorant grid (cell faces = voxel faces) gives collision distances
     that pass a chi-square test against the exact CDF 1 - exp(-tau(t)), and ratio tracking
     with the global majorant gives a mean transmittance within the bound of exp(-tau): the
@@ -226,18 +194,8 @@ def test_case06_degenerate_rays_same_optical_depth_as_perturbed(backend):
     zb = z_bound(ALPHA, 2 * len(rays))
     t, lk = free_flights(backend, grid, scale, res, rays, n, seed=62)
     mbar = float(np.float32(scale * grid.max()))
-    med = make_grid_medium(tuple(BMIN), tuple(BMAX), scale)
-    if backend == "numba":
-        T, _ = _ref_tracking(0, med, grid, scale, mbar, rays, 4000, 63, MAX_STEPS)
-    else:
-        T, tb = out_buf(len(rays) * 4000)
-        lk2, lb = out_buf(len(rays) * 4000, np.uint64)
-        run("t_tracking", len(rays) * 4000, np.int32(0), to_dev(med.astype(np.float32)),
-            to_dev(grid.astype(np.float32)), i3((8, 8, 8)), f3(BMIN), f3(INV_EXT),
-            np.float32(scale), np.float32(mbar), to_dev(rays.astype(np.float32).ravel()),
-            np.int32(4000), np.uint64(63), np.int32(MAX_STEPS), tb, lb,
-            outs=[(T, tb), (lk2, lb)])
-        T = T.astype(np.float64)
+    media = grid_media(BMIN, BMAX, scale, grid, len(rays), sigma_maj=mbar)
+    _, T, _ = walks(backend, TRACK_RATIO, False, media, grid, rays, 4000, 63, MAX_STEPS)
     assert np.all(t != -2.0), "a free flight was capped"
     assert np.all(np.isfinite(T)) and T.min() >= 0.0 and T.max() <= 1.0
     fails = []
@@ -262,7 +220,7 @@ def _estimate(backend, name, med, grid, rays, bounds, n):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case08_all_zero_grid_functions(backend):
-    """HARD_CASES 8, function level: in an all-zero grid every majorant cell is empty, so
+    """robustness case 8, function level: in an all-zero grid every majorant cell is empty, so
     delta tracking over the majorant grid escapes every walk with zero lookups, and every
     transmittance estimator of the registry given the (zero) majorant returns exactly 1 with
     zero lookups, for axis-parallel, degenerate and oblique rays."""
@@ -270,7 +228,7 @@ def test_case08_all_zero_grid_functions(backend):
     rays = ray_rows(list(DEGENERATE_RAYS.values()) + [((-0.9, -0.8, -0.7), (0.48, 0.6, 0.64))])
     t, lk = free_flights(backend, grid, 2.0, (4, 4, 4), rays, 64, seed=80)
     assert np.all(t == -1.0) and np.all(lk == 0)
-    med = make_grid_medium(tuple(BMIN), tuple(BMAX), 2.0)
+    med = grid_media(BMIN, BMAX, 2.0, grid, 1)
     for name in ESTIMATORS:
         est, cnt = _estimate(backend, name, med, grid, rays, np.zeros((len(rays), 2)), 16)
         assert np.all(est == 1.0), f"{name}: {est[est != 1.0][:4]}"
@@ -294,7 +252,7 @@ def _box_scene(density, albedo, resolution=(8, 8), camera=None, **render_keys):
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("majorant", ["grid", "global"])
 def test_case08_all_zero_grid_render(tmp_path, backend, majorant):
-    """HARD_CASES 8, image level: an all-zero grid (16^3) renders exactly the environment L
+    """robustness case 8, image level: an all-zero grid (16^3) renders exactly the environment L
     in every pixel, with zero density lookups and zero scattering events, both through the
     transmittance path (albedo 0, orthographic camera filled by the box) and the scattering
     path (albedo 0.9, with a sun that must cast nothing; a perspective camera sees the box
@@ -331,7 +289,7 @@ def _voxel_centre():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case08_single_voxel_free_flight(backend):
-    """HARD_CASES 8, function level: a 16^3 grid that is zero except one voxel. Rays through
+    """robustness case 8, function level: a 16^3 grid that is zero except one voxel. Rays through
     the voxel (axis-parallel through its centre, oblique, and grazing the edge of its
     trilinear support) give collision distances that pass the chi-square test against the
     exact CDF: the voxel is not missed. Rays that cross only empty majorant cells escape
@@ -391,7 +349,7 @@ def _single_voxel_expected(grid, scale, L, n_pix):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case08_single_voxel_render(tmp_path, backend):
-    """HARD_CASES 8, image level: an absorbing (albedo 0) 16^3 grid, zero except one voxel
+    """robustness case 8, image level: an absorbing (albedo 0) 16^3 grid, zero except one voxel
     (optical depth 3 through its centre) whose support straddles majorant cell faces on
     every axis, seen by an orthographic camera with one pixel per voxel: every pixel
     matches L times the exact transmittance averaged over the pixel (per-pixel z-test,
@@ -447,7 +405,7 @@ def _write_bad_grid(path, values):
 
 @pytest.mark.parametrize("suffix", [".npy", ".npz", ".vol"])
 def test_case09_bad_grid_files_rejected_at_load(tmp_path, suffix):
-    """HARD_CASES 9: grid files (.npy, .npz, Mitsuba .vol) holding NaN, +Inf, -Inf or
+    """robustness case 9: grid files (.npy, .npz, Mitsuba .vol) holding NaN, +Inf, -Inf or
     negative voxels are rejected when the scene loads: SceneError whose one-line message is
     exactly ``<grid file>: medium.density: <what, with the count of bad voxels>``, and the
     CLI (`volmc render`, with each backend) prints exactly

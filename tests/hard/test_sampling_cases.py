@@ -1,4 +1,4 @@
-"""HARD_CASES 1-3: Henyey-Greenstein sampling and uniform random numbers, on both backends.
+"""robustness case 1-3: Henyey-Greenstein sampling and uniform random numbers, on both backends.
 
 Every test runs the OpenCL twin (kernels/testing.cl through tests/cl_harness.py, float32)
 and the Numba reference (float64) on the same uniforms (both backends draw bit-identical
@@ -63,7 +63,7 @@ def hg_survival(dirs, axis, g):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case01_hg_chi_square_and_mean_cosine(backend):
-    """HARD_CASES 1: HG sampling at g in {0, +-1e-6, +-1e-4, +-1e-3, +-0.6, +-0.9, +-0.99,
+    """robustness case 1: HG sampling at g in {0, +-1e-6, +-1e-4, +-1e-3, +-0.6, +-0.9, +-0.99,
     +-0.999} passes a chi-square test over (HG CDF of cos, phi) cells with equal expectations
     (40 x 20 cells, 10^6 samples), and the sample mean of cos equals g within the Sidak bound.
     Sidak over 2 hypotheses per g."""
@@ -91,7 +91,7 @@ def test_case01_hg_chi_square_and_mean_cosine(backend):
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("g", [0.95, -0.95])
 def test_case01_hg_forward_backward_ratio(backend, g):
-    """HARD_CASES 1: at g = +-0.95 the fraction of forward samples (cos > 0) equals the
+    """robustness case 1: at g = +-0.95 the fraction of forward samples (cos > 0) equals the
     closed-form S(0) = (1 + g) / ((sqrt(1 + g^2) + 1 - g) sqrt(1 + g^2)) (0.989 at g = 0.95,
     0.011 at -0.95), so the forward/backward ratio is right and a sign slip at negative g,
     which swaps the two, fails by hundreds of standard errors."""
@@ -122,7 +122,7 @@ def _hg_exact(c, s, g):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case02_hg_extreme_g_and_u(backend):
-    """HARD_CASES 2: g in {+-0.9999, +-(1 - 2^-24)} (and tiny g +-1e-6, +-1e-12, where a
+    """robustness case 2: g in {+-0.9999, +-(1 - 2^-24)} (and tiny g +-1e-6, +-1e-12, where a
     naive inversion divides by g) with u in {0, 2^-24, 0.5, 1 - 2^-24}: cos in [-1, 1],
     sin in [0, 1], cos^2 + sin^2 = 1; the direction is finite and unit, at angle (cos, sin)
     from the incoming direction; the pdf is finite, positive and equals the phase function
@@ -183,7 +183,7 @@ def _kernel_exponential(u, a):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case03_uniforms_never_one(backend):
-    """HARD_CASES 3: uniforms are never exactly 1.0, even for the largest Philox word (where
+    """robustness case 3: uniforms are never exactly 1.0, even for the largest Philox word (where
     uint32 * 2^-32 rounds to 1.0 in float32): that draw gives 1 - 2^-24 and a finite
     exponential distance 24 ln 2 / a; 2^20 draws of each of 4 streams lie in [0, 1)."""
     assert np.float32(MAX_WORD) * np.float32(2.0**-32) == np.float32(1.0)   # the hard input
@@ -206,7 +206,7 @@ def test_case03_uniforms_never_one(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case03_exponential_distances_ks(backend):
-    """HARD_CASES 3: exponential distances -log(1 - u) / a from the generator's uniforms pass
+    """robustness case 3: exponential distances -log(1 - u) / a from the generator's uniforms pass
     a Kolmogorov-Smirnov test against Exp(a) at rates a in {1e-3, 2.5, 1e3} (2 * 10^5
     samples each, Sidak over the rates); all are finite and >= 0."""
     rates = [1e-3, 2.5, 1e3]

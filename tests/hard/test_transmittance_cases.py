@@ -1,4 +1,4 @@
-"""HARD_CASES 4, 5 and 7: homogeneous transmittance at extreme optical depths, the variance of
+"""robustness case 4, 5 and 7: homogeneous transmittance at extreme optical depths, the variance of
 ratio tracking, and every unbiased estimator on analytic 1-D extinction profiles.
 
 Both backends run the same estimator functions: the OpenCL twins through
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from stats import ALPHA, z_bound
-from volmc.bench.transmittance_runner import ESTIMATORS, OpenCLEstimator, run_numba
+from volmc.bench.transmittance_runner import OpenCLEstimator, run_numba
+from volmc.techniques import ESTIMATORS
 from volmc.params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT
-from volmc.reference import extinction as X
-from volmc.reference.estimators import SIGNED
+from volmc.reference import medium as X
 from volmc.render import render
 from volmc.resources import scenes_dir
 from volmc.scene import load_scene
@@ -61,13 +61,13 @@ def _check_exp(got, tau, backend, what):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case04_homogeneous_transmittance_extreme_depths(backend):
-    """HARD_CASES 4: at optical depth tau in {0, 1e-6, 1, 10, 87, 88, 104, 1e4, 1e38} the
+    """robustness case 4: at optical depth tau in {0, 1e-6, 1, 10, 87, 88, 104, 1e4, 1e38} the
     exact homogeneous transmittance equals exp(-tau): finite, >= 0, a subnormal past 87 and 0
     past 104 in float32, never NaN from 0/0. Checked on the analytic estimator (mbar = mu_c =
     tau over [0, 1], and over [0, tau] at unit extinction) with zero lookups, and through the
     integrator: an albedo-0 slab 2 units thick (scenes/tests/absorber.toml with density
     tau / 2) renders L exp(-tau) in every pixel with no dropped sample."""
-    med = X.make_profile(X.MED_CONSTANT, 1.0)
+    med = X.make_profile(X.DENSITY_CONSTANT, 1.0)
     for tau in CASE4_TAU:
         t, cnt = estimate(backend, "analytic", med, ray(0.0, 1.0), np.array([[tau, tau]]), 4)
         _check_exp(t, tau, backend, "analytic over [0, 1]")
@@ -92,7 +92,7 @@ def test_case04_homogeneous_transmittance_extreme_depths(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_case05_ratio_tracking_variance(backend):
-    """HARD_CASES 5: ratio tracking in a homogeneous medium (extinction s over length d,
+    """robustness case 5: ratio tracking in a homogeneous medium (extinction s over length d,
     majorant m) at m / s in {1, 2, 10} and s d in {0.5, 2}: the sample variance of 2 * 10^5
     estimates is within 10 % of e^{-2 s d} (e^{s^2 d / m} - 1) (at m = s: T (1 - T)), and the
     mean within the Sidak bound of e^{-s d}. The test checks its own power: 10 % is at least
@@ -102,7 +102,7 @@ def test_case05_ratio_tracking_variance(backend):
     zb = z_bound(ALPHA, 2 * len(cases))
     for k, (s, d, r) in enumerate(cases):
         m = s * r
-        est, cnt = estimate(backend, "ratio", X.make_profile(X.MED_CONSTANT, s), ray(0.0, d),
+        est, cnt = estimate(backend, "ratio", X.make_profile(X.DENSITY_CONSTANT, s), ray(0.0, d),
                             np.array([[m, 0.0]]), n, seed=50 + k)
         assert np.all(np.isfinite(est)) and est.min() >= 0 and cnt[:, C_CAPPED].sum() == 0
         var_exact = math.exp(-2 * s * d) * (math.exp(s * s * d / m) - 1)
@@ -122,11 +122,11 @@ def test_case05_ratio_tracking_variance(backend):
 #: the cosine reach exactly zero extinction.
 T0, T1, PROFILE_L = 0.3, 2.3, 2.0
 PROFILES = {
-    "constant": (X.MED_CONSTANT, 1.0, 0.0, 0.0, 1.0),
-    "linear ramp": (X.MED_RAMP, 0.1, 1.9, 0.0, 1.0),
-    "Gaussian bump": (X.MED_GAUSS_BUMP, 0.1, 3.0, 1.2, 0.15),
-    "Gaussian hole": (X.MED_GAUSS_HOLE, 1.0, 1.0, 1.4, 0.3),
-    "cosine": (X.MED_COSINE, 1.0, 1.0, 3.0, 0.4),
+    "constant": (X.DENSITY_CONSTANT, 1.0, 0.0, 0.0, 1.0),
+    "linear ramp": (X.DENSITY_RAMP, 0.1, 1.9, 0.0, 1.0),
+    "Gaussian bump": (X.DENSITY_GAUSS_BUMP, 0.1, 3.0, 1.2, 0.15),
+    "Gaussian hole": (X.DENSITY_GAUSS_HOLE, 1.0, 1.0, 1.4, 0.3),
+    "cosine": (X.DENSITY_COSINE, 1.0, 1.0, 3.0, 0.4),
 }
 #: Majorant = profile maximum times this, for varying profiles: the float32 kernels evaluate
 #: them with a few ulps of rounding, and 1e-5 keeps the float32 majorant a true bound. A
@@ -140,12 +140,12 @@ def profile(shape, tau):
     kind, a, b, c, s = PROFILES[shape]
     base = X.make_profile(kind, a, b, c, s, PROFILE_L)
     k = tau / X.optical_depth_profile(base, T0, T1)
-    med = X.make_profile(kind, a * k, b if kind == X.MED_COSINE else b * k, c, s, PROFILE_L)
+    med = X.make_profile(kind, a * k, b if kind == X.DENSITY_COSINE else b * k, c, s, PROFILE_L)
     lo, hi, _ = X.profile_bounds(med, T0, T1)
     return med, hi if hi == lo else hi * TIGHT, lo, math.exp(-X.optical_depth_profile(med, T0, T1))
 
 
-CASE7_ESTIMATORS = [n for n, v in ESTIMATORS.items() if v[2]]
+CASE7_ESTIMATORS = [n for n, e in ESTIMATORS.items() if e.unbiased]
 CASE7_SEED = 70
 CASE7 = [(shape, tau, loose) for shape in PROFILES for tau in (0.35, 2.3) for loose in (1, 3)]
 
@@ -153,7 +153,7 @@ CASE7 = [(shape, tau, loose) for shape in PROFILES for tau in (0.35, 2.3) for lo
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("name", CASE7_ESTIMATORS)
 def test_case07_unbiased_estimators_on_analytic_profiles(backend, name):
-    """HARD_CASES 7: every unbiased estimator of the registry (ESTIMATORS) on the five analytic
+    """robustness case 7: every unbiased estimator of the registry (ESTIMATORS) on the five analytic
     profiles (constant, linear ramp, Gaussian bump, Gaussian hole reaching zero, cosine
     reaching zero) over [0.3, 2.3], at T = e^-0.35 and e^-2.3, with a tight and a 3x loose
     majorant and the profile minimum as control: the mean of 8000 estimates is within the
@@ -161,21 +161,21 @@ def test_case07_unbiased_estimators_on_analytic_profiles(backend, name):
     non-negative (except the documented signed estimators), never capped, and never see the
     majorant exceeded. The analytic estimator (exact only for a homogeneous segment) runs on
     the constant profile, where every estimate must equal exp(-tau)."""
-    homogeneous_only = ESTIMATORS[name][3]
+    homogeneous_only = ESTIMATORS[name].homogeneous_only
     cases = [c for c in CASE7 if c[0] == "constant"] if homogeneous_only else CASE7
     bound = z_bound(ALPHA, len(cases))
     fails = []
     for k, (shape, tau, loose) in enumerate(cases):
         med, mbar, mu_c, exact = profile(shape, tau)
         if homogeneous_only:
-            mbar = mu_c = float(med[1])
+            mbar = mu_c = float(med["density"])
         else:
             mbar *= loose
         est, cnt = estimate(backend, name, med, ray(T0, T1), np.array([[mbar, mu_c]]), 8000,
                             seed=CASE7_SEED + k)
         where = f"{shape} tau={tau} majorant x{loose}"
         assert np.all(np.isfinite(est)), where
-        if name not in SIGNED:
+        if not ESTIMATORS[name].signed:
             assert est.min() >= 0.0, f"{where}: negative estimate {est.min()}"
         assert cnt[:, C_CAPPED].sum() == 0 and cnt[:, C_OVER_MAJORANT].sum() == 0, where
         # float32 evaluation of an exact (zero-variance) estimate: a few ulps of T.

@@ -25,36 +25,41 @@ import numpy as np
 from ..film import Film
 from ..params import COUNTER_NAMES
 from ..peers.compare import rmse_to_reference
-from ..render import batch_schedule, make_backend
+from ..backends import make_backend
+from ..render import batch_schedule
 
 
 @dataclass(frozen=True)
 class Config:
-    """One renderer configuration. backend "mitsuba" ignores the technique fields."""
+    """One renderer configuration. Backends "mitsuba" (the peer) and "baseline" (an earlier
+    volmc at ``path``, rendering the scene as it is written) ignore the technique fields."""
     backend: str
     majorant: str = ""
     free_flight: str = ""
     transmittance: str = ""
+    path: str = ""
 
     @property
     def name(self):
         if self.backend == "mitsuba":
             return "mitsuba volpath"
+        if self.backend == "baseline":
+            return f"baseline {self.path}"
         return f"{self.backend} {self.majorant} {self.free_flight} {self.transmittance}"
 
 
 def grid_estimators():
     """Unbiased shadow-ray estimators that work on grids (the registry decides)."""
-    from ..reference.estimators import ESTIMATORS
-    return [n for n, (_, _, unbiased, homog_only) in ESTIMATORS.items()
-            if unbiased and not homog_only]
+    from ..techniques import ESTIMATORS
+    return [n for n, e in ESTIMATORS.items() if e.unbiased and not e.homogeneous_only]
 
 
-def make_configs(backends, majorants, free_flights, transmittances, peer):
+def make_configs(backends, majorants, free_flights, transmittances, peer, baselines=()):
     out = [Config(b, m, f, t) for b in backends for m in majorants for f in free_flights
            for t in transmittances]
     if peer:
         out.append(Config("mitsuba"))
+    out += [Config("baseline", path=str(p)) for p in baselines]
     return out
 
 
@@ -96,8 +101,9 @@ class _MitsubaRunner:
 
 
 def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceiling=None,
-        log=print):
-    """Render every configuration at every spp level; returns the report dict."""
+        log=print, defines=()):
+    """Render every configuration at every spp level; returns the report dict. ``defines``:
+    the -D overrides the scene was loaded with (a baseline worker loads it the same way)."""
     w, h = scene.camera.resolution
     pixels = w * h
     log(f"reference: volmc opencl, {reference_spp} spp (independent seed)")
@@ -113,8 +119,13 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
     runners = {}
     for cfg in configs:
         t = time.perf_counter()
-        runners[cfg] = (_MitsubaRunner(scene) if cfg.backend == "mitsuba"
-                        else _VolmcRunner(scene, cfg, device))
+        if cfg.backend == "mitsuba":
+            runners[cfg] = _MitsubaRunner(scene)
+        elif cfg.backend == "baseline":
+            from .baseline import BaselineRunner
+            runners[cfg] = BaselineRunner(cfg.path, scene.file, defines)
+        else:
+            runners[cfg] = _VolmcRunner(scene, cfg, device)
         log(f"  {cfg.name}: ready in {time.perf_counter() - t:.1f} s")
 
     points = {cfg: [] for cfg in configs}
@@ -152,12 +163,23 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
                 row["fraction_of_lookup_ceiling"] = row["lookups_per_second"] / ceiling[
                     cfg.backend]
         results.append(row)
-    best = min((r for r in results if r["backend"] != "mitsuba"), key=lambda r: r["mse_seconds"])
+    for runner in runners.values():
+        if hasattr(runner, "close"):
+            runner.close()
+    best = min((r for r in results if r["backend"] not in ("mitsuba", "baseline")),
+               key=lambda r: r["mse_seconds"])
     for r in results:
         r["time_to_equal_error_vs_best_volmc"] = r["mse_seconds"] / best["mse_seconds"]
     report = {"scene": scene.file, "resolution": [w, h], "spp_levels": list(spp_levels),
               "reference_spp": reference_spp, "repeats": repeats, "best_volmc": best["name"],
               "lookup_ceiling": ceiling or {}, "results": results}
+    own = scene.render
+    same = [r for r in results if (r["backend"], r["majorant"], r["free_flight"],
+                                   r["transmittance"]) == ("opencl", own.majorant,
+                                                           own.free_flight, own.transmittance)]
+    for r in results:
+        if r["backend"] == "baseline" and same:
+            r["time_to_equal_error_vs_current"] = r["mse_seconds"] / same[0]["mse_seconds"]
     peer = [r for r in results if r["backend"] == "mitsuba"]
     if peer:
         report["mitsuba_time_to_equal_error_vs_best_volmc"] = \
@@ -199,6 +221,10 @@ def print_report(report, log=print):
         log(f"Mitsuba 3 needs {report['mitsuba_time_to_equal_error_vs_best_volmc']:.2f}x the "
             f"time of the best volmc configuration ({report['best_volmc']}) to reach the "
             f"same RMSE")
+    for r in report["results"]:
+        if "time_to_equal_error_vs_current" in r:
+            log(f"{r['name']} needs {r['time_to_equal_error_vs_current']:.3f}x the time of the "
+                f"current code with the scene's own techniques to reach the same RMSE")
     guarded = [r for r in report["results"] if "guards" in r]
     bad = [r for r in guarded if any(r["guards"].values())]
     log(f"guard counters (capped, dropped, over majorant): "

@@ -1,4 +1,4 @@
-"""Speed of the render kernel built with and without -cl-fast-relaxed-math (HARD_CASES 20).
+"""Speed of the render kernel built with and without -cl-fast-relaxed-math (robustness case 20).
 
 Production builds use no fast-math flag (volmc/cl/build.py BASE_OPTIONS); this measures what
 that costs. Both builds render the same scene with the same seed; configurations alternate
@@ -15,7 +15,7 @@ FAST_MATH = "-cl-fast-relaxed-math"
 
 def bench_fastmath(scene, spp=4, repeats=5, device=None, log=print):
     """samples/s of the scene's OpenCL build without and with -cl-fast-relaxed-math."""
-    from ..cl.backend import OpenCLBackend
+    from ..backends.opencl import OpenCLBackend
     from .render import run_configs
     configs = {
         "default": lambda: OpenCLBackend(scene, device=device),

@@ -58,9 +58,10 @@ def camera_segments(scene):
     use: the centre ray of every pixel whose ray crosses the medium box."""
     from ..pack import pack_scene
     from ..reference.integrator import camera_ray, ray_box
-    prm = pack_scene(scene)[0][0]
+    pk = pack_scene(scene)
+    prm, med = pk.params[0], pk.medium[0]
     w, h = scene.camera.resolution
-    bmin, bmax = np.array(prm["bmin"]), np.array(prm["bmax"])
+    bmin, bmax = np.array(med["bmin"]), np.array(med["bmax"])
     segs = []
     for py in range(h):
         for px in range(w):

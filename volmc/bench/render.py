@@ -61,7 +61,7 @@ def run_configs(scene, configs, spp, repeats, log=print):
 
 def bench_specialisation(scene, spp=4, repeats=3, device=None, log=print):
     """samples/s of the scene-specialised OpenCL build against the build with every flag."""
-    from ..cl.backend import OpenCLBackend
+    from ..backends.opencl import OpenCLBackend
     from ..scene.features import FEATURES
     configs = {
         "specialised": lambda: OpenCLBackend(scene, device=device),
@@ -73,7 +73,7 @@ def bench_specialisation(scene, spp=4, repeats=3, device=None, log=print):
 def bench_workgroup(scene, sizes=(None, 1, 2, 4, 8, 16, 32, 64), spp=4, repeats=3, device=None,
                     log=print):
     """samples/s of the OpenCL render kernel for each work-group size (None: driver's choice)."""
-    from ..cl.backend import OpenCLBackend
+    from ..backends.opencl import OpenCLBackend
     configs = {("driver" if s is None else str(s)):
                (lambda s=s: OpenCLBackend(scene, device=device, local_size=s)) for s in sizes}
     return run_configs(scene, configs, spp, repeats, log)

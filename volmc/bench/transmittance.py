@@ -24,10 +24,13 @@ import time
 
 import numpy as np
 
-from ..reference import extinction as X
+from ..constants import (DENSITY_CONSTANT, DENSITY_COSINE, DENSITY_GAUSS_BUMP,
+                         DENSITY_GAUSS_HOLE, DENSITY_RAMP)
+from ..reference import medium as X
+from ..techniques import ESTIMATORS
 from ..reference.integrator import ray_box
 from ..reference.optical_depth import optical_depth_exact
-from .transmittance_runner import ESTIMATORS, OpenCLEstimator
+from .transmittance_runner import OpenCLEstimator
 
 TARGET_T = (0.01, 0.1, 0.3, 0.6, 0.9, 0.99)
 TIGHTNESS = (0.05, 0.1, 0.25, 0.5, 0.75, 1.0)
@@ -37,11 +40,11 @@ BUDGET = 100.0
 #: Unit-optical-depth shapes of the 1-D profiles on [0, 1]: (kind, a, b, c, s); a and b scale
 #: with the target optical depth except the cosine's relative amplitude b.
 SHAPES = {
-    "constant": (X.MED_CONSTANT, 1.0, 0.0, 0.0, 1.0),
-    "ramp": (X.MED_RAMP, 0.1, 1.9, 0.0, 1.0),
-    "bump": (X.MED_GAUSS_BUMP, 0.1, 3.0, 0.5, 0.08),
-    "hole": (X.MED_GAUSS_HOLE, 1.0, 0.95, 0.5, 0.15),
-    "cosine": (X.MED_COSINE, 1.0, 0.9, 3.0, 0.4),
+    "constant": (DENSITY_CONSTANT, 1.0, 0.0, 0.0, 1.0),
+    "ramp": (DENSITY_RAMP, 0.1, 1.9, 0.0, 1.0),
+    "bump": (DENSITY_GAUSS_BUMP, 0.1, 3.0, 0.5, 0.08),
+    "hole": (DENSITY_GAUSS_HOLE, 1.0, 0.95, 0.5, 0.15),
+    "cosine": (DENSITY_COSINE, 1.0, 0.9, 3.0, 0.4),
 }
 
 
@@ -50,7 +53,7 @@ def profile_case(shape, target_T, tightness):
     kind, a, b, c, s = SHAPES[shape]
     base = X.make_profile(kind, a, b, c, s, 1.0)
     k = -math.log(target_T) / X.optical_depth_profile(base, 0.0, 1.0)
-    med = X.make_profile(kind, a * k, b if kind == X.MED_COSINE else b * k, c, s, 1.0)
+    med = X.make_profile(kind, a * k, b if kind == DENSITY_COSINE else b * k, c, s, 1.0)
     lo, hi, mean = X.profile_bounds(med, 0.0, 1.0)
     # The maximum is exact in float64; the OpenCL kernels evaluate the profile in float32,
     # which can land a few ulps above it (the cosine's peak did, and over_majorant counted
@@ -187,7 +190,7 @@ def run(names=None, scenes=(), n_per_case=2048, n_rays=512, n_per_ray=32, quick=
     tights = TIGHTNESS if not quick else (0.25, 1.0)
     runners = {n: OpenCLEstimator(n, device) for n in names}
     report = {"profiles": [], "grids": [], "budget": BUDGET, "estimators": names,
-              "unbiased": {n: ESTIMATORS[n][2] for n in names}}
+              "unbiased": {n: ESTIMATORS[n].unbiased for n in names}}
     ray = np.array([[0, 0, 0, 1, 0, 0, 0, 1, 0]], np.float64)
     for shape in SHAPES:
         for T in targets:
@@ -197,9 +200,10 @@ def run(names=None, scenes=(), n_per_case=2048, n_rays=512, n_per_ray=32, quick=
                 row = {"profile": shape, "target_T": T, "tightness": tight,
                        "effective_tightness": eff_tight, "exact": exact, "results": {}}
                 for n in names:
-                    if ESTIMATORS[n][3] and shape != "constant":
+                    if ESTIMATORS[n].homogeneous_only and shape != "constant":
                         continue  # analytic needs a homogeneous segment
-                    bnd = bounds if not ESTIMATORS[n][3] else np.array([[med[1], med[1]]])
+                    mu = float(med["density"])  # homogeneous_only: the constant profile
+                    bnd = bounds if not ESTIMATORS[n].homogeneous_only else np.array([[mu, mu]])
                     est, cnt, sec = _timed(runners[n], med, np.zeros((1, 1, 1)), ray, bnd,
                                            n_per_case, 17)
                     row["results"][n] = stats(est, [exact], cnt, sec, n_per_case)
@@ -208,7 +212,8 @@ def run(names=None, scenes=(), n_per_case=2048, n_rays=512, n_per_ray=32, quick=
     for scene in scenes:
         grid = scene.grid
         lo, hi = scene.medium.bounds
-        med = X.make_grid_medium(lo, hi, scene.medium.scale)
+        nz, ny, nx = grid.shape
+        med = X.make_grid_medium(lo, hi, scene.medium.scale, (nx, ny, nz))
         mbar = scene.medium.scale * float(grid.max())
         mu_c = scene.medium.scale * float(grid.min())
         n_cam = n_rays if not quick else n_rays // 4
@@ -219,7 +224,7 @@ def run(names=None, scenes=(), n_per_case=2048, n_rays=512, n_per_ray=32, quick=
                    "mean_majorant_depth": float(mbar * np.mean(rays[:, 7] - rays[:, 6])),
                    "results": {}}
             for n in names:
-                if ESTIMATORS[n][3]:
+                if ESTIMATORS[n].homogeneous_only:
                     continue
                 est, cnt, sec = _timed(runners[n], med, grid, rays, bounds, n_per_ray, 29)
                 row["results"][n] = stats(est, exact, cnt, sec, n_per_ray)
@@ -260,7 +265,7 @@ def summarise(report):
             if math.isfinite(e):
                 eff[n].append(e)
             e_rank = e if math.isfinite(e) else 1e300
-            if report["unbiased"][n] and not ESTIMATORS[n][3] and e_rank > best_eff:
+            if report["unbiased"][n] and not ESTIMATORS[n].homogeneous_only and e_rank > best_eff:
                 best, best_eff = n, e_rank
         if best:
             wins[best] += 1

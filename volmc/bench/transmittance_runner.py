@@ -1,54 +1,89 @@
-"""Run transmittance estimators on batches of rays with either backend."""
+"""Run a registered transmittance estimator on batches of rays with either backend.
+
+Both runners take the same arguments: ``med``, a medium record (volmc/reference/medium.py:
+``make_profile`` or ``make_grid_medium``) shared by every ray, or an array with one record
+per ray; ``grid``, the density grid (any 1x1x1 array for profiles); ``rays`` [r, 9] (o, d,
+t0, t1, pad); ``bounds`` [r, 2], each ray's extinction majorant and minorant (the medium's
+global majorant is set to them); ``n_per_ray`` estimates per ray; the seed and the first
+sample index. They return (estimates float64 [r * n_per_ray], counters int64
+[r * n_per_ray, N_COUNTERS]); estimate i uses ray i // n_per_ray and sample index
+sample_offset + i % n_per_ray on STREAM_TEST, on both backends alike.
+"""
 
 import numpy as np
 
-from ..params import N_COUNTERS
+from ..constants import MAJORANT_GLOBAL
+from ..params import N_COUNTERS, medium_dtype
 from ..reference import estimators as E
-
-ESTIMATORS = E.ESTIMATORS
+from ..techniques import ESTIMATORS
 
 MAX_STEPS = 1_000_000
+_NO_MAJORANT_GRID = np.zeros((1, 1, 1))
 
 
-def run_numba(name, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, extra=1.0):
-    """(estimates [n_rays * n_per_ray], counters [n, N_COUNTERS]) from the Numba reference.
-    ``med`` is one extinction source (1-D) shared by every ray, or one row per ray."""
-    est = ESTIMATORS[name][0]
-    med = np.asarray(med, np.float64)
-    if med.ndim == 1:
-        med = np.repeat(med[None, :], len(rays), axis=0)
-    return E.estimate_batch(est, np.ascontiguousarray(med), np.asarray(grid, np.float64),
-                            np.asarray(rays, np.float64), np.asarray(bounds, np.float64),
-                            n_per_ray, np.uint64(seed), sample_offset, MAX_STEPS, float(extra))
+def ray_media(med, grid, rays, bounds, real):
+    """One medium record per ray (``real`` precision) with the ray's bounds as its global
+    majorant and minorant, and the grid's dimensions."""
+    med = np.atleast_1d(np.asarray(med))
+    media = np.zeros(len(rays), medium_dtype(real))
+    for name in media.dtype.names:
+        media[name] = med[name] if len(med) > 1 else med[name][0]
+    b = np.asarray(bounds, np.float64).reshape(len(rays), 2)
+    media["sigma_maj"], media["sigma_min"] = b[:, 0], b[:, 1]
+    media["majorant_kind"] = MAJORANT_GLOBAL
+    nz, ny, nx = np.shape(grid)
+    media["dims"] = (nx, ny, nz)
+    return media
+
+
+class NumbaEstimator:
+    """One estimator run by the Numba reference (``reference.estimators.estimate_batch``)."""
+
+    backend = "numba"
+
+    def __init__(self, name, device=None):
+        self.est = ESTIMATORS[name]
+
+    def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0):
+        media = ray_media(med, grid, rays, bounds, np.float64)
+        return E.estimate_batch(self.est.id, media, np.asarray(grid, np.float64),
+                                _NO_MAJORANT_GRID, _NO_MAJORANT_GRID,
+                                np.asarray(rays, np.float64), n_per_ray, np.uint64(seed),
+                                sample_offset, MAX_STEPS)
 
 
 class OpenCLEstimator:
     """One estimator compiled into kernels/estimators.cl on the default (or given) device."""
 
-    def __init__(self, name, device=None, extra=None):
+    backend = "opencl"
+
+    def __init__(self, name, device=None):
         from ..cl.context import cl_context
+        self.est = ESTIMATORS[name]
         self.clc = cl_context(device)
-        fn = ESTIMATORS[name][1]
-        opts = [f"-DESTIMATOR={fn}"]
-        if name == "biased_raymarch":
-            opts.append(f"-DESTIMATOR_EXTRA=,{float(1.0 if extra is None else extra)!r}f")
+        opts = [f"-DESTIMATOR={self.est.kernel}"] + list(self.est.build_options)
         self.program, _ = self.clc.program("estimators.cl", opts)
         self.kernel = self.clc.kernel(self.program, "estimate_batch")
 
     def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0):
-        """Same contract as run_numba; returns (estimates float64, counters int64)."""
         clc = self.clc
-        med = np.asarray(med, np.float32)
-        if med.ndim == 1:
-            med = np.repeat(med[None, :], len(rays), axis=0)
-        grid = np.ascontiguousarray(grid, np.float32)
-        nz, ny, nx = grid.shape
+        media = ray_media(med, grid, rays, bounds, np.float32)
         n = len(rays) * n_per_ray
         out, ob = clc.output(n, np.float32)
         cnt, cb = clc.output((n, N_COUNTERS), np.uint64)
-        clc.run(self.kernel, n, 1, clc.to_device(med, np.float32),
-                clc.to_device(grid, np.float32), np.array([nx, ny, nz, 0], np.int32),
-                clc.to_device(rays, np.float32), clc.to_device(bounds, np.float32),
-                np.int32(n_per_ray), np.uint64(seed), np.uint32(sample_offset),
-                np.int32(MAX_STEPS), ob, cb, outs=[(out, ob), (cnt, cb)])
+        none = clc.to_device(_NO_MAJORANT_GRID, np.float32)
+        clc.run(self.kernel, n, 1, clc.to_device(media), clc.to_device(grid, np.float32),
+                none, none, clc.to_device(rays, np.float32), np.int32(n_per_ray),
+                np.uint64(seed), np.uint32(sample_offset), np.int32(MAX_STEPS), ob, cb,
+                outs=[(out, ob), (cnt, cb)])
         return out.astype(np.float64), cnt.astype(np.int64)
+
+
+def estimator(backend, name, device=None):
+    """The runner of estimator ``name`` on ``backend`` ("numba" or "opencl")."""
+    return (NumbaEstimator if backend == "numba" else OpenCLEstimator)(name, device)
+
+
+def run_numba(name, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0):
+    """``NumbaEstimator(name).run(...)``."""
+    return NumbaEstimator(name).run(med, grid, rays, bounds, n_per_ray, seed, sample_offset)

@@ -13,6 +13,7 @@ import re
 from pathlib import Path
 
 from ..resources import kernels_dir
+from ..scene.features import features_header
 from .structs import params_header
 
 CACHE_ENV = "VOLMC_CACHE_DIR"
@@ -31,7 +32,7 @@ def cache_dir() -> Path:
 
 def assemble(filename, extra_headers=None):
     """Full source text of ``kernels/<filename>`` with includes expanded (each once)."""
-    headers = {"params.h": params_header()}
+    headers = {"params.h": params_header(), "features.h": features_header()}
     headers.update(extra_headers or {})
     seen = set()
     kdir = kernels_dir()

@@ -45,8 +45,8 @@ def params_header():
     consts.update({k: getattr(P, k) for k in dir(P) if k.startswith("C_")})
     for k, v in consts.items():
         out.append(f"#define {k} {c_literal(v)}")
-    out += ["", c_struct("Params", P.PARAM_FIELDS), "", c_struct("Light", P.LIGHT_FIELDS), "",
-            "#endif", ""]
+    out += ["", c_struct("Params", P.PARAM_FIELDS), "", c_struct("Medium", P.MEDIUM_FIELDS), "",
+            c_struct("Light", P.LIGHT_FIELDS), "", "#endif", ""]
     return "\n".join(out)
 
 

@@ -15,7 +15,8 @@ def compare_with_mitsuba(scene, spp=None, passes=16, reference_spp=None, device=
     renders in this many independent launches, whose spread gives its per-pixel variance.
     reference_spp: samples per pixel of the volmc reference for RMSE (default 8 * spp; 0 skips
     the speed part)."""
-    from ..render import make_backend, render
+    from ..backends import make_backend
+    from ..render import render
     from . import compare
     from .mitsuba import MitsubaRenderer, probe
 

@@ -3,7 +3,7 @@
 ``dda_init`` sets up a walk and ``dda_next`` yields one segment per call, in order:
 (t_enter, t_exit, iz, iy, ix), until it returns ok = False. Segments tile [t0, t1] without
 gaps or overlaps (t_exit of one is t_enter of the next), so an estimator can integrate a
-piecewise-constant majorant exactly. Robustness (HARD_CASES 6):
+piecewise-constant majorant exactly. Robustness (robustness case 6):
 
 * a zero direction component (+0.0 or -0.0) never crosses that axis (its next crossing is
   +inf), so axis-parallel rays need no special case and no 0 * inf appears;

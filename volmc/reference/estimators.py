@@ -1,22 +1,26 @@
-"""Transmittance estimators on a common interface, for comparison and benchmarking.
+"""Transmittance estimators on one interface, for shadow rays and the estimator benchmark.
 
-Every estimator estimates T = exp(-tau), tau = integral of mu over [t0, t1] along o + t d
-(unit d), where mu comes from ``extinction(med, grid, o, d, t, counters)`` (a grid or an
-analytic 1-D profile, see extinction.py; each evaluation is one counted lookup). Common
-arguments:
+Twin of ``kernels/estimators.h``. Every estimator estimates T = exp(-tau) along o + t d over
+[t0, t1] (unit d, inside the medium box), tau the integral of the medium's extinction, with
+the signature ``transmittance_<name>(med, o, d, t0, t1, rng, counters, max_steps)``: ``med``
+a ``MediumData`` (medium.py), whose majorant segments give every bound an estimator uses;
+``rng`` the caller's stream; ``counters`` the caller's counters; ``max_steps`` the step cap
+(a capped estimate is counted in counters[C_CAPPED] and returned as it stands). The registry
+of names and properties is ``volmc/techniques.py``.
 
-* ``mbar``: a majorant, mbar >= mu on the segment (1/world unit);
-* ``mu_c``: a control / minorant, 0 <= mu_c <= mu on the segment (0 when unknown);
-* ``rng``: the caller's random stream; ``counters``: per-caller counters;
-* ``max_steps``: cap on tentative collisions (or comb points); a capped estimate is counted
-  in counters[C_CAPPED] and returned as it stands.
+Two families, each run by one loop over the majorant segments:
 
-The twins in kernels/estimators.h have the same names and arguments (float32).
-Unbiased estimators here: track-length, ratio tracking, residual ratio tracking,
-next-flight ratio tracking; ``transmittance_analytic`` is exact for a homogeneous segment
-(mbar == mu_c) and undefined otherwise; ``transmittance_biased_raymarch`` is biased. The
-power-series estimators (p-series CMF of Georgiev et al. 2019, unbiased ray marching of
-Kettunen et al. 2021) are in power_series.py; ESTIMATORS below registers all of them.
+* **Tracking estimators** -- track length, ratio, residual ratio and next-flight tracking --
+  are techniques of the one tracking loop (tracking.py).
+* **Per-segment estimators** -- ``transmittance_analytic`` (exp(-sigma_maj L), exact only on
+  homogeneous segments), biased ray marching and the power series (power_series.py) -- run
+  on each segment in turn with its bounds (``transmittance_by_segments``); the product of
+  independent unbiased per-segment estimates is unbiased. Between segments the running
+  product plays transmittance roulette (tracking.transmittance_roulette).
+
+Either way a homogeneous segment (sigma_min >= sigma_maj) contributes its exact
+exp(-sigma_maj L), with no lookup and no random number: a homogeneous medium always gets the
+analytic transmittance, whichever estimator is chosen.
 """
 
 import math
@@ -24,216 +28,186 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import TR_RR_THRESHOLD
+from ..constants import (ESTIMATOR_ANALYTIC, ESTIMATOR_BIASED_RAYMARCH, ESTIMATOR_NEXT_FLIGHT,
+                         ESTIMATOR_POWER_SERIES, ESTIMATOR_RATIO, ESTIMATOR_RESIDUAL_RATIO,
+                         ESTIMATOR_TRACK_LENGTH, ESTIMATOR_UNBIASED_RAYMARCH,
+                         RAYMARCH_SAMPLES_PER_MFP, SEGMENT_ANALYTIC, SEGMENT_BIASED_RAYMARCH,
+                         SEGMENT_POWER_SERIES, SEGMENT_UNBIASED_RAYMARCH, STREAM_TEST,
+                         TRACK_LENGTH, TRACK_NEXT_FLIGHT, TRACK_RATIO, TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, N_COUNTERS
-from .extinction import lookup
-from .power_series import transmittance_power_series, transmittance_unbiased_raymarch
-from .rng import STREAM_TEST, rng_new, rng_next
-
-
-
-@njit(cache=True, inline="always")
-def transmittance_roulette(T, rng):
-    """Russian roulette on a running transmittance weight. Returns (alive, T).
-
-    Once |T| < TR_RR_THRESHOLD the walk survives with probability q = |T| / TR_RR_THRESHOLD
-    and carries T / q = +-TR_RR_THRESHOLD, else it ends with T = 0: E[T] is unchanged
-    (unbiased), and T == 0 ends the walk at once. Dense media (HARD_CASES 10: majorant optical
-    depth 1e6) then cost a few lookups per shadow ray instead of the whole walk. The threshold
-    is low enough that the variance it adds (at most TR_RR_THRESHOLD^2 per estimate) is
-    invisible in the closed-form variance of ratio tracking."""
-    a = abs(T)
-    if not a < TR_RR_THRESHOLD:
-        return True, T
-    if a == 0.0 or rng_next(rng) * TR_RR_THRESHOLD >= a:
-        return False, 0.0
-    return True, TR_RR_THRESHOLD if T > 0.0 else -TR_RR_THRESHOLD
-
-
-# Guard "local distances" (HARD_CASES 11): every tracking loop below accumulates the distance
-# s from the segment start t0, never t itself, so a far ray origin (t0 = 1e5 with a majorant of
-# 1e3: t + dt == t in float32) cannot stall the walk; lookups are at t0 + s.
+from .medium import (ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next,
+                     optical_depth_comb)
+from .power_series import power_series_segment, unbiased_raymarch_segment
+from .rng import rng_new, rng_next
+from .tracking import track, transmittance_roulette
 
 
 @njit(cache=True)
-def transmittance_analytic(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
-    """Homogeneous segment (mbar == mu_c == mu): T = exp(-mu (t1 - t0)), no lookups."""
-    return math.exp(-mbar * max(t1 - t0, 0.0))
-
-
-@njit(cache=True)
-def transmittance_track_length(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
-    """Track-length estimator (delta tracking): 1 if the walk passes t1, 0 at the first real
-    collision. Tentative collisions at rate mbar, accepted with probability mu / mbar.
-    Mean lookups <= mbar (t1 - t0). Variance T (1 - T)."""
-    if mbar <= 0.0:
-        return 1.0
-    inv = 1.0 / mbar
-    L = t1 - t0
-    s = 0.0
-    for _ in range(max_steps):
-        s -= math.log1p(-rng_next(rng)) * inv
-        if s >= L:
-            return 1.0
-        if rng_next(rng) * mbar < lookup(med, grid, o, d, t0 + s, counters, mbar):
-            return 0.0
-    counters[C_CAPPED] += 1
-    return 0.0
-
-
-@njit(cache=True)
-def transmittance_residual_ratio(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters,
-                                 max_steps):
-    """Residual ratio tracking (Novak, Selle, Jarosz 2014) with a constant control mu_c:
-    T = exp(-mu_c L) prod_i (1 - (mu(x_i) - mu_c) / mbar_r), tentative collisions at the
-    residual majorant rate mbar_r = mbar - mu_c >= mu - mu_c >= 0.
-    Mean lookups = (mbar - mu_c) L: the control's share of tau costs nothing."""
-    L = max(t1 - t0, 0.0)
-    Tc = math.exp(-mu_c * L)
-    mr = mbar - mu_c
-    if mr <= 0.0:
-        return Tc
-    inv = 1.0 / mr
-    T = Tc
-    s = 0.0
-    for _ in range(max_steps):
-        s -= math.log1p(-rng_next(rng)) * inv
-        if s >= L:
-            return T
-        T *= 1.0 - (lookup(med, grid, o, d, t0 + s, counters, mbar) - mu_c) / mr
-        alive, T = transmittance_roulette(T, rng)
-        if not alive:
-            return T
-    counters[C_CAPPED] += 1
-    return T
-
-
-@njit(cache=True)
-def transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
-    """Ratio tracking (Cramer 1978; Novak, Selle, Jarosz 2014):
-    T = prod_i (1 - mu(x_i) / mbar) over tentative collisions at rate mbar.
-    Mean lookups = mbar (t1 - t0). Homogeneous variance: e^{-2 s L}(e^{s^2 L / mbar} - 1).
-    It is residual ratio tracking with a zero control (mu_c is ignored): exp(-0 L) = 1 and
-    mu - 0 = mu exactly, so the same walk with the same lookups and estimates."""
-    return transmittance_residual_ratio(med, grid, o, d, t0, t1, mbar, 0.0, rng, counters,
-                                        max_steps)
-
-
-@njit(cache=True)
-def transmittance_next_flight(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
-    """Next-flight ratio tracking (see Novak et al. 2018's report; Georgiev et al. 2019):
-    each vertex of a ratio-tracking walk adds the probability that the next flight passes t1,
-    T = sum_{i>=0} w_i exp(-mbar (t1 - t_i)), w_0 = 1 at t_0 = t0,
-    w_i = w_{i-1} (1 - mu(t_i) / mbar). The same walk as ratio tracking (same lookups), with
-    the final 0/1 escape test replaced by its expectation: lower variance."""
-    if mbar <= 0.0:
-        return 1.0
-    inv = 1.0 / mbar
-    w = 1.0
-    L = t1 - t0
-    s = 0.0
-    T = math.exp(-mbar * max(L, 0.0))
-    for _ in range(max_steps):
-        s -= math.log1p(-rng_next(rng)) * inv
-        if s >= L:
-            return T
-        w *= 1.0 - lookup(med, grid, o, d, t0 + s, counters, mbar) / mbar
-        alive, w = transmittance_roulette(w, rng)
-        if not alive:
-            return T
-        T += w * math.exp(-mbar * (L - s))
-    counters[C_CAPPED] += 1
-    return T
-
-
-@njit(cache=True)
-def transmittance_biased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters,
-                                  max_steps, samples_per_mfp=1.0):
-    """Biased ray marching (a reference point, NOT unbiased): a jittered comb of
-    n = ceil(samples_per_mfp * mbar L) equidistant points estimates tau without bias, but
-    exp(-tau_hat) overestimates T (Jensen). The bias shrinks as the step shrinks.
-    An empty segment (mbar <= 0, so mu = 0, or zero length) returns 1 with no lookup, as
-    every other estimator does (HARD_CASES 8: no lookups in empty majorant cells)."""
+def biased_raymarch_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
+    """Biased ray marching over one segment (a reference point, NOT unbiased): a jittered comb
+    of n = ceil(RAYMARCH_SAMPLES_PER_MFP * mbar L) equidistant points estimates tau without
+    bias, but exp(-tau_hat) overestimates T (Jensen); the bias shrinks as the step shrinks (a
+    looser majorant gives a finer comb). An empty segment (mbar <= 0, or zero length) gives
+    1 with no lookup."""
     L = max(t1 - t0, 0.0)
     if mbar <= 0.0 or L <= 0.0:
         return 1.0
-    n = max(1, int(math.ceil(samples_per_mfp * mbar * L)))
+    n = max(1, int(math.ceil(RAYMARCH_SAMPLES_PER_MFP * mbar * L)))
     if n > max_steps:
         counters[C_CAPPED] += 1
         n = max_steps
-    dt = L / n
-    u = rng_next(rng)
-    tau = 0.0
-    for j in range(n):
-        tau += lookup(med, grid, o, d, t0 + (j + u) * dt, counters, mbar)
-    return math.exp(-tau * dt)
+    return math.exp(-optical_depth_comb(med, o, d, t0, L, n, rng_next(rng), mbar, counters))
 
 
-EST_ANALYTIC, EST_TRACK_LENGTH, EST_RATIO, EST_RESIDUAL_RATIO, EST_NEXT_FLIGHT, \
-    EST_BIASED_RAYMARCH, EST_POWER_SERIES, EST_UNBIASED_RAYMARCH = range(8)
-
-#: The registry, written once: name -> (id, kernel function in kernels/estimators.h,
-#: unbiased?, needs a homogeneous segment?). The names are the values of render.transmittance
-#: and of `volmc bench transmittance --estimators`.
-ESTIMATORS = {
-    "analytic": (EST_ANALYTIC, "transmittance_analytic", True, True),
-    "track_length": (EST_TRACK_LENGTH, "transmittance_track_length", True, False),
-    "ratio": (EST_RATIO, "transmittance_ratio_tracking", True, False),
-    "residual_ratio": (EST_RESIDUAL_RATIO, "transmittance_residual_ratio", True, False),
-    "next_flight": (EST_NEXT_FLIGHT, "transmittance_next_flight", True, False),
-    "biased_raymarch": (EST_BIASED_RAYMARCH, "transmittance_biased_raymarch", False, False),
-    "power_series": (EST_POWER_SERIES, "transmittance_power_series", True, False),
-    "unbiased_raymarch": (EST_UNBIASED_RAYMARCH, "transmittance_unbiased_raymarch", True, False),
-}
-#: Estimators whose single estimates can be negative (their mean is still T).
-SIGNED = ("unbiased_raymarch",)
+@njit(cache=True, inline="always")
+def segment_estimate(kind, med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps):
+    """One per-segment estimate of kind SEGMENT_* over [t0, t1] with bounds s_maj, s_min."""
+    if kind == SEGMENT_BIASED_RAYMARCH:
+        return biased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
+                                       max_steps)
+    if kind == SEGMENT_POWER_SERIES:
+        return power_series_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps)
+    if kind == SEGMENT_UNBIASED_RAYMARCH:
+        return unbiased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
+                                         max_steps)
+    return math.exp(-s_maj * (t1 - t0))   # SEGMENT_ANALYTIC
 
 
 @njit(cache=True)
-def estimate_one(est, med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt, max_steps, extra):
-    """Run estimator ``est`` (an id of ESTIMATORS); ``extra`` is biased ray marching's
-    samples per majorant mean free path."""
-    if est == EST_ANALYTIC:
-        return transmittance_analytic(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt, max_steps)
-    if est == EST_TRACK_LENGTH:
-        return transmittance_track_length(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
-                                          max_steps)
-    if est == EST_RATIO:
-        return transmittance_ratio_tracking(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
-                                            max_steps)
-    if est == EST_RESIDUAL_RATIO:
-        return transmittance_residual_ratio(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
-                                            max_steps)
-    if est == EST_NEXT_FLIGHT:
-        return transmittance_next_flight(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
-                                         max_steps)
-    if est == EST_BIASED_RAYMARCH:
-        return transmittance_biased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
-                                             max_steps, extra)
-    if est == EST_POWER_SERIES:
-        return transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
-                                          max_steps)
-    if est == EST_UNBIASED_RAYMARCH:
-        return transmittance_unbiased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, cnt,
-                                               max_steps)
+def transmittance_by_segments(med, o, d, t0, t1, kind, rng, counters, max_steps):
+    """Product over the majorant segments of [t0, t1] of per-segment estimates of ``kind``
+    (exact on homogeneous segments), with transmittance roulette between segments. Guard
+    "local distances": the walk starts at o + t0 d."""
+    o = (o[0] + t0 * d[0], o[1] + t0 * d[1], o[2] + t0 * d[2])
+    it = np.empty(ITER_STATE_SIZE)
+    majorant_iter_init(it, med, o, d, 0.0, t1 - t0)
+    T = 1.0
+    sampled = False
+    while True:
+        ok, ta, tb, s_maj, s_min = majorant_next(it, med)
+        if not ok:
+            return T
+        if s_min >= s_maj:
+            T *= math.exp(-s_maj * (tb - ta))
+            continue
+        if sampled:
+            alive, T = transmittance_roulette(T, rng)
+            if not alive:
+                return T
+        sampled = True
+        T *= segment_estimate(kind, med, o, d, ta, tb, s_maj, s_min, rng, counters, max_steps)
+
+
+@njit(cache=True)
+def transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps):
+    """exp(-sigma_maj L) on every segment: exact where the segments are homogeneous
+    (sigma_maj is the extinction there), no lookups; not an estimator for varying media."""
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_ANALYTIC, rng, counters,
+                                     max_steps)
+
+
+@njit(cache=True, inline="always")
+def tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, technique):
+    """The transmittance estimate of the tracking loop with ``technique`` (delta tracking,
+    no control, for TRACK_LENGTH)."""
+    return track(med, o, d, t0, t1, technique, False, rng, counters, max_steps)[2]
+
+
+@njit(cache=True)
+def transmittance_track_length(med, o, d, t0, t1, rng, counters, max_steps):
+    """Track-length estimator: the delta-tracking walk of free flight, 1 if it escapes past
+    t1, 0 at its first real collision. Variance T (1 - T)."""
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_LENGTH)
+
+
+@njit(cache=True)
+def transmittance_ratio_tracking(med, o, d, t0, t1, rng, counters, max_steps):
+    """Ratio tracking: T = prod (1 - mu(x_i) / sigma_maj) over tentative collisions at each
+    segment's majorant rate. Mean lookups = majorant optical depth (less with roulette).
+    Homogeneous variance (extinction s, majorant m, length L): e^{-2 s L}(e^{s^2 L / m} - 1)."""
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_RATIO)
+
+
+@njit(cache=True)
+def transmittance_residual_ratio(med, o, d, t0, t1, rng, counters, max_steps):
+    """Residual ratio tracking with each segment's minorant mu_c as control:
+    exp(-mu_c L) prod (1 - (mu(x_i) - mu_c) / (sigma_maj - mu_c)), collisions at the residual
+    rate; the control's share of tau costs no lookup."""
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_RESIDUAL_RATIO)
+
+
+@njit(cache=True)
+def transmittance_next_flight(med, o, d, t0, t1, rng, counters, max_steps):
+    """Next-flight ratio tracking: per segment, sum_i w_i exp(-sigma_maj (t_max - t_i)) over
+    the walk's vertices (the same lookups as ratio tracking, the final 0/1 escape replaced by
+    its expectation). In empty space under a majorant m its variance is (1 - e^{-2 m L}) / 2:
+    it needs a tight majorant."""
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_NEXT_FLIGHT)
+
+
+@njit(cache=True)
+def transmittance_biased_raymarch(med, o, d, t0, t1, rng, counters, max_steps):
+    """Biased ray marching on every segment (``biased_raymarch_segment``). Biased."""
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_BIASED_RAYMARCH, rng,
+                                     counters, max_steps)
+
+
+@njit(cache=True)
+def transmittance_power_series(med, o, d, t0, t1, rng, counters, max_steps):
+    """The p-series CMF power series (Georgiev et al. 2019) on every segment, with the
+    segment's minorant as control (power_series.power_series_segment)."""
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_POWER_SERIES, rng, counters,
+                                     max_steps)
+
+
+@njit(cache=True)
+def transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps):
+    """Unbiased ray marching (Kettunen et al. 2021) on every segment
+    (power_series.unbiased_raymarch_segment). Single estimates can be negative."""
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_UNBIASED_RAYMARCH, rng,
+                                     counters, max_steps)
+
+
+@njit(cache=True)
+def transmittance(est, med, o, d, t0, t1, rng, counters, max_steps):
+    """Run the estimator with id ``est`` (ESTIMATOR_*; techniques.ESTIMATORS[name].id): the
+    reference's run-time counterpart of the kernels' build-time choice."""
+    if est == ESTIMATOR_TRACK_LENGTH:
+        return transmittance_track_length(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_RATIO:
+        return transmittance_ratio_tracking(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_RESIDUAL_RATIO:
+        return transmittance_residual_ratio(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_NEXT_FLIGHT:
+        return transmittance_next_flight(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_BIASED_RAYMARCH:
+        return transmittance_biased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_POWER_SERIES:
+        return transmittance_power_series(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_UNBIASED_RAYMARCH:
+        return transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_ANALYTIC:
+        return transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps)
     raise ValueError("unknown estimator id")
 
 
 @njit(cache=True, parallel=True)
-def estimate_batch(est, med, grid, rays, bounds, n_per_ray, seed, sample_offset, max_steps,
-                   extra):
-    """n_per_ray estimates for each ray (rows of ``rays``: o(3), d(3), t0, t1, pad; rows of
-    ``med``: the ray's extinction source; rows of ``bounds``: mbar, mu_c). Estimate i uses ray i // n_per_ray, sample index
-    sample_offset + i % n_per_ray on STREAM_TEST, like kernels/estimators.cl.
-    Returns (estimates [n], counters [n, N_COUNTERS])."""
+def estimate_batch(est, media, grid, maj, mnr, rays, n_per_ray, seed, sample_offset,
+                   max_steps):
+    """n_per_ray estimates of estimator ``est`` for each ray (rows of ``rays``: o(3), d(3),
+    t0, t1, pad), ray r through medium record media[r] (its majorant and grids shared).
+    Estimate i uses ray i // n_per_ray and sample index sample_offset + i % n_per_ray on
+    STREAM_TEST, like kernels/estimators.cl. Returns (estimates [n], counters
+    [n, N_COUNTERS])."""
     n = rays.shape[0] * n_per_ray
     out = np.empty(n)
     counters = np.zeros((n, N_COUNTERS), np.int64)
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, sample_offset + i % n_per_ray, STREAM_TEST)
+        med = MediumData(media[r], grid, maj, mnr)
         o = (rays[r, 0], rays[r, 1], rays[r, 2])
         d = (rays[r, 3], rays[r, 4], rays[r, 5])
-        out[i] = estimate_one(est, med[r], grid, o, d, rays[r, 6], rays[r, 7], bounds[r, 0],
-                               bounds[r, 1], rng, counters[i], max_steps, extra)
+        out[i] = transmittance(est, med, o, d, rays[r, 6], rays[r, 7], rng, counters[i],
+                               max_steps)
     return out, counters

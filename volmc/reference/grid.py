@@ -1,6 +1,6 @@
 """Density grid lookups: trilinear between voxel centres, clamp-to-edge.
 
-Convention (SCENE_FORMAT.md; shared with ``kernels/grid.h``):
+Convention (docs/scene_format.md; shared with ``kernels/grid.h``):
 
 * ``grid`` is indexed [z, y, x] (C order, x fastest), shape (nz, ny, nx).
 * Voxel (i, j, k) = (x, y, z) has its centre at bmin + ((i, j, k) + 0.5) / (nx, ny, nz) * extent.

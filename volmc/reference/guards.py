@@ -1,6 +1,6 @@
 """Numerical guards shared by the reference (twin of kernels/guards.h).
 
-Guard "sample filter" (HARD_CASES 20): a sample that is NaN, infinite or (unless the shadow
+Guard "sample filter" (robustness case 20): a sample that is NaN, infinite or (unless the shadow
 estimator is signed) negative is dropped and counted. Finiteness is read from the exponent
 bits as an integer, not with math.isfinite: under fast-math (Numba ``fastmath=True``, OpenCL
 ``-cl-fast-relaxed-math``) the compiler may assume no NaN or Inf exists and fold

@@ -1,24 +1,27 @@
 """Volumetric path tracer (Numba, float64): the reference every kernel is checked against.
 
-One sample of pixel (x, y) (y = 0 is the top row) is one path:
+Twin of ``kernels/integrator.cl``. One sample of pixel (x, y) (y = 0 is the top row) is one
+path:
 
 1. Camera ray through the pixel, jittered uniformly inside it (two uniforms).
-2. Free flight inside the medium box: analytic for a homogeneous medium, delta tracking
-   for a grid, with the global majorant or (render.majorant = "grid") per-cell majorants
-   along a 3-D DDA walk (empty cells cost nothing). Escaping the box ends the path and adds the
-   environment radiance, weighted by MIS when the direction came from phase sampling.
+2. Free flight inside the medium box (free_flight.py): the one tracking loop over the
+   medium's majorant segments -- analytic for a homogeneous medium, delta or decomposition
+   tracking over the global majorant or the majorant grid (empty cells cost nothing).
+   Escaping the box ends the path and adds the environment radiance, weighted by MIS when
+   the direction came from phase sampling.
 3. At a real collision: the scattering event count rises; past ``max_depth`` the path
    ends. The throughput is multiplied by the albedo (sigma_s / sigma_t).
-4. Next-event estimation to every light: directional and point lights are delta lights
-   (one shadow ray each); the environment is sampled uniformly over the sphere and
-   combined with phase sampling by the balance heuristic. Shadow-ray transmittance is
-   analytic (homogeneous) or, in a grid, the estimator chosen by render.transmittance
-   (ratio tracking by default; volmc/reference/estimators.py), on its own random stream.
+4. Direct lighting (``sample_direct``): one shadow ray to each directional and point light,
+   and one environment direction sampled uniformly over the sphere and combined with phase
+   sampling by the balance heuristic (``mis_balance``). Shadow-ray transmittance is the
+   estimator render.transmittance chose (estimators.py; exact on homogeneous segments), on
+   its own random stream.
    A medium that cannot scatter into the image (all albedos 0, or max_depth = 0) skips
    steps 2-6: the pixel is the environment times the transmittance along the camera ray.
 5. Russian roulette from ``rr_depth`` scattering events on: the path survives with
-   probability q = min(max_rgb(throughput), 0.95) and is divided by q (unbiased); the cap
-   of 0.95 makes every path end even with albedo 1 in an infinitely dense medium.
+   probability q = min(max_rgb(throughput), RR_MAX_SURVIVAL) and is divided by q
+   (unbiased); the cap makes every path end even with albedo 1 in an infinitely dense
+   medium.
 6. A new direction is importance-sampled from the phase function; go to 2.
 
 Random numbers: stream STREAM_PATH for all decisions of the path (in the order above),
@@ -26,7 +29,7 @@ stream STREAM_SHADOW for all shadow-ray transmittance estimates of the sample.
 A sample whose contribution is NaN, infinite or negative is dropped (it counts as a sample
 of value 0) and counted. Negative samples are legitimate only with a signed shadow estimator
 (unbiased ray marching, params.signed_samples = 1): they are kept, since dropping them would
-bias the pixel.
+bias the pixel. RGB triples are tuples here and float3 in the kernel (vec.py).
 """
 
 import math
@@ -34,17 +37,18 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import (CAMERA_ORTHOGRAPHIC, EVENT_CAPPED, EVENT_ESCAPE, INV_4PI,
+from ..constants import (CAMERA_ORTHOGRAPHIC, EVENT_CAPPED, EVENT_ESCAPE,
                          LIGHT_DIRECTIONAL, RR_MAX_SURVIVAL, STREAM_PATH, STREAM_SHADOW)
 from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
+from .estimators import transmittance
+from .free_flight import free_flight
+from .guards import sample_ok
+from .medium import MediumData
 from .phase import phase_eval, phase_sample
 from .rng import RNG_STATE_SIZE, rng_init, rng_next
-from .sampling import dot, normalize, sample_uniform_sphere
-from .estimators import estimate_one, transmittance_roulette
-from .guards import sample_ok
-from .dda import DDA_STATE_SIZE, dda_init, dda_next
-from .transmittance import (free_flight_delta, free_flight_grid, free_flight_homogeneous,
-                            transmittance_homogeneous)
+from .sampling import (dot, mis_balance, normalize, sample_uniform_sphere,
+                       uniform_sphere_pdf)
+from .vec import add3, div3, madd3, max3, mul3, scale3
 
 
 @njit(cache=True, inline="always")
@@ -70,7 +74,7 @@ def ray_box(o, d, bmin, bmax):
 
 @njit(cache=True, inline="always")
 def enter_box(o, d, bmin, bmax):
-    """Guard "entry re-basing" (HARD_CASES 10, 11, 13): clip ray o + t d to the box and, when
+    """Guard "entry re-basing" (robustness case 10, 11, 13): clip ray o + t d to the box and, when
     the box is entered from outside (t_enter > 0), move the origin to the entry point, snapped
     onto the box (clamped into it, and exactly onto the entry face), and clip again from there.
     Every later distance is then local to the box: no tracking loop accumulates a large t (a
@@ -124,68 +128,75 @@ def camera_ray(prm, px, py, u1, u2):
 
 
 @njit(cache=True, inline="always")
-def shadow_transmittance(prm, med, grid, maj_max, maj_min, o, d, t_max, rng_s, counters):
-    """Transmittance from o towards unit d up to distance t_max (inf for distant lights):
-    analytic in a homogeneous medium, else the estimator render.transmittance chose, with the
-    global bounds or, over a majorant grid, per DDA segment with that cell's bounds (the
-    product of independent unbiased per-segment estimates is unbiased; empty cells give 1
-    with no lookup)."""
-    bmin = (prm.bmin[0], prm.bmin[1], prm.bmin[2])
-    bmax = (prm.bmax[0], prm.bmax[1], prm.bmax[2])
+def shadow_transmittance(prm, med, o, d, t_max, rng_s, counters):
+    """Transmittance from o towards unit d up to distance t_max (inf for distant lights),
+    by the estimator render.transmittance chose (prm.shadow_estimator)."""
+    m = med.m
+    bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
+    bmax = (m.bmax[0], m.bmax[1], m.bmax[2])
     o, t0, t1, shift = enter_box(o, d, bmin, bmax)
     t1 = min(t1, t_max - shift)
     if t1 <= t0:
         return 1.0
     counters[C_SHADOW] += 1
-    if prm.has_grid == 0:
-        return transmittance_homogeneous(prm.scale * prm.density, t0, t1)
-    if prm.has_majorant_grid == 0:
-        return estimate_one(prm.shadow_estimator, med, grid, o, d, t0, t1, prm.majorant,
-                            prm.minorant, rng_s, counters, prm.max_steps, 1.0)
-    state = np.empty(DDA_STATE_SIZE)
-    dda_init(state, o, d, t0, t1, bmin, bmax, (prm.maj_res[0], prm.maj_res[1], prm.maj_res[2]))
-    T = 1.0
-    while True:
-        ok, ta, tb, iz, iy, ix = dda_next(state)
-        if not ok:
-            break
-        m = prm.scale * maj_max[iz, iy, ix]
-        if m <= 0.0 or tb <= ta:
-            continue
-        T *= estimate_one(prm.shadow_estimator, med, grid, o, d, ta, tb, m,
-                          prm.scale * maj_min[iz, iy, ix], rng_s, counters, prm.max_steps, 1.0)
-        # Transmittance roulette over the product of segments (T == 0 ends it too).
-        alive, T = transmittance_roulette(T, rng_s)
-        if not alive:
-            break
-    return T
+    return transmittance(prm.shadow_estimator, med, o, d, t0, t1, rng_s, counters,
+                         prm.max_steps)
+
+
+@njit(cache=True, inline="always")
+def sample_direct(prm, lights, med, p, d, rng, rng_s, counters):
+    """Direct light scattered at p towards -d (d: the direction the path arrived in), per
+    unit throughput: every directional and point light by one shadow ray, and the
+    environment by one uniformly sampled direction weighted by the balance heuristic against
+    phase sampling (whose half is added when a phase-sampled path escapes). Returns RGB."""
+    m = med.m
+    L = (0.0, 0.0, 0.0)
+    for i in range(prm.n_lights):
+        lt = lights[i]
+        if lt.type == LIGHT_DIRECTIONAL:
+            wl = (-lt.vec[0], -lt.vec[1], -lt.vec[2])
+            dist = math.inf
+            falloff = 1.0
+        else:
+            v = (lt.vec[0] - p[0], lt.vec[1] - p[1], lt.vec[2] - p[2])
+            dist2 = dot(v, v)
+            if dist2 <= 0.0:
+                continue
+            dist = math.sqrt(dist2)
+            wl = (v[0] / dist, v[1] / dist, v[2] / dist)
+            falloff = 1.0 / dist2
+        f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * falloff
+        tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters)
+        L = add3(L, scale3((lt.color[0], lt.color[1], lt.color[2]), f * tr))
+    if prm.has_env != 0:
+        wl, pdf_l = sample_uniform_sphere(rng_next(rng), rng_next(rng))
+        f = phase_eval(m.phase_kind, m.g, dot(d, wl))
+        tr = shadow_transmittance(prm, med, p, wl, math.inf, rng_s, counters)
+        L = add3(L, scale3((prm.env[0], prm.env[1], prm.env[2]),
+                           f * tr * mis_balance(pdf_l, f) / pdf_l))
+    return L
 
 
 @njit(cache=True)
-def trace_path(prm, lights, med, grid, maj_max, maj_min, px, py, rng, rng_s, counters):
+def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
     """Radiance (r, g, b) carried by one path through pixel (px, py)."""
-    bmin = (prm.bmin[0], prm.bmin[1], prm.bmin[2])
-    bmax = (prm.bmax[0], prm.bmax[1], prm.bmax[2])
-    inv_ext = (prm.inv_extent[0], prm.inv_extent[1], prm.inv_extent[2])
-    sigma_h = prm.scale * prm.density
-    Lr = 0.0
-    Lg = 0.0
-    Lb = 0.0
-    br = 1.0
-    bg = 1.0
-    bb = 1.0
+    m = med.m
+    bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
+    bmax = (m.bmax[0], m.bmax[1], m.bmax[2])
+    albedo = (m.albedo[0], m.albedo[1], m.albedo[2])
+    env = (prm.env[0], prm.env[1], prm.env[2])
+    L = (0.0, 0.0, 0.0)
+    beta = (1.0, 1.0, 1.0)
     u1 = rng_next(rng)
     u2 = rng_next(rng)
     o, d = camera_ray(prm, px, py, u1, u2)
-    if prm.max_depth == 0 or max(prm.albedo[0], max(prm.albedo[1], prm.albedo[2])) <= 0.0:
+    if prm.max_depth == 0 or max3(albedo) <= 0.0:
         # No scattering can contribute: the pixel is the environment seen through the
         # medium, so estimate the transmittance instead of sampling a collision (exact for
         # a homogeneous medium, lower variance than a 0/1 free-flight outcome for grids).
         if prm.has_env == 0:
-            return 0.0, 0.0, 0.0
-        tr = shadow_transmittance(prm, med, grid, maj_max, maj_min, o, d, math.inf, rng_s,
-                                  counters)
-        return tr * prm.env[0], tr * prm.env[1], tr * prm.env[2]
+            return L
+        return scale3(env, shadow_transmittance(prm, med, o, d, math.inf, rng_s, counters))
     depth = 0
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
     while True:
@@ -193,87 +204,42 @@ def trace_path(prm, lights, med, grid, maj_max, maj_min, px, py, rng, rng_s, cou
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:
-            if prm.has_grid == 0:
-                event, t = free_flight_homogeneous(sigma_h, t0, t1, rng)
-            elif prm.has_majorant_grid != 0:
-                event, t = free_flight_grid(grid, bmin, bmax, inv_ext, prm.scale, maj_max,
-                                            maj_min, prm.decomposition != 0, o, d, t0, t1, rng,
-                                            counters, prm.max_steps)
-            else:
-                event, t = free_flight_delta(grid, bmin, inv_ext, prm.scale, prm.majorant, o, d,
-                                             t0, t1, rng, counters, prm.max_steps)
+            event, t = free_flight(med, o, d, t0, t1, prm.decomposition != 0, rng, counters,
+                                   prm.max_steps)
         if event == EVENT_CAPPED:
             break
         if event == EVENT_ESCAPE:
             if prm.has_env != 0:
-                w = 1.0
-                if depth > 0:
-                    w = pdf_phase / (pdf_phase + INV_4PI)
-                Lr += br * prm.env[0] * w
-                Lg += bg * prm.env[1] * w
-                Lb += bb * prm.env[2] * w
+                w = mis_balance(pdf_phase, uniform_sphere_pdf()) if depth > 0 else 1.0
+                L = add3(L, mul3(beta, scale3(env, w)))
             break
         depth += 1
         if prm.max_depth >= 0 and depth > prm.max_depth:
             break
         counters[C_SCATTER] += 1
-        br *= prm.albedo[0]
-        bg *= prm.albedo[1]
-        bb *= prm.albedo[2]
-        if max(br, max(bg, bb)) <= 0.0:
+        beta = mul3(beta, albedo)
+        if max3(beta) <= 0.0:
             break
-        p = (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2])
-        # Next-event estimation: delta lights.
-        for i in range(prm.n_lights):
-            lt = lights[i]
-            if lt.type == LIGHT_DIRECTIONAL:
-                wl = (-lt.vec[0], -lt.vec[1], -lt.vec[2])
-                dist = math.inf
-                falloff = 1.0
-            else:
-                v = (lt.vec[0] - p[0], lt.vec[1] - p[1], lt.vec[2] - p[2])
-                dist2 = dot(v, v)
-                if dist2 <= 0.0:
-                    continue
-                dist = math.sqrt(dist2)
-                wl = (v[0] / dist, v[1] / dist, v[2] / dist)
-                falloff = 1.0 / dist2
-            f = phase_eval(prm.phase_kind, prm.g, dot(d, wl)) * falloff
-            tr = shadow_transmittance(prm, med, grid, maj_max, maj_min, p, wl, dist, rng_s,
-                                      counters)
-            Lr += br * f * tr * lt.color[0]
-            Lg += bg * f * tr * lt.color[1]
-            Lb += bb * f * tr * lt.color[2]
-        # Next-event estimation: environment, uniform sphere sampling + balance heuristic.
-        if prm.has_env != 0:
-            wl, pdf_l = sample_uniform_sphere(rng_next(rng), rng_next(rng))
-            f = phase_eval(prm.phase_kind, prm.g, dot(d, wl))
-            tr = shadow_transmittance(prm, med, grid, maj_max, maj_min, p, wl, math.inf, rng_s,
-                                      counters)
-            c = f * tr / (pdf_l + f)
-            Lr += br * c * prm.env[0]
-            Lg += bg * c * prm.env[1]
-            Lb += bb * c * prm.env[2]
-        # Russian roulette.
+        p = madd3(o, d, t)
+        L = add3(L, mul3(beta, sample_direct(prm, lights, med, p, d, rng, rng_s, counters)))
         if depth >= prm.rr_depth:
-            q = min(max(br, max(bg, bb)), RR_MAX_SURVIVAL)
+            q = min(max3(beta), RR_MAX_SURVIVAL)
             if rng_next(rng) >= q:
                 break
-            br /= q
-            bg /= q
-            bb /= q
+            beta = div3(beta, q)
         u1 = rng_next(rng)
         u2 = rng_next(rng)
-        d, pdf_phase = phase_sample(prm.phase_kind, prm.g, u1, u2, d)
+        d, pdf_phase = phase_sample(m.phase_kind, m.g, u1, u2, d)
         o = p
-    return Lr, Lg, Lb
+    return L
 
 
 @njit(cache=True)
-def render_pixel(params, lights, med, grid, maj_max, maj_min, pix, sample_start, n_samples,
+def render_pixel(params, lights, medium, grid, maj, mnr, pix, sample_start, n_samples,
                  film_sum, film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film."""
     prm = params[0]
+    med = MediumData(medium[0], grid, maj, mnr)
     py = pix // prm.width
     px = pix - py * prm.width
     seed = (np.uint64(prm.seed_hi) << np.uint64(32)) | np.uint64(prm.seed_lo)
@@ -289,7 +255,7 @@ def render_pixel(params, lights, med, grid, maj_max, maj_min, pix, sample_start,
     for s in range(sample_start, sample_start + n_samples):
         rng_init(rng, seed, pix, s, STREAM_PATH)
         rng_init(rng_s, seed, pix, s, STREAM_SHADOW)
-        r, g, b = trace_path(prm, lights, med, grid, maj_max, maj_min, px, py, rng, rng_s, cnt)
+        r, g, b = trace_path(prm, lights, med, px, py, rng, rng_s, cnt)
         if not sample_ok(r, g, b, prm.signed_samples):
             cnt[C_DROPPED] += 1  # the sample counts as 0 (guard "sample filter", guards.py)
             continue
@@ -308,21 +274,21 @@ def render_pixel(params, lights, med, grid, maj_max, maj_min, pix, sample_start,
 
 
 @njit(cache=True, parallel=True)
-def render_batch(params, lights, med, grid, maj_max, maj_min, sample_start, n_samples, film_sum,
+def render_batch(params, lights, medium, grid, maj, mnr, sample_start, n_samples, film_sum,
                  film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of every pixel to the film.
 
     params: one-element array of ``params_dtype(float64)``; lights: array of
-    ``light_dtype(float64)``; med: the grid's extinction source for the shadow-ray
-    estimators (``pack.medium_array``); grid: float64 [nz, ny, nx] (ignored unless has_grid);
-    maj_max, maj_min: per-cell density bounds [cz, cy, cx] (used when has_majorant_grid);
-    film_sum, film_sq: float64 [height, width, 3] running sums of sample values and of their
-    squares; counters: int64 [height * width, N_COUNTERS], accumulated in place.
+    ``light_dtype(float64)``; medium: one-element array of ``medium_dtype(float64)``; grid:
+    float64 [nz, ny, nx] density (a 1x1x1 placeholder unless the density is a grid); maj,
+    mnr: per-cell density bounds [cz, cy, cx] of the majorant grid; film_sum, film_sq:
+    float64 [height, width, 3] running sums of sample values and of their squares;
+    counters: int64 [height * width, N_COUNTERS], accumulated in place.
     Pixels are independent, so the loop over them runs in parallel.
     """
     n_pix = film_sum.shape[0] * film_sum.shape[1]
     for pix in prange(n_pix):
-        render_pixel(params, lights, med, grid, maj_max, maj_min, pix, sample_start, n_samples,
+        render_pixel(params, lights, medium, grid, maj, mnr, pix, sample_start, n_samples,
                      film_sum, film_sq, counters)
 
 

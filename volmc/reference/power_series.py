@@ -15,7 +15,7 @@ Shared conventions (twins in ``kernels/power_series.h``):
   ``mu_c`` is a control extinction the caller knows: a minorant, the mean, or 0. They only
   set how many terms and lookups are spent; neither needs to be exact for the estimate to
   stay unbiased (p-series estimates are non-negative only if mbar >= mu, though).
-* Every density evaluation goes through ``lookup`` (one C_LOOKUPS each); values above the
+* Every density evaluation goes through ``extinction`` (one C_LOOKUPS each); values above the
   majorant are counted in C_OVER_MAJORANT. If an estimate would need more than ``max_steps``
   lookups (or more than the fixed order cap of the U-statistics buffer), the series is cut
   there, C_CAPPED is incremented and the partial (biased) estimate is returned.
@@ -37,7 +37,7 @@ from numba import njit
 from ..constants import (CMF_FIT_0, CMF_FIT_1, CMF_FIT_2, CMF_GOAL, URM_C, URM_K,  # noqa: F401
                          URM_MAX_ORDER, URM_MEAN_ORDER, URM_P_ZERO)
 from ..params import C_CAPPED
-from .extinction import lookup
+from .medium import extinction, optical_depth_comb
 from .guards import finite_bits
 from .rng import rng_next
 
@@ -118,19 +118,7 @@ def urm_series(x0, ys, n):
 
 
 @njit(cache=True)
-def _comb(med, grid, o, d, t0, L, m, u, mbar, counters):
-    """Jittered equidistant comb: (L / m) sum_j mu(t0 + (j + u) L / m). Unbiased for tau for
-    any m; exact when mu is constant, whatever u is."""
-    h = L / m
-    s = 0.0
-    for j in range(m):
-        s += lookup(med, grid, o, d, t0 + (j + u) * h, counters, mbar)
-    return s * h
-
-
-@njit(cache=True)
-def transmittance_unbiased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters,
-                                    max_steps):
+def unbiased_raymarch_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
     """Unbiased ray marching (Kettunen, d'Eon, Pantaleoni, Novak 2021, "An unbiased
     ray-marching transmittance estimator", their final, recommended estimator).
 
@@ -208,15 +196,15 @@ def transmittance_unbiased_raymarch(med, grid, o, d, t0, t1, mbar, mu_c, rng, co
             n = max_steps // m - 1
     if capped:
         counters[C_CAPPED] += 1
-    x0 = _comb(med, grid, o, d, t0, L, m, rng_next(rng), mbar, counters)
+    x0 = optical_depth_comb(med, o, d, t0, L, m, rng_next(rng), mbar, counters)
     ys = np.empty(URM_MAX_ORDER)
     for i in range(n):
-        ys[i] = x0 - _comb(med, grid, o, d, t0, L, m, rng_next(rng), mbar, counters)
+        ys[i] = x0 - optical_depth_comb(med, o, d, t0, L, m, rng_next(rng), mbar, counters)
     return urm_series(x0, ys, n)
 
 
 @njit(cache=True)
-def transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
+def power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
     """P-series CMF estimator (Georgiev, Misso, Hachisuka, Nowrouzezahrai, Krivanek, Jarosz
     2019, "Integral formulations of volumetric transmittance", the power-series formulation
     with the CMF-based roulette).
@@ -287,7 +275,8 @@ def transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng, counter
             return acc * g ** (n_det - k)
         k += 1
         x = t0 + rng_next(rng) * L
-        y = (mbar - lookup(med, grid, o, d, x, counters, mbar)) * L
+        y = (mbar - extinction(med, (o[0] + x * d[0], o[1] + x * d[1], o[2] + x * d[2]),
+                               mbar, counters)) * L
         prod *= g * y / k
         acc = acc * g + prod
         if prod == 0.0:
@@ -302,7 +291,8 @@ def transmittance_power_series(med, grid, o, d, t0, t1, mbar, mu_c, rng, counter
             break
         k += 1
         x = t0 + rng_next(rng) * L
-        y = (mbar - lookup(med, grid, o, d, x, counters, mbar)) * L
+        y = (mbar - extinction(med, (o[0] + x * d[0], o[1] + x * d[1], o[2] + x * d[2]),
+                               mbar, counters)) * L
         prod *= y / k
         acc += prod / q
         if prod == 0.0:

@@ -87,3 +87,10 @@ def normalize(a):
     """a / |a| for a non-zero 3-tuple."""
     inv = 1.0 / math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
     return (a[0] * inv, a[1] * inv, a[2] * inv)
+
+
+@njit(cache=True, inline="always")
+def mis_balance(pdf_a, pdf_b):
+    """Balance-heuristic weight of strategy a against strategy b, one sample each:
+    pdf_a / (pdf_a + pdf_b) (Veach 1997). Both pdfs in the same measure (1/sr here)."""
+    return pdf_a / (pdf_a + pdf_b)

@@ -1,4 +1,4 @@
-"""Scenes: the TOML format of SCENE_FORMAT.md, validation, grids and procedural generators."""
+"""Scenes: the TOML format of docs/scene_format.md, validation, grids and procedural generators."""
 
 from .errors import SceneError
 from .loading import Scene, apply_overrides, load_scene, scene_from_dict

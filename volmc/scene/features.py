@@ -15,6 +15,11 @@ FEATURES = {
     "ORTHO": "orthographic camera (else perspective)",
     "SCATTER": "scattering can reach the image (some albedo > 0 and max_depth != 0)",
 }
+#: Code paths no scene takes, off in every render build and on in the test and benchmark
+#: kernels (which build with the defaults of features.h).
+TEST_FEATURES = {
+    "PROFILES": "1-D test profiles as density sources (tests and the estimator benchmark)",
+}
 
 
 def features(scene) -> frozenset:
@@ -43,5 +48,18 @@ def features(scene) -> frozenset:
 
 
 def define_flags(feature_set) -> list:
-    """Compiler options ``-DFEATURE_X`` for a feature set, in a stable order."""
-    return [f"-DFEATURE_{name}" for name in sorted(feature_set)]
+    """Compiler options ``-DFEATURE_X=1`` for the features in the set and ``=0`` for the
+    others, in a stable order (a kernel built without options has every feature on)."""
+    return [f"-DFEATURE_{name}={int(name in feature_set)}"
+            for name in sorted(FEATURES) + sorted(TEST_FEATURES)]
+
+
+def features_header() -> str:
+    """Text of the generated ``features.h``: every FEATURE_X defaults to 1 (compiled in)
+    unless the build defines it, so kernels test plain constants and need no #ifdef."""
+    out = ["/* Generated from volmc/scene/features.py: do not edit. */",
+           "#ifndef VOLMC_FEATURES_H", "#define VOLMC_FEATURES_H"]
+    for name, meaning in {**FEATURES, **TEST_FEATURES}.items():
+        out += [f"/* {meaning} */", f"#ifndef FEATURE_{name}", f"#define FEATURE_{name} 1",
+                "#endif"]
+    return "\n".join(out + ["#endif", ""])

@@ -1,6 +1,6 @@
 """Scene schema: frozen dataclasses and the validation of a parsed TOML dictionary.
 
-Every key of SCENE_FORMAT.md is here, with its type, default and allowed range; the README's
+Every key of docs/scene_format.md is here, with its type, default and allowed range; the README's
 "Scene format" table lists the same keys. ``validate(raw, file)`` turns a dictionary (as
 read from TOML, after ``-D`` overrides) into a ``SceneSpec`` or raises ``SceneError`` naming
 the file and the dotted key (``medium.phase.g``, ``lights[1].irradiance``).
@@ -14,6 +14,7 @@ import sys
 from dataclasses import dataclass
 from typing import Optional, Union
 
+from ..techniques import grid_estimators
 from .errors import SceneError
 
 Vec3 = tuple[float, float, float]
@@ -139,10 +140,9 @@ RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittan
                "majorant_resolution", "free_flight")
 MAJORANTS = ("global", "grid")
 FREE_FLIGHTS = ("delta", "decomposition")
-#: Shadow-ray transmittance estimators for grids: every estimator of the registry in
-#: volmc/reference/estimators.py except "analytic" (which needs a homogeneous segment).
-TRANSMITTANCE_ESTIMATORS = ("ratio", "residual_ratio", "next_flight", "track_length",
-                            "power_series", "unbiased_raymarch", "biased_raymarch")
+#: Shadow-ray transmittance estimators for grids: every estimator of the registry
+#: (volmc/techniques.py) except those exact only on homogeneous segments.
+TRANSMITTANCE_ESTIMATORS = grid_estimators()
 LIGHT_KEYS = {
     "environment": ("type", "radiance"),
     "directional": ("type", "direction", "irradiance"),

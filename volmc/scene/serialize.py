@@ -9,7 +9,7 @@ from .schema import (ConstantDensity, DirectionalLight, EnvironmentLight, FileDe
 
 
 def to_dict(spec: SceneSpec) -> dict:
-    """Plain dictionary in the TOML layout of SCENE_FORMAT.md, every key explicit."""
+    """Plain dictionary in the TOML layout of docs/scene_format.md, every key explicit."""
     c, m, r = spec.camera, spec.medium, spec.render
     d = m.density
     if isinstance(d, ConstantDensity):

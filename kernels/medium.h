@@ -1,0 +1,115 @@
+/* The medium: what is here (density, extinction) and what bounds it along a ray (majorant
+ * segments). Twin of volmc/reference/medium.py, where the density sources, the segment
+ * convention and the guards are described. The record type Medium is generated from
+ * volmc/params.py (MEDIUM_FIELDS) into params.h. */
+#ifndef VOLMC_MEDIUM_H
+#define VOLMC_MEDIUM_H
+
+#include "params.h"
+#include "features.h"
+#include "grid.h"
+#include "dda.h"
+
+/* A medium record with the arrays it points to: the density grid [nz][ny][nx] and the
+ * majorant grid's per-cell density maxima and minima [cz][cy][cx]. */
+typedef struct {
+    const Medium *m;
+    global const float *grid;
+    global const float *maj;
+    global const float *mnr;
+} MediumData;
+
+inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
+
+inline float profile_density(int kind, const float prof[5], float x) {
+    float a = prof[0], b = prof[1], c = prof[2], s = prof[3], L = prof[4];
+    if (kind == DENSITY_RAMP) return a + (b - a) * x / L;
+    if (kind == DENSITY_GAUSS_BUMP) {
+        float y = (x - c) / s;
+        return a + b * exp(-0.5f * y * y);
+    }
+    if (kind == DENSITY_GAUSS_HOLE) {
+        float y = (x - c) / s;
+        return fmax(a - b * exp(-0.5f * y * y), 0.0f);
+    }
+    return a * (1.0f + b * cos(TWO_PI * c * x / L + s));
+}
+
+inline float medium_density(const MediumData *med, float3 p) {
+    const Medium *m = med->m;
+    int kind = m->density_kind;
+    if (FEATURE_GRID && kind == DENSITY_GRID)
+        return grid_lookup(med->grid, (int3)(m->dims[0], m->dims[1], m->dims[2]), vec3(m->bmin),
+                           vec3(m->inv_extent), p);
+    if (!FEATURE_PROFILES || kind == DENSITY_CONSTANT) return m->density;
+    return profile_density(kind, m->profile, p.x);
+}
+
+inline float extinction(const MediumData *med, float3 p, float sigma_maj, ulong *counters) {
+    float mu = med->m->scale * medium_density(med, p);
+    counters[C_LOOKUPS] += 1;
+    if (mu > sigma_maj) counters[C_OVER_MAJORANT] += 1;
+    return mu;
+}
+
+inline float optical_depth_comb(const MediumData *med, float3 o, float3 d, float t0, float L,
+                                int n, float u, float sigma_maj, ulong *counters) {
+    float h = L / (float)n;
+    float s = 0.0f;
+    for (int j = 0; j < n; ++j)
+        s += extinction(med, o + (t0 + ((float)j + u) * h) * d, sigma_maj, counters);
+    return s * h;
+}
+
+typedef struct {
+    float t_min, t_max, sigma_maj, sigma_min;
+} Segment;
+
+typedef struct {
+    Dda dda;
+    float t0, t1;
+    int done;
+} MajorantIter;
+
+inline void majorant_iter_init(MajorantIter *it, const MediumData *med, float3 o, float3 d,
+                               float t0, float t1) {
+    const Medium *m = med->m;
+    it->done = !(t1 > t0);
+    it->t0 = t0;
+    it->t1 = t1;
+    if (FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID)
+        dda_init(&it->dda, o, d, t0, t1, vec3(m->bmin), vec3(m->bmax),
+                 (int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]));
+}
+
+/* Returns 0 at the end; else writes the next non-empty segment. */
+inline int majorant_next(MajorantIter *it, const MediumData *med, Segment *seg) {
+    const Medium *m = med->m;
+    if (FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID) {
+        int3 res = (int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]);
+        float ta, tb;
+        int3 cell;
+        while (dda_next(&it->dda, &ta, &tb, &cell)) {
+            int k = dda_cell_index(cell, res);
+            float s_maj = m->scale * med->maj[k];
+            if (s_maj > 0.0f && tb > ta) {
+                seg->t_min = ta;
+                seg->t_max = tb;
+                seg->sigma_maj = s_maj;
+                seg->sigma_min = m->scale * med->mnr[k];
+                return 1;
+            }
+        }
+        return 0;
+    }
+    if (it->done) return 0;
+    it->done = 1;
+    if (!(m->sigma_maj > 0.0f)) return 0;
+    seg->t_min = it->t0;
+    seg->t_max = it->t1;
+    seg->sigma_maj = m->sigma_maj;
+    seg->sigma_min = m->sigma_min;
+    return 1;
+}
+
+#endif

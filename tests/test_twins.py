@@ -1,0 +1,68 @@
+"""The twin rule: every kernel function has a Numba twin of the same name, and the estimator
+registry names functions that exist on both sides and dispatch to themselves."""
+
+import math
+import re
+
+import numpy as np
+import pytest
+
+from volmc.resources import kernels_dir
+from volmc.techniques import ESTIMATORS
+
+#: Kernel helpers with no Numba counterpart, and why: float3 from a 3-array (Numba uses
+#: tuples throughout), a flat cell index (Numba indexes the 3-D array), and the lerp the
+#: reference writes inline in grid_lookup.
+C_ONLY = {"vec3", "vec3g", "dda_cell_index", "lerp_ab"}
+
+
+def _kernel_functions():
+    names = set()
+    for path in sorted(kernels_dir().glob("*.h")) + [kernels_dir() / "integrator.cl"]:
+        names |= set(re.findall(r"^inline\s+[\w\s\*]+?\b(\w+)\s*\(", path.read_text(), re.M))
+    return names
+
+
+def _reference_functions():
+    from pathlib import Path
+
+    import volmc.reference
+    names = set()
+    for path in Path(volmc.reference.__file__).parent.glob("*.py"):
+        names |= set(re.findall(r"^def (\w+)\(", path.read_text(), re.M))
+    return names
+
+
+def test_every_kernel_function_has_a_numba_twin():
+    missing = _kernel_functions() - _reference_functions() - C_ONLY
+    assert not missing, f"kernel functions without a Numba twin: {sorted(missing)}"
+    assert C_ONLY <= _kernel_functions() | {"vec3g"}
+
+
+@pytest.mark.parametrize("name", list(ESTIMATORS))
+def test_registry_functions_exist_on_both_sides(name):
+    est = ESTIMATORS[name]
+    assert callable(est.reference) and est.reference.__name__ == est.function
+    assert est.kernel in _kernel_functions(), est.kernel
+
+
+@pytest.mark.parametrize("name", list(ESTIMATORS))
+def test_dispatch_runs_the_registered_function(name):
+    """reference.estimators.transmittance(id, ...) gives what the registered function gives,
+    estimate for estimate, on the same random streams."""
+    from volmc.reference.estimators import transmittance
+    from volmc.reference.medium import MediumData, make_grid_medium
+    from volmc.reference.rng import STREAM_TEST, rng_new
+    est = ESTIMATORS[name]
+    grid = 0.2 + np.random.default_rng(3).random((4, 5, 6))
+    m = make_grid_medium((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0), 2.0, (6, 5, 4))
+    m["sigma_maj"] = 2.0 * grid.max()
+    m["sigma_min"] = 2.0 * grid.max() if est.homogeneous_only else 2.0 * grid.min()
+    med = MediumData(np.atleast_1d(m)[0], grid, grid, grid)
+    o, d = (-1.0, 0.1, 0.2), (1.0 / math.sqrt(2.0), 1.0 / math.sqrt(2.0), 0.0)
+    for i in range(200):
+        c1 = np.zeros(6, np.int64)
+        c2 = np.zeros(6, np.int64)
+        a = transmittance(est.id, med, o, d, 0.0, 1.2, rng_new(5, 0, i, STREAM_TEST), c1, 10**6)
+        b = est.reference(med, o, d, 0.0, 1.2, rng_new(5, 0, i, STREAM_TEST), c2, 10**6)
+        assert a == b and np.array_equal(c1, c2), (name, i)

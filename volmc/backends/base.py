@@ -1,0 +1,63 @@
+"""The interface every render backend implements, and the backend registry.
+
+A backend is built for one scene (it packs the scene with ``volmc.pack.pack_scene`` and
+compiles what it needs), then renders batches of samples into a ``Film``. Samples are
+indexed globally: sample s of pixel p always draws the same random numbers, so any split of
+the work into batches gives the same image.
+"""
+
+import abc
+
+#: Backend names, in the order tests and benchmarks use them: the production kernels first.
+BACKENDS = ("opencl", "numba")
+
+
+class RenderBackend(abc.ABC):
+    """A renderer of one scene.
+
+    ``name``: the backend's name (one of BACKENDS); ``scene``: the Scene it renders;
+    ``techniques``: {what: how} for metadata and ``--stats`` (see ``techniques``)."""
+
+    name = ""
+
+    @abc.abstractmethod
+    def warm_up(self):
+        """Compile (or load from a cache) without rendering a sample."""
+
+    @abc.abstractmethod
+    def render(self, sample_start, n_samples, film):
+        """Add samples [sample_start, sample_start + n_samples) of every pixel to ``film``
+        (its per-pixel sums and sums of squares)."""
+
+    @abc.abstractmethod
+    def counter_totals(self):
+        """Counters summed over pixels since the backend was made: int64 [N_COUNTERS]
+        (volmc.params.COUNTER_NAMES)."""
+
+
+def make_backend(name, scene, device=None):
+    """A render backend by name: "opencl" on ``device`` (None: the default device), or
+    "numba"."""
+    if name == "numba":
+        from .numba import NumbaBackend
+        return NumbaBackend(scene)
+    if name == "opencl":
+        from .opencl import OpenCLBackend
+        return OpenCLBackend(scene, device=device)
+    raise ValueError(f"unknown backend {name!r} (available: {', '.join(BACKENDS)})")
+
+
+def techniques(scene):
+    """The technique choices a scene implies, for metadata and --stats."""
+    homogeneous = scene.grid is None
+    r = scene.render
+    flight = "delta tracking" if r.free_flight == "delta" or r.majorant != "grid" else \
+        "decomposition tracking"
+    return {
+        "free_flight": "analytic" if homogeneous else f"{flight} ({r.majorant} majorant)",
+        "transmittance": "analytic" if homogeneous else
+        f"{r.transmittance} ({r.majorant} majorant)",
+        "phase": scene.medium.phase.type,
+        "nee": "all lights; environment by uniform sphere + balance-heuristic MIS",
+        "russian_roulette": f"from depth {r.rr_depth}, q = min(max(beta), 0.95)",
+    }

@@ -1,0 +1,36 @@
+"""The Numba float64 reference as a render backend (volmc/reference/integrator.py)."""
+
+import numpy as np
+
+from ..pack import pack_scene
+from ..params import N_COUNTERS
+from ..reference.integrator import render_batch
+from .base import RenderBackend, techniques
+
+
+class NumbaBackend(RenderBackend):
+    """Renders a scene with the float64 Numba path tracer."""
+
+    name = "numba"
+
+    def __init__(self, scene):
+        self.scene = scene
+        self.packed = pack_scene(scene, np.float64)
+        w, h = scene.camera.resolution
+        self.counters = np.zeros((w * h, N_COUNTERS), np.int64)
+        self.techniques = techniques(scene)
+
+    def _launch(self, sample_start, n_samples, film_sum, film_sq, counters):
+        pk = self.packed
+        render_batch(pk.params, pk.lights, pk.medium, pk.grid, pk.maj, pk.mnr, sample_start,
+                     n_samples, film_sum, film_sq, counters)
+
+    def warm_up(self):
+        film = np.zeros((1, 1, 3))
+        self._launch(0, 0, film, film.copy(), np.zeros((1, N_COUNTERS), np.int64))
+
+    def render(self, sample_start, n_samples, film):
+        self._launch(sample_start, n_samples, film.sum, film.sum_sq, self.counters)
+
+    def counter_totals(self):
+        return self.counters.sum(axis=0)

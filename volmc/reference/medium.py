@@ -1,0 +1,232 @@
+"""The medium: what is here (density, extinction) and what bounds it along a ray (segments).
+
+Twin of ``kernels/medium.h``. A medium is a record (``params.MEDIUM_FIELDS``, a numpy
+structured record) plus the arrays it points to, carried together as ``MediumData``
+(m, grid, maj, mnr); the kernels' ``MediumData`` struct holds the same four things.
+
+* **Density sources** (``m.density_kind``): ``DENSITY_CONSTANT`` (``m.density`` everywhere:
+  a homogeneous medium), ``DENSITY_GRID`` (trilinear in ``grid``, see grid.py), or a 1-D
+  test profile of the x coordinate alone, with parameters a, b, c, s, L = ``m.profile``:
+
+  =====================  ============================================  ===================
+  kind                   density(x)                                    parameters
+  =====================  ============================================  ===================
+  DENSITY_RAMP           a + (b - a) x / L                             a, b >= 0
+  DENSITY_GAUSS_BUMP     a + b exp(-(x - c)^2 / (2 s^2))               a, b >= 0
+  DENSITY_GAUSS_HOLE     max(a - b exp(-(x - c)^2 / (2 s^2)), 0)       0 <= b <= a
+  DENSITY_COSINE         a (1 + b cos(2 pi c x / L + s))               a >= 0, 0 <= b <= 1
+  =====================  ============================================  ===================
+
+  Along the test ray o = 0, d = +x the profile's x is the ray parameter t, so the closed
+  forms below (``optical_depth_profile``) give exact transmittances.
+* **Extinction** is ``m.scale * density``, per world unit; ``extinction`` is the one counted
+  query every tracking technique uses (one ``C_LOOKUPS`` per call; a value above the
+  segment's majorant is counted in ``C_OVER_MAJORANT``, never silently accepted).
+* **Majorant segments** (``m.majorant_kind``): ``majorant_iter_init`` / ``majorant_next`` walk
+  a ray segment [t0, t1] and yield (t_min, t_max, sigma_maj, sigma_min) pieces that tile it,
+  with sigma_min <= extinction <= sigma_maj on each. ``MAJORANT_GLOBAL`` is one piece with
+  the record's ``sigma_maj`` and ``sigma_min``; ``MAJORANT_GRID`` yields one piece per cell of
+  the majorant grid crossed by the 3-D DDA (dda.py), scale times the cell's density maximum
+  and minimum (majorant.py). Pieces with sigma_maj <= 0 (nothing there) and pieces of zero
+  length are skipped: an empty cell costs nothing. A piece with sigma_min >= sigma_maj is
+  homogeneous, and tracking treats it exactly (tracking.py).
+
+Adding a source or a structure (RGB extinction, an emission field, an octree of majorants)
+adds a kind here and in medium.h, and every technique built on these three functions
+inherits it.
+"""
+
+import math
+from collections import namedtuple
+
+import numpy as np
+from numba import njit
+
+from ..constants import (DENSITY_CONSTANT, DENSITY_COSINE, DENSITY_GAUSS_BUMP,
+                         DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP, MAJORANT_GLOBAL,
+                         MAJORANT_GRID, TWO_PI)
+from ..params import C_LOOKUPS, C_OVER_MAJORANT, medium_dtype
+from .dda import DDA_STATE_SIZE, dda_init, dda_next
+from .grid import grid_lookup
+
+#: A medium record with its arrays: the density grid [nz, ny, nx] and the majorant grid's
+#: per-cell density maxima and minima [cz, cy, cx] (1x1x1 placeholders when unused).
+MediumData = namedtuple("MediumData", ["m", "grid", "maj", "mnr"])
+
+PROFILE_NAMES = {DENSITY_CONSTANT: "constant", DENSITY_RAMP: "linear ramp",
+                 DENSITY_GAUSS_BUMP: "Gaussian bump", DENSITY_GAUSS_HOLE: "Gaussian hole",
+                 DENSITY_COSINE: "cosine"}
+
+#: Iterator state: [done, t0, t1, unused] then the DDA's state.
+ITER_STATE_SIZE = 4 + DDA_STATE_SIZE
+
+
+@njit(cache=True, inline="always")
+def profile_density(kind, prof, x):
+    """Density of a 1-D test profile at coordinate x (parameters prof = a, b, c, s, L)."""
+    a, b, c, s, L = prof[0], prof[1], prof[2], prof[3], prof[4]
+    if kind == DENSITY_RAMP:
+        return a + (b - a) * x / L
+    if kind == DENSITY_GAUSS_BUMP:
+        y = (x - c) / s
+        return a + b * math.exp(-0.5 * y * y)
+    if kind == DENSITY_GAUSS_HOLE:
+        y = (x - c) / s
+        return max(a - b * math.exp(-0.5 * y * y), 0.0)
+    return a * (1.0 + b * math.cos(TWO_PI * c * x / L + s))
+
+
+@njit(cache=True, inline="always")
+def medium_density(med, p):
+    """Density at world point p (a 3-tuple), before the scale: "what is here"."""
+    m = med.m
+    kind = m.density_kind
+    if kind == DENSITY_GRID:
+        return grid_lookup(med.grid, (m.bmin[0], m.bmin[1], m.bmin[2]),
+                           (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), p)
+    if kind == DENSITY_CONSTANT:
+        return m.density
+    return profile_density(kind, m.profile, p[0])
+
+
+@njit(cache=True, inline="always")
+def extinction(med, p, sigma_maj, counters):
+    """Extinction at p (1/world unit): one counted lookup; a value above the majorant
+    sigma_maj of the segment being tracked is counted too."""
+    mu = med.m.scale * medium_density(med, p)
+    counters[C_LOOKUPS] += 1
+    if mu > sigma_maj:
+        counters[C_OVER_MAJORANT] += 1
+    return mu
+
+
+@njit(cache=True, inline="always")
+def majorant_iter_init(it, med, o, d, t0, t1):
+    """Start walking the majorant segments of ray o + t d over [t0, t1] (clipped to the box)."""
+    m = med.m
+    it[0] = 0.0 if t1 > t0 else 1.0
+    it[1] = t0
+    it[2] = t1
+    if m.majorant_kind == MAJORANT_GRID:
+        dda_init(it[4:], o, d, t0, t1, (m.bmin[0], m.bmin[1], m.bmin[2]),
+                 (m.bmax[0], m.bmax[1], m.bmax[2]), (m.maj_res[0], m.maj_res[1], m.maj_res[2]))
+
+
+@njit(cache=True, inline="always")
+def majorant_next(it, med):
+    """Next non-empty segment: (ok, t_min, t_max, sigma_maj, sigma_min); ok is False at the
+    end. Segments tile [t0, t1] in order; empty and zero-length ones are skipped."""
+    m = med.m
+    if m.majorant_kind == MAJORANT_GRID:
+        while True:
+            ok, ta, tb, iz, iy, ix = dda_next(it[4:])
+            if not ok:
+                return False, 0.0, 0.0, 0.0, 0.0
+            s_maj = m.scale * med.maj[iz, iy, ix]
+            if s_maj > 0.0 and tb > ta:
+                return True, ta, tb, s_maj, m.scale * med.mnr[iz, iy, ix]
+    if it[0] != 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0
+    it[0] = 1.0
+    if not m.sigma_maj > 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0
+    return True, it[1], it[2], m.sigma_maj, m.sigma_min
+
+
+@njit(cache=True, inline="always")
+def optical_depth_comb(med, o, d, t0, L, n, u, sigma_maj, counters):
+    """Jittered equidistant estimate of the optical depth over [t0, t0 + L] along o + t d:
+    (L / n) sum_j mu(t0 + (j + u) L / n), n counted lookups. Unbiased for any n, and exact
+    when the extinction is constant, whatever u is."""
+    h = L / n
+    s = 0.0
+    for j in range(n):
+        t = t0 + (j + u) * h
+        s += extinction(med, (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]), sigma_maj,
+                        counters)
+    return s * h
+
+
+# --- Host-side constructors and closed forms (tests and the estimator benchmark) ------------
+
+def new_medium(real=np.float64):
+    """A zeroed medium record (a 0-d structured array) with no majorant and unit scale."""
+    m = np.zeros((), medium_dtype(real))
+    m["scale"] = 1.0
+    m["dims"] = (1, 1, 1)
+    m["maj_res"] = (1, 1, 1)
+    m["majorant_kind"] = MAJORANT_GLOBAL
+    return m
+
+
+def make_profile(kind, a, b=0.0, c=0.0, s=1.0, L=1.0):
+    """Medium record of a 1-D profile (DENSITY_CONSTANT: density a everywhere), scale 1, so
+    its extinction is the profile itself. Bounds are set by the caller (sigma_maj, sigma_min)."""
+    m = new_medium()
+    m["density_kind"] = kind
+    m["density"] = a if kind == DENSITY_CONSTANT else 0.0
+    m["profile"] = (a, b, c, s, L)
+    return m
+
+
+def make_grid_medium(bmin, bmax, scale, dims=(1, 1, 1)):
+    """Medium record of a density grid in the box [bmin, bmax] (dims = (nx, ny, nz))."""
+    m = new_medium()
+    m["density_kind"] = DENSITY_GRID
+    m["bmin"], m["bmax"] = bmin, bmax
+    m["inv_extent"] = [1.0 / (hi - lo) for lo, hi in zip(bmin, bmax)]
+    m["dims"] = dims
+    m["scale"] = scale
+    return m
+
+
+def profile_params(med):
+    """(kind, a, b, c, s, L) of a profile record (a = the density of a constant one)."""
+    kind = int(med["density_kind"])
+    a, b, c, s, L = (float(x) for x in med["profile"])
+    if kind == DENSITY_CONSTANT:
+        a = float(med["density"])
+    return kind, a, b, c, s, L
+
+
+def optical_depth_profile(med, t0, t1):
+    """Closed-form integral of a profile's extinction over x in [t0, t1] (float64)."""
+    kind, a, b, c, s, L = profile_params(med)
+    k_scale = float(med["scale"])
+    if kind == DENSITY_CONSTANT:
+        return k_scale * a * (t1 - t0)
+    if kind == DENSITY_RAMP:
+        def F(t):
+            return a * t + 0.5 * (b - a) * t * t / L
+        return k_scale * (F(t1) - F(t0))
+    if kind in (DENSITY_GAUSS_BUMP, DENSITY_GAUSS_HOLE):
+        sign = 1.0 if kind == DENSITY_GAUSS_BUMP else -1.0
+        g = s * math.sqrt(0.5 * math.pi) * (math.erf((t1 - c) / (s * math.sqrt(2.0)))
+                                            - math.erf((t0 - c) / (s * math.sqrt(2.0))))
+        return k_scale * (a * (t1 - t0) + sign * b * g)
+    if kind == DENSITY_COSINE:
+        k = 2.0 * math.pi * c / L
+        return k_scale * (a * (t1 - t0) + a * b / k * (math.sin(k * t1 + s) - math.sin(k * t0 + s)))
+    raise ValueError(f"not a 1-D profile: kind {kind}")
+
+
+def profile_bounds(med, t0, t1, n=20001):
+    """(minimum, maximum, mean) extinction of a profile over [t0, t1] (dense sampling plus the
+    analytic extremes; the maximum is a true majorant, the minimum a true minorant)."""
+    kind, a, b, c, s, L = profile_params(med)
+    k_scale = float(med["scale"])
+    ts = np.linspace(t0, t1, n)
+    if kind == DENSITY_CONSTANT:
+        vals = np.full(n, a)
+    else:
+        prof = np.array([a, b, c, s, L])
+        vals = np.array([profile_density(kind, prof, t) for t in ts])
+    lo, hi = float(vals.min()), float(vals.max())
+    if kind == DENSITY_GAUSS_BUMP and t0 <= c <= t1:
+        hi = max(hi, a + b)
+    if kind == DENSITY_GAUSS_HOLE and t0 <= c <= t1:
+        lo = min(lo, max(a - b, 0.0))
+    if kind == DENSITY_COSINE:  # the analytic extremes bound every sub-interval
+        hi, lo = a * (1 + b), a * (1 - b)
+    mean = optical_depth_profile(med, t0, t1) / (t1 - t0)
+    return k_scale * lo, k_scale * hi, mean

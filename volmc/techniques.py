@@ -1,0 +1,81 @@
+"""The transmittance-estimator registry, written once and read by everything else.
+
+Each ``Estimator`` record names a technique and the function that implements it. Twins
+share their names, so ``function`` is both the Numba function in ``volmc.reference`` and the
+OpenCL function in ``kernels/``. The scene schema takes ``render.transmittance`` values from
+``ESTIMATORS``, the backends build or dispatch the chosen function, and the benchmarks and
+tests iterate over the records. Adding an estimator means one record here and its twins.
+
+The module imports nothing heavy (Numba only when ``Estimator.reference`` is first read), so
+the scene layer can read it.
+"""
+
+from dataclasses import dataclass
+
+from . import constants as C
+
+
+@dataclass(frozen=True)
+class Estimator:
+    """One transmittance estimator.
+
+    name: the value of ``render.transmittance`` and of ``--estimators``;
+    id: its ESTIMATOR_* constant, on which the reference dispatches
+    (``reference.estimators.transmittance``);
+    function: the twins' name, ``transmittance_<...>(med, o, d, t0, t1, rng, counters,
+    max_steps)`` in both backends;
+    unbiased: E[estimate] = T exactly; signed: single estimates can be negative (a render
+    keeps negative samples when it is chosen); homogeneous_only: exact only where the
+    extinction is constant, so it is no choice for grids; build_options: extra kernel build
+    options the function needs; summary: one line for help texts and tables.
+    """
+    name: str
+    id: int
+    function: str
+    unbiased: bool
+    signed: bool = False
+    homogeneous_only: bool = False
+    build_options: tuple = ()
+    summary: str = ""
+
+    @property
+    def reference(self):
+        """The Numba function (imported on first use)."""
+        from .reference import estimators
+        return getattr(estimators, self.function)
+
+    @property
+    def kernel(self):
+        """The OpenCL function's name."""
+        return self.function
+
+
+_RECORDS = (
+    Estimator("analytic", C.ESTIMATOR_ANALYTIC, "transmittance_analytic", True, homogeneous_only=True,
+              summary="exp(-sigma L) per majorant segment: exact on homogeneous segments only"),
+    Estimator("track_length", C.ESTIMATOR_TRACK_LENGTH, "transmittance_track_length", True,
+              summary="delta tracking: 1 if the walk escapes, 0 at the first real collision"),
+    Estimator("ratio", C.ESTIMATOR_RATIO, "transmittance_ratio_tracking", True,
+              summary="ratio tracking: product of (1 - mu / sigma_maj) over tentative collisions"),
+    Estimator("residual_ratio", C.ESTIMATOR_RESIDUAL_RATIO, "transmittance_residual_ratio", True,
+              summary="residual ratio tracking with each segment's minorant as control"),
+    Estimator("next_flight", C.ESTIMATOR_NEXT_FLIGHT, "transmittance_next_flight", True,
+              summary="next-flight ratio tracking: every vertex adds the chance to escape"),
+    Estimator("biased_raymarch", C.ESTIMATOR_BIASED_RAYMARCH, "transmittance_biased_raymarch", False,
+              summary="jittered ray marching, exp(-tau estimate): biased (Jensen)"),
+    Estimator("power_series", C.ESTIMATOR_POWER_SERIES, "transmittance_power_series", True,
+              build_options=("-DVOLMC_POWER_SERIES",),
+              summary="p-series CMF power series (Georgiev et al. 2019)"),
+    Estimator("unbiased_raymarch", C.ESTIMATOR_UNBIASED_RAYMARCH, "transmittance_unbiased_raymarch", True, signed=True,
+              build_options=("-DVOLMC_POWER_SERIES",),
+              summary="unbiased ray marching (Kettunen et al. 2021)"),
+)
+
+#: name -> Estimator, in registry order.
+ESTIMATORS = {e.name: e for e in _RECORDS}
+assert len({e.id for e in _RECORDS}) == len(_RECORDS), "estimator ids are unique"
+
+
+def grid_estimators():
+    """Names usable for shadow rays in grids (``render.transmittance``)."""
+    return tuple(n for n, e in ESTIMATORS.items() if not e.homogeneous_only)
