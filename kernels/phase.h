@@ -35,6 +35,24 @@ inline float3 hg_sample(float u1, float u2, float3 d_in, float g, float *pdf) {
     return from_frame(d_in, c, sin_theta, TWO_PI * u2);
 }
 
+/* The uniform hg_sample_cos maps to cos_theta (derivation in phase.py). */
+inline float hg_invert_cos(float cos_theta, float g) {
+    float denom = g >= 0.0f ? (1.0f - g) * (1.0f - g) + 2.0f * g * (1.0f - cos_theta)
+                            : (1.0f + g) * (1.0f + g) - 2.0f * g * (1.0f + cos_theta);
+    float s = sqrt(denom);
+    return (1.0f - g) * (1.0f + cos_theta) / (s * (1.0f + g + s));
+}
+
+/* (u1, u2) that hg_sample maps to w about d_in. */
+inline float2 invert_hg_sample(float3 w, float3 d_in, float g) {
+    float c = clamp(dot(d_in, w), -1.0f, 1.0f);
+    float3 s, t;
+    coordinate_system(d_in, &s, &t);
+    float phi = atan2(dot(w, t), dot(w, s));
+    if (phi < 0.0f) phi += TWO_PI;
+    return (float2)(hg_invert_cos(c, g), phi / TWO_PI);
+}
+
 inline float phase_eval(int kind, float g, float cos_theta) {
     if (FEATURE_PHASE_HG && kind == PHASE_HG) return hg_eval(cos_theta, g);
     return INV_4PI;

@@ -21,6 +21,8 @@ inline float exponential_pdf(float t, float a) {
     return a * exp(-a * t);
 }
 
+inline float invert_exponential_sample(float t, float a) { return -expm1(-a * t); }
+
 inline float3 sample_uniform_sphere(float u1, float u2, float *pdf) {
     float z = 1.0f - 2.0f * u1;
     float r = sqrt(fmax(0.0f, 1.0f - z * z));
@@ -30,6 +32,13 @@ inline float3 sample_uniform_sphere(float u1, float u2, float *pdf) {
 }
 
 inline float uniform_sphere_pdf(void) { return INV_4PI; }
+
+/* (u1, u2) that sample_uniform_sphere maps to w. */
+inline float2 invert_uniform_sphere(float3 w) {
+    float phi = atan2(w.y, w.x);
+    if (phi < 0.0f) phi += TWO_PI;
+    return (float2)(0.5f * (1.0f - w.z), phi / TWO_PI);
+}
 
 /* Duff et al. 2017 orthonormal basis; s and t written through the pointers. */
 inline void coordinate_system(float3 n, float3 *s, float3 *t) {

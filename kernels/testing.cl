@@ -68,6 +68,24 @@ kernel void t_coordinate_system(global const float *n, global float *out) {
     vstore3(t, 2 * i + 1, out);
 }
 
+/* Inverse samplers: out[i] = (u1, u2) for direction i (uniform sphere; HG about d_in with g[i]),
+ * and u for the exponential distance t[i] at rate a. */
+kernel void t_invert_uniform_sphere(global const float *w, global float *out) {
+    int i = get_global_id(0);
+    vstore2(invert_uniform_sphere(vload3(i, w)), i, out);
+}
+
+kernel void t_invert_hg_sample(global const float *w, float3 d_in, global const float *g,
+                               global float *out) {
+    int i = get_global_id(0);
+    vstore2(invert_hg_sample(vload3(i, w), d_in, g[i]), i, out);
+}
+
+kernel void t_invert_exponential(global const float *t, float a, global float *out) {
+    int i = get_global_id(0);
+    out[i] = invert_exponential_sample(t[i], a);
+}
+
 kernel void t_grid_lookup(global const float *grid, int3 dims, float3 bmin, float3 inv_extent,
                           global const float *p, global float *out) {
     int i = get_global_id(0);

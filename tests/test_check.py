@@ -159,7 +159,6 @@ def test_schema_takes_shadow_estimators_from_the_registry():
             assert load_scene(path, [f"render.transmittance={name}"]).render.transmittance == name
 
 
-@pytest.mark.parametrize("backend", ["opencl", "numba"])
 def test_global_and_grid_majorants_agree(backend):
     """Issue 5: renders with the global majorant and with a majorant grid agree by the
     per-pixel z-test (independent seeds), and the grid needs far fewer lookups."""
@@ -176,7 +175,6 @@ def test_global_and_grid_majorants_agree(backend):
     assert b.counters["over_majorant"] == 0 and b.counters["capped"] == 0
 
 
-@pytest.mark.parametrize("backend", ["opencl", "numba"])
 def test_decomposition_tracking_same_paths_fewer_lookups(backend):
     """render.free_flight = "decomposition" makes the same decisions as delta tracking for the
     same random numbers (identical scattering counts and, up to float32 rounding, images) but

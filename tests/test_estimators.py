@@ -29,7 +29,6 @@ def _run(backend, name, med, grid, rays, bounds, n, seed=5):
     return _ocl(name).run(med, grid, rays, bounds, n, seed)
 
 
-@pytest.mark.parametrize("backend", ["numba", "opencl"])
 @pytest.mark.parametrize("name", UNBIASED)
 def test_unbiased_on_every_profile(backend, name):
     """Mean within the Sidak bound (about 4 s.e.) of exp(-tau) on every 1-D profile, at
@@ -58,7 +57,6 @@ def _cloud_rays():
     return scene, med, grid_rays(scene, 48, 48, seed=1)
 
 
-@pytest.mark.parametrize("backend", ["numba", "opencl"])
 @pytest.mark.parametrize("name", UNBIASED)
 def test_unbiased_on_grid_rays(backend, name):
     """Camera and shadow rays through the cloud: the mean error over all rays and estimates

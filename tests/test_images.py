@@ -16,14 +16,6 @@ from volmc.resources import scenes_dir
 from volmc.scene import load_scene, scene_from_dict
 
 
-BACKENDS = ["numba", "opencl"]
-
-
-@pytest.fixture(params=BACKENDS)
-def backend(request):
-    return request.param
-
-
 def _z(res, expected):
     m = res.film.mean()
     se = np.sqrt(res.film.variance_of_mean())

@@ -19,7 +19,6 @@ from volmc.constants import TR_RR_THRESHOLD
 from volmc.render import mean_and_stderr, render
 from volmc.scene import scene_from_dict
 
-BACKENDS = ["numba", "opencl"]
 RAY = np.array([[0, 0, 0, 1, 0, 0, 0, 1, 0]], np.float64)
 _OCL = {}
 
@@ -50,7 +49,6 @@ ROULETTE_CASES = [
 ]
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case10_transmittance_roulette_is_unbiased_and_cheap(backend):
     """robustness case 10, estimator level: ratio, next-flight and residual ratio tracking end their
     walks by Russian roulette once the running transmittance is below TR_RR_THRESHOLD. The
@@ -102,7 +100,6 @@ def _sane(res):
     return img
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case10_dense_media_render(backend, tmp_path):
     """robustness case 10, image level, on both backends:
 

@@ -19,7 +19,6 @@ from stats import ALPHA, z_bound
 from volmc.render import render
 from volmc.scene import scene_from_dict
 
-BACKENDS = ["numba", "opencl"]
 
 
 def _scaled(raw, s):
@@ -38,7 +37,6 @@ def _scaled(raw, s):
     return raw
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case12_scaled_scene_renders_the_same_image(backend, tmp_path):
     """robustness case 12 on both backends:
 

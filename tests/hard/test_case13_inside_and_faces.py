@@ -18,7 +18,6 @@ from stats import ALPHA, z_bound
 from volmc.render import make_backend, render
 from volmc.scene import SceneError, scene_from_dict
 
-BACKENDS = ["numba", "opencl"]
 SITUATIONS = ["camera_inside_absorber", "camera_inside_furnace", "eye_on_face", "grazing",
               "thin_and_zero_thickness", "light_inside"]
 #: float32 evaluation of an exact or smooth estimate: allowance added to the variance (as
@@ -214,7 +213,6 @@ def _light_inside(backend, tmp_path):
     _z_check(render(scene_from_dict(raw), backend=backend, progress=False), expected)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("situation", SITUATIONS)
 def test_case13_inside_faces_grazing_thin(situation, backend, tmp_path):
     """robustness case 13 on both backends, each situation against an exact answer (per-pixel

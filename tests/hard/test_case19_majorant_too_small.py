@@ -18,7 +18,6 @@ from volmc.film import read_exr, write_exr
 from volmc.render import make_backend, render
 from volmc.scene import scene_from_dict
 
-BACKENDS = ["numba", "opencl"]
 
 
 def _raw(grid_path, majorant):
@@ -42,7 +41,6 @@ def _edit_grid_in_place(be, factor):
         be.clc.queue.finish()
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("majorant", ["global", "grid"])
 def test_case19_density_edited_after_the_majorant_is_reported(backend, majorant, tmp_path):
     """robustness case 19, both backends, global and grid majorants: the same scene renders with
@@ -65,7 +63,6 @@ def test_case19_density_edited_after_the_majorant_is_reported(backend, majorant,
     assert int(meta["count.over_majorant"]) == n
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case19_cli_reports_over_majorant(backend, tmp_path, monkeypatch, capsys):
     """robustness case 19 through the command line: with majorant cells built too small (half the
     true bound, patched into volmc.pack.pack_majorant, which both backends use), ``volmc render --stats`` prints a

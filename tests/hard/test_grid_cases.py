@@ -29,8 +29,8 @@ from volmc.render import render
 from volmc.scene import SceneError, load_scene, scene_from_dict
 from volmc.scene.grids import write_vol
 from volmc.scene.serialize import dict_to_toml
+from volmc.backends import BACKENDS
 
-BACKENDS = ["opencl", "numba"]
 BMIN = np.array([-1.0, -1.0, -1.0])
 BMAX = np.array([1.0, 1.0, 1.0])
 INV_EXT = 1.0 / (BMAX - BMIN)
@@ -128,7 +128,6 @@ def _case6_grid():
     return 0.2 + np.random.default_rng(61).random((8, 8, 8)) ** 2
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case06_dda_degenerate_rays_never_stall_or_skip(backend):
     """robustness case 6: for axis-parallel rays, rays with -0.0 components, rays starting on box
     faces, corners and voxel faces, and rays lying in faces or edges, over majorant grids of
@@ -168,7 +167,6 @@ def test_case06_dda_degenerate_rays_never_stall_or_skip(backend):
             assert seen <= set(walked), f"{where}: cells skipped: {seen - set(walked)}"
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case06_degenerate_rays_same_optical_depth_as_perturbed(backend):
     """robustness case 6: along each degenerate ray and along the same ray perturbed by 1e-5, delta
     tracking over the 8^3 majorant grid (cell faces = voxel faces) gives collision distances
@@ -218,7 +216,6 @@ def _estimate(backend, name, med, grid, rays, bounds, n):
     return OpenCLEstimator(name).run(med, grid, rays, bounds, n, 81)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case08_all_zero_grid_functions(backend):
     """robustness case 8, function level: in an all-zero grid every majorant cell is empty, so
     delta tracking over the majorant grid escapes every walk with zero lookups, and every
@@ -249,7 +246,6 @@ def _box_scene(density, albedo, resolution=(8, 8), camera=None, **render_keys):
         "render": {"spp": 16, "max_depth": 8, "seed": 8, **render_keys}})
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("majorant", ["grid", "global"])
 def test_case08_all_zero_grid_render(tmp_path, backend, majorant):
     """robustness case 8, image level: an all-zero grid (16^3) renders exactly the environment L
@@ -287,7 +283,6 @@ def _voxel_centre():
     return BMIN + (np.array(VOXEL[::-1]) + 0.5) / 16 * (BMAX - BMIN)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case08_single_voxel_free_flight(backend):
     """robustness case 8, function level: a 16^3 grid that is zero except one voxel. Rays through
     the voxel (axis-parallel through its centre, oblique, and grazing the edge of its
@@ -347,7 +342,6 @@ def _single_voxel_expected(grid, scale, L, n_pix):
     return img
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case08_single_voxel_render(tmp_path, backend):
     """robustness case 8, image level: an absorbing (albedo 0) 16^3 grid, zero except one voxel
     (optical depth 3 through its centre) whose support straddles majorant cell faces on

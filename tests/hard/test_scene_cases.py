@@ -18,7 +18,6 @@ from volmc.render import mean_and_stderr, render
 from volmc.resources import scenes_dir
 from volmc.scene import load_scene
 
-BACKENDS = ["opencl", "numba"]
 SCENES = scenes_dir() / "tests"
 
 
@@ -72,7 +71,6 @@ FURNACE_VARIANTS = [
 FURNACE_SIZE = ["camera.resolution=[8, 8]", "render.spp=1024"]
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case14_white_furnace(backend):
     """robustness case 14: scenes/tests/white_furnace.toml (albedo 1, heterogeneous 8^3 grid,
     environment L, max_depth = -1; 8 x 8 pixels at 1024 spp) with HG g in {0.6, -0.9, 0,
@@ -96,7 +94,6 @@ def test_case14_white_furnace(backend):
 
 # ------------------------------------------------------------------------------ case 15
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case15_pure_absorber(backend):
     """robustness case 15: scenes/tests/absorber.toml (albedo 0 homogeneous slab, optical depth
     1.5, environment L = 0.8): every pixel is exactly the documented L exp(-tau) (float64:
@@ -149,7 +146,6 @@ def single_scatter_expected(scene):
     return C, np.repeat(rows[:, None], w, axis=1)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case16_single_scattering_closed_form(backend):
     """robustness case 16: scenes/tests/single_scatter.toml (max_depth 1, homogeneous cube, sun at
     right angles to the view, HG g = 0.5): every pixel matches the closed form
@@ -169,7 +165,6 @@ def test_case16_single_scattering_closed_form(backend):
 
 # ------------------------------------------------------------------------------ case 17
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case17_constant_grid_equals_homogeneous(backend):
     """robustness case 17: scenes/tests/constant_grid.toml (a constant 4^3 grid, delta tracking
     and ratio tracking over majorant cells, and with a global majorant) renders the same
@@ -199,7 +194,6 @@ def test_case17_constant_grid_equals_homogeneous(backend):
 
 # ------------------------------------------------------------------------------ case 18
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case18_roulette_terminates_dense_white_medium(backend):
     """robustness case 18: scenes/tests/roulette.toml (albedo 1, optical depth 1e3, max_depth -1,
     rr_depth 5, camera at the centre of the cube, where no path can escape): the render
@@ -228,7 +222,6 @@ RR_SETTINGS = [
 ]
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case18_roulette_on_off_same_mean(backend):
     """robustness case 18: with a depth cap, Russian roulette from depth 0 and no roulette give the
     same image (two-sample z per pixel and channel and of the image means, Sidak over both

@@ -22,7 +22,6 @@ from volmc.render import render
 from volmc.resources import scenes_dir
 from volmc.scene import load_scene
 
-BACKENDS = ["opencl", "numba"]
 NO_GRID = np.zeros((1, 1, 1))
 #: Smallest positive float32 (subnormal): the float32 result of exp(-tau) is exp(-tau)
 #: rounded to a multiple of it once tau > 87.3.
@@ -59,7 +58,6 @@ def _check_exp(got, tau, backend, what):
     assert np.all(np.abs(got - exact) <= tol), f"{what} tau={tau}: {got.ravel()[:4]} vs {exact}"
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case04_homogeneous_transmittance_extreme_depths(backend):
     """robustness case 4: at optical depth tau in {0, 1e-6, 1, 10, 87, 88, 104, 1e4, 1e38} the
     exact homogeneous transmittance equals exp(-tau): finite, >= 0, a subnormal past 87 and 0
@@ -90,7 +88,6 @@ def test_case04_homogeneous_transmittance_extreme_depths(backend):
 
 # ------------------------------------------------------------------------------- case 5
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_case05_ratio_tracking_variance(backend):
     """robustness case 5: ratio tracking in a homogeneous medium (extinction s over length d,
     majorant m) at m / s in {1, 2, 10} and s d in {0.5, 2}: the sample variance of 2 * 10^5
@@ -150,7 +147,6 @@ CASE7_SEED = 70
 CASE7 = [(shape, tau, loose) for shape in PROFILES for tau in (0.35, 2.3) for loose in (1, 3)]
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("name", CASE7_ESTIMATORS)
 def test_case07_unbiased_estimators_on_analytic_profiles(backend, name):
     """robustness case 7: every unbiased estimator of the registry (ESTIMATORS) on the five analytic

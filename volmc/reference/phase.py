@@ -28,7 +28,7 @@ import math
 from numba import njit
 
 from ..constants import INV_4PI, PHASE_HG, PHASE_ISOTROPIC, TWO_PI
-from .sampling import from_frame, sample_uniform_sphere
+from .sampling import coordinate_system, dot, from_frame, sample_uniform_sphere
 
 
 @njit(cache=True, inline="always")
@@ -69,6 +69,34 @@ def hg_sample(u1, u2, d_in, g):
     """Sample d_out about propagation direction d_in from HG(g). Returns (d_out, pdf)."""
     cos_theta, sin_theta, pdf = hg_sample_cos(u1, g)
     return from_frame(d_in, cos_theta, sin_theta, TWO_PI * u2), pdf
+
+
+@njit(cache=True, inline="always")
+def hg_invert_cos(cos_theta, g):
+    """The uniform u that ``hg_sample_cos(u, g)`` maps to cos_theta (the HG CDF of cos).
+
+    From t = 1 - g + 2 g u and s = (1 + g^2 - 2 g cos)^(1/2) = (1 - g^2) / t, u = (t - (1 - g))
+    / (2 g); multiplying out 1 + g - s = 2 g (1 + cos) / (1 + g + s) removes the division by g:
+    u = (1 - g)(1 + cos) / (s (1 + g + s)), valid for every g in (-1, 1), exact at g = 0
+    (u = (1 + cos) / 2). s^2 is formed as in hg_eval, a sum of non-negative terms."""
+    if g >= 0.0:
+        denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - cos_theta)
+    else:
+        denom = (1.0 + g) * (1.0 + g) - 2.0 * g * (1.0 + cos_theta)
+    s = math.sqrt(denom)
+    return (1.0 - g) * (1.0 + cos_theta) / (s * (1.0 + g + s))
+
+
+@njit(cache=True, inline="always")
+def invert_hg_sample(w, d_in, g):
+    """(u1, u2) that ``hg_sample(u1, u2, d_in, g)`` maps to unit direction w: u1 from the
+    cosine to d_in, u2 from the azimuth in the frame of ``coordinate_system(d_in)``."""
+    c = min(1.0, max(-1.0, dot(d_in, w)))
+    s, t = coordinate_system(d_in)
+    phi = math.atan2(dot(w, t), dot(w, s))
+    if phi < 0.0:
+        phi += TWO_PI
+    return hg_invert_cos(c, g), phi / TWO_PI
 
 
 @njit(cache=True, inline="always")

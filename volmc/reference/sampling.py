@@ -36,6 +36,13 @@ def exponential_pdf(t, a):
 
 
 @njit(cache=True, inline="always")
+def invert_exponential_sample(t, a):
+    """The uniform u that ``sample_exponential(u, a)`` maps to distance t:
+    u = 1 - e^{-a t}, written -expm1(-a t) so that small a t keeps its digits."""
+    return -math.expm1(-a * t)
+
+
+@njit(cache=True, inline="always")
 def sample_uniform_sphere(u1, u2):
     """Uniform direction on the unit sphere: z = 1 - 2 u1, phi = 2 pi u2. Returns (w, pdf)."""
     z = 1.0 - 2.0 * u1
@@ -48,6 +55,16 @@ def sample_uniform_sphere(u1, u2):
 def uniform_sphere_pdf():
     """Density of ``sample_uniform_sphere``: 1 / (4 pi) per steradian."""
     return INV_4PI
+
+
+@njit(cache=True, inline="always")
+def invert_uniform_sphere(w):
+    """(u1, u2) that ``sample_uniform_sphere`` maps to unit direction w: u1 = (1 - z) / 2,
+    u2 = phi / (2 pi) with phi = atan2(y, x) in [0, 2 pi). At the poles phi is arbitrary."""
+    phi = math.atan2(w[1], w[0])
+    if phi < 0.0:
+        phi += TWO_PI
+    return 0.5 * (1.0 - w[2]), phi / TWO_PI
 
 
 @njit(cache=True, inline="always")
