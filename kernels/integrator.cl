@@ -5,7 +5,8 @@
  * defaults every one to 1) turn a code path off where the scene cannot take it. Each is a
  * plain constant in an ordinary `if`, so the compiler drops the dead path, and a build with
  * every feature on renders any scene (the generic build `volmc bench specialise` measures
- * against). SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance). params.h
+ * against). BAKE_X(v) is the run-time value v, or the scene's constant in a build that bakes
+ * it in (-DBAKE_X(v)=...). SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance). params.h
  * (generated from volmc/params.py and volmc/constants.py) defines the records and constants. */
 
 #include "params.h"
@@ -111,7 +112,7 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
                             float3 p, float3 d, Rng *rng, Rng *rng_s, ulong *counters) {
     const Medium *m = med->m;
     float3 L = (float3)(0.0f);
-    for (int i = 0; FEATURE_DELTA_LIGHTS && i < prm->n_lights; ++i) {
+    for (int i = 0; FEATURE_DELTA_LIGHTS && i < BAKE_N_LIGHTS(prm->n_lights); ++i) {
         float3 wl;
         float dist = NO_LIMIT, falloff = 1.0f;
         if (!FEATURE_POINT || lights[i].type == LIGHT_DIRECTIONAL) {
@@ -124,7 +125,8 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
             wl = v / dist;
             falloff = 1.0f / dist2;
         }
-        float f = phase_eval(m->phase_kind, m->g, dot(d, wl)) * falloff;
+        float f = phase_eval(BAKE_PHASE_KIND(m->phase_kind), BAKE_PHASE_G(m->g), dot(d, wl)) *
+                  falloff;
         float tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
         L += vec3g(lights[i].color) * (f * tr);
     }
@@ -133,7 +135,7 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
         float ub = rng_next(rng);
         float pdf_l;
         float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
-        float f = phase_eval(m->phase_kind, m->g, dot(d, wl));
+        float f = phase_eval(BAKE_PHASE_KIND(m->phase_kind), BAKE_PHASE_G(m->g), dot(d, wl));
         float tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
         L += vec3(prm->env) * (f * tr * mis_balance(pdf_l, f) / pdf_l);
     }
@@ -144,7 +146,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
                          int px, int py, Rng *rng, Rng *rng_s, ulong *counters) {
     const Medium *m = med->m;
     float3 bmin = vec3(m->bmin), bmax = vec3(m->bmax);
-    float3 albedo = vec3(m->albedo);
+    float3 albedo = BAKE_ALBEDO(vec3(m->albedo));
     float3 env = vec3(prm->env);
     float3 L = (float3)(0.0f);
     float3 beta = (float3)(1.0f);
@@ -189,7 +191,8 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         }
         u1 = rng_next(rng);
         u2 = rng_next(rng);
-        d = phase_sample(m->phase_kind, m->g, u1, u2, d, &pdf_phase);
+        d = phase_sample(BAKE_PHASE_KIND(m->phase_kind), BAKE_PHASE_G(m->g), u1, u2, d,
+                         &pdf_phase);
         o = p;
     }
     return L;

@@ -167,11 +167,11 @@ def build_parser():
                     help="also render with the volmc checkout in DIR (an earlier version, "
                          "OpenCL, the scene's own techniques); repeatable")
     for name, helptext in (
-            ("specialise", "samples/s of the scene-specialised build vs every feature on"),
+            ("specialise", "samples/s of each feature switch and baked constant, per scene"),
             ("workgroup", "samples/s of the OpenCL kernel per work-group size")):
         bb = bsub.add_parser(name, help=helptext)
-        bb.add_argument("scenes", nargs="*", help="scene files (default: the cloud scene"
-                        + (" and scenes/homogeneous.toml)" if name == "specialise" else ")"))
+        bb.add_argument("scenes", nargs="*", help="scene files (default: "
+                        + ("every shipped scene)" if name == "specialise" else "the cloud scene)"))
         bb.add_argument("--spp", type=_positive_int, default=4,
                         help="samples per pixel per timed batch (default 4)")
         bb.add_argument("--repeats", type=_positive_int, default=3,
@@ -456,8 +456,13 @@ def cmd_bench(args):
     from .bench import render as rb
     from .resources import default_scene, scenes_dir
     from .scene import load_scene
-    paths = args.scenes or ([str(default_scene())] + ([str(scenes_dir() / "homogeneous.toml")]
-                                                       if args.bench == "specialise" else []))
+    if args.scenes:
+        paths = args.scenes
+    elif args.bench == "specialise":
+        paths = [str(p) for p in sorted(scenes_dir().glob("*.toml"))
+                 + sorted((scenes_dir() / "tests").glob("*.toml"))]
+    else:
+        paths = [str(default_scene())]
     if args.json:
         _check_writable(args.json, "--json")
     report = {}
@@ -467,7 +472,12 @@ def cmd_bench(args):
         print(f"{path}: {w}x{h}, {args.spp} spp per batch, {args.repeats} repeats", flush=True)
         if args.bench == "specialise":
             res = rb.bench_specialisation(scene, args.spp, args.repeats, args.device)
-            rb.print_table("samples per second:", res, baseline="all features")
+            rb.print_table("samples per second:", res, baseline="generic")
+            gains = rb.specialisation_gains(res)
+            print("  gain of each specialisation (samples per CPU-second; bakes against "
+                  "'unbaked', features against the build with the feature on): " +
+                  ", ".join(f"{k} x{v:.3f}" for k, v in gains.items()), flush=True)
+            res = {"configs": res, "gains": gains}
         else:
             sizes = []
             for x in args.sizes.split(","):

@@ -59,15 +59,45 @@ def run_configs(scene, configs, spp, repeats, log=print):
     return out
 
 
-def bench_specialisation(scene, spp=4, repeats=3, device=None, log=print):
-    """samples/s of the scene-specialised OpenCL build against the build with every flag."""
+def specialisation_configs(scene, device=None):
+    """{name: backend factory} for `volmc bench specialise`: the production build
+    ("specialised": the scene's features and DEFAULT_BAKES), "unbaked" (its features, no
+    bakes), each bake alone on top of "unbaked" ("bake X"), each feature the scene does not
+    need switched on ("+X": what that switch saves), every bake ("all bakes"), and the
+    generic build (every feature, no bakes)."""
     from ..backends.opencl import OpenCLBackend
-    from ..scene.features import FEATURES
-    configs = {
-        "specialised": lambda: OpenCLBackend(scene, device=device),
-        "all features": lambda: OpenCLBackend(scene, device=device, feature_set=FEATURES),
-    }
-    return run_configs(scene, configs, spp, repeats, log)
+    from ..scene.features import BAKES, FEATURES, features
+    needed = features(scene)
+
+    def make(feats=needed, bakes=frozenset()):
+        return lambda: OpenCLBackend(scene, device=device, feature_set=feats, bakes=bakes)
+    configs = {"specialised": lambda: OpenCLBackend(scene, device=device),
+               "unbaked": make()}
+    for b in BAKES:
+        configs[f"bake {b}"] = make(bakes={b})
+    for f in sorted(set(FEATURES) - needed):
+        configs[f"+{f}"] = make(feats=needed | {f})
+    configs["all bakes"] = make(bakes=set(BAKES))
+    configs["generic"] = make(feats=frozenset(FEATURES))
+    return configs
+
+
+def specialisation_gains(res):
+    """{bake or feature: samples-per-CPU-second gain of specialising it}: a bake against
+    "unbaked", a feature switched off (as the scene needs) against "+feature"."""
+    base = res["unbaked"]["samples_per_cpu_second"]
+    out = {}
+    for name, r in res.items():
+        if name.startswith("bake "):
+            out[name[5:]] = r["samples_per_cpu_second"] / base
+        elif name.startswith("+"):
+            out[name[1:]] = base / r["samples_per_cpu_second"]
+    return out
+
+
+def bench_specialisation(scene, spp=4, repeats=3, device=None, log=print):
+    """samples/s of the specialisation configurations (``specialisation_configs``)."""
+    return run_configs(scene, specialisation_configs(scene, device), spp, repeats, log)
 
 
 def bench_workgroup(scene, sizes=(None, 1, 2, 4, 8, 16, 32, 64), spp=4, repeats=3, device=None,

@@ -22,6 +22,19 @@ TEST_FEATURES = {
 }
 
 
+#: Per-scene constants a build can compile in instead of reading them from the records at run
+#: time ("baking"): the kernels read each through the macro BAKE_X(run-time value), which a
+#: baked build defines as the scene's constant (volmc/cl/specialise.py).
+BAKES = {
+    "GRID_DIMS": "voxels of the density grid (nx, ny, nz)",
+    "MAJ_RES": "cells of the majorant grid (cz, cy, cx)",
+    "N_LIGHTS": "number of directional and point lights",
+    "PHASE_KIND": "phase function (isotropic or Henyey-Greenstein)",
+    "PHASE_G": "Henyey-Greenstein asymmetry g",
+    "ALBEDO": "single-scattering albedo",
+}
+
+
 def features(scene) -> frozenset:
     """The set of feature names (keys of FEATURES) a loaded Scene needs."""
     m, r = scene.medium, scene.render
@@ -56,10 +69,14 @@ def define_flags(feature_set) -> list:
 
 def features_header() -> str:
     """Text of the generated ``features.h``: every FEATURE_X defaults to 1 (compiled in)
-    unless the build defines it, so kernels test plain constants and need no #ifdef."""
+    unless the build defines it, so kernels test plain constants and need no #ifdef; every
+    BAKE_X(v) defaults to the run-time value v."""
     out = ["/* Generated from volmc/scene/features.py: do not edit. */",
            "#ifndef VOLMC_FEATURES_H", "#define VOLMC_FEATURES_H"]
     for name, meaning in {**FEATURES, **TEST_FEATURES}.items():
         out += [f"/* {meaning} */", f"#ifndef FEATURE_{name}", f"#define FEATURE_{name} 1",
                 "#endif"]
+    for name, meaning in BAKES.items():
+        out += [f"/* {meaning}: read at run time unless the build bakes it in */",
+                f"#ifndef BAKE_{name}", f"#define BAKE_{name}(runtime) (runtime)", "#endif"]
     return "\n".join(out + ["#endif", ""])
