@@ -1,12 +1,11 @@
 /* Volumetric path tracer kernel. Twin of volmc/reference/integrator.py: the algorithm, the
  * order of random numbers and the Russian-roulette policy are described there.
  *
- * Built for the scene: the -DFEATURE_X=0/1 options (volmc/scene/features.py; features.h
- * defaults every one to 1) turn a code path off where the scene cannot take it. Each is a
- * plain constant in an ordinary `if`, so the compiler drops the dead path, and a build with
- * every feature on renders any scene (the generic build `volmc bench specialise` measures
- * against). BAKE_X(v) is the run-time value v, or the scene's constant in a build that bakes
- * it in (-DBAKE_X(v)=...). SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance). params.h
+ * Built for the scene: -DFEATURE_X=0/1 options (volmc/scene/features.py; features.h
+ * defaults every one to 1) turn a code path off where the scene cannot take it; each is a
+ * plain constant in an ordinary `if`, so the compiler drops the dead path. Only the switches
+ * `volmc bench specialise` shows to pay are kept (README, "Specialisation"); a build with
+ * every one on renders any scene. SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance). params.h
  * (generated from volmc/params.py and volmc/constants.py) defines the records and constants. */
 
 #include "params.h"
@@ -89,7 +88,7 @@ inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, 
     float sx = (2.0f * ((float)px + u1) / (float)prm->width - 1.0f) * prm->half_height * prm->aspect;
     float sy = (1.0f - 2.0f * ((float)py + u2) / (float)prm->height) * prm->half_height;
     float3 f = vec3(prm->forward), r = vec3(prm->right), u = vec3(prm->up), e = vec3(prm->eye);
-    if (FEATURE_ORTHO && prm->cam_type == CAMERA_ORTHOGRAPHIC) {
+    if (prm->cam_type == CAMERA_ORTHOGRAPHIC) {
         *dir = f;
         return e + sx * r + sy * u;
     }
@@ -112,10 +111,10 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
                             float3 p, float3 d, Rng *rng, Rng *rng_s, ulong *counters) {
     const Medium *m = med->m;
     float3 L = (float3)(0.0f);
-    for (int i = 0; FEATURE_DELTA_LIGHTS && i < BAKE_N_LIGHTS(prm->n_lights); ++i) {
+    for (int i = 0; i < prm->n_lights; ++i) {
         float3 wl;
         float dist = NO_LIMIT, falloff = 1.0f;
-        if (!FEATURE_POINT || lights[i].type == LIGHT_DIRECTIONAL) {
+        if (lights[i].type == LIGHT_DIRECTIONAL) {
             wl = -vec3g(lights[i].vec);
         } else {
             float3 v = vec3g(lights[i].vec) - p;
@@ -125,17 +124,16 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
             wl = v / dist;
             falloff = 1.0f / dist2;
         }
-        float f = phase_eval(BAKE_PHASE_KIND(m->phase_kind), BAKE_PHASE_G(m->g), dot(d, wl)) *
-                  falloff;
+        float f = phase_eval(m->phase_kind, m->g, dot(d, wl)) * falloff;
         float tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
         L += vec3g(lights[i].color) * (f * tr);
     }
-    if (FEATURE_ENV && prm->has_env) {
+    if (prm->has_env) {
         float ua = rng_next(rng);
         float ub = rng_next(rng);
         float pdf_l;
         float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
-        float f = phase_eval(BAKE_PHASE_KIND(m->phase_kind), BAKE_PHASE_G(m->g), dot(d, wl));
+        float f = phase_eval(m->phase_kind, m->g, dot(d, wl));
         float tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
         L += vec3(prm->env) * (f * tr * mis_balance(pdf_l, f) / pdf_l);
     }
@@ -146,7 +144,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
                          int px, int py, Rng *rng, Rng *rng_s, ulong *counters) {
     const Medium *m = med->m;
     float3 bmin = vec3(m->bmin), bmax = vec3(m->bmax);
-    float3 albedo = BAKE_ALBEDO(vec3(m->albedo));
+    float3 albedo = vec3(m->albedo);
     float3 env = vec3(prm->env);
     float3 L = (float3)(0.0f);
     float3 beta = (float3)(1.0f);
@@ -154,9 +152,9 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
     float u2 = rng_next(rng);
     float3 d;
     float3 o = camera_ray(prm, px, py, u1, u2, &d);
-    if (!FEATURE_SCATTER || prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f) {
+    if (prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f) {
         /* No scattering can contribute: environment times transmittance (see integrator.py). */
-        if (!(FEATURE_ENV && prm->has_env)) return L;
+        if (!prm->has_env) return L;
         return env * shadow_transmittance(prm, med, o, d, NO_LIMIT, rng_s, counters);
     }
     int depth = 0;
@@ -171,7 +169,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
                                 prm->max_steps, &t);
         if (event == EVENT_CAPPED) break;
         if (event == EVENT_ESCAPE) {
-            if (FEATURE_ENV && prm->has_env) {
+            if (prm->has_env) {
                 float w = depth > 0 ? mis_balance(pdf_phase, uniform_sphere_pdf()) : 1.0f;
                 L += beta * (env * w);
             }
@@ -184,15 +182,14 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         if (fmax(beta.x, fmax(beta.y, beta.z)) <= 0.0f) break;
         float3 p = o + t * d;
         L += beta * sample_direct(prm, lights, med, p, d, rng, rng_s, counters);
-        if (FEATURE_RR && depth >= prm->rr_depth) {
+        if (depth >= prm->rr_depth) {
             float q = fmin(fmax(beta.x, fmax(beta.y, beta.z)), RR_MAX_SURVIVAL);
             if (rng_next(rng) >= q) break;
             beta /= q;
         }
         u1 = rng_next(rng);
         u2 = rng_next(rng);
-        d = phase_sample(BAKE_PHASE_KIND(m->phase_kind), BAKE_PHASE_G(m->g), u1, u2, d,
-                         &pdf_phase);
+        d = phase_sample(m->phase_kind, m->g, u1, u2, d, &pdf_phase);
         o = p;
     }
     return L;

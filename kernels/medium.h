@@ -38,10 +38,10 @@ inline float profile_density(int kind, const float prof[5], float x) {
 inline float medium_density(const MediumData *med, float3 p) {
     const Medium *m = med->m;
     int kind = m->density_kind;
-    if (FEATURE_GRID && kind == DENSITY_GRID)
-        return grid_lookup(med->grid, BAKE_GRID_DIMS((int3)(m->dims[0], m->dims[1], m->dims[2])),
-                           vec3(m->bmin), vec3(m->inv_extent), p);
-    if (!FEATURE_PROFILES || kind == DENSITY_CONSTANT) return m->density;
+    if (kind == DENSITY_GRID)
+        return grid_lookup(med->grid, (int3)(m->dims[0], m->dims[1], m->dims[2]), vec3(m->bmin),
+                           vec3(m->inv_extent), p);
+    if (kind == DENSITY_CONSTANT) return m->density;
     return profile_density(kind, m->profile, p.x);
 }
 
@@ -79,14 +79,14 @@ inline void majorant_iter_init(MajorantIter *it, const MediumData *med, float3 o
     it->t1 = t1;
     if (FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID)
         dda_init(&it->dda, o, d, t0, t1, vec3(m->bmin), vec3(m->bmax),
-                 BAKE_MAJ_RES((int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2])));
+                 (int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]));
 }
 
 /* Returns 0 at the end; else writes the next non-empty segment. */
 inline int majorant_next(MajorantIter *it, const MediumData *med, Segment *seg) {
     const Medium *m = med->m;
     if (FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID) {
-        int3 res = BAKE_MAJ_RES((int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]));
+        int3 res = (int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]);
         float ta, tb;
         int3 cell;
         while (dda_next(&it->dda, &ta, &tb, &cell)) {

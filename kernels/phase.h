@@ -1,10 +1,9 @@
 /* Phase functions: isotropic and Henyey-Greenstein. Twin of volmc/reference/phase.py, where
  * the convention (propagation directions, g > 0 forward) and the cancellation-free
- * inversion are derived. A build with FEATURE_PHASE_HG = 0 compiles only the isotropic code. */
+ * inversion are derived. */
 #ifndef VOLMC_PHASE_H
 #define VOLMC_PHASE_H
 
-#include "features.h"
 #include "sampling.h"
 
 /* PHASE_ISOTROPIC and PHASE_HG come from the generated params.h. */
@@ -54,12 +53,12 @@ inline float2 invert_hg_sample(float3 w, float3 d_in, float g) {
 }
 
 inline float phase_eval(int kind, float g, float cos_theta) {
-    if (FEATURE_PHASE_HG && kind == PHASE_HG) return hg_eval(cos_theta, g);
+    if (kind == PHASE_HG) return hg_eval(cos_theta, g);
     return INV_4PI;
 }
 
 inline float3 phase_sample(int kind, float g, float u1, float u2, float3 d_in, float *pdf) {
-    if (FEATURE_PHASE_HG && kind == PHASE_HG) return hg_sample(u1, u2, d_in, g, pdf);
+    if (kind == PHASE_HG) return hg_sample(u1, u2, d_in, g, pdf);
     return sample_uniform_sphere(u1, u2, pdf);
 }
 

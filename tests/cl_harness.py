@@ -14,7 +14,7 @@ def clc():
 
 
 @functools.lru_cache(maxsize=None)
-def harness(options=("-DFEATURE_PHASE_HG", "-DFEATURE_GRID")):
+def harness(options=()):
     """The program built from kernels/testing.cl."""
     return clc().program("testing.cl", options)[0]
 

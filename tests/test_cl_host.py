@@ -50,15 +50,15 @@ def test_program_cache(tmp_path, monkeypatch):
     src = build.assemble("testing.cl")
     build._memory_cache.clear()
     ctx = cl.Context([dev])
-    _, how = build.build_program(ctx, dev, src, ["-DFEATURE_GRID"])
+    _, how = build.build_program(ctx, dev, src, ["-DFEATURE_MAJORANT_GRID=1"])
     assert how == "compiled" and len(list(tmp_path.glob("*.bin"))) == 1
-    _, how = build.build_program(ctx, dev, src, ["-DFEATURE_GRID"])
+    _, how = build.build_program(ctx, dev, src, ["-DFEATURE_MAJORANT_GRID=1"])
     assert how == "memory"
     build._memory_cache.clear()
-    _, how = build.build_program(cl.Context([dev]), dev, src, ["-DFEATURE_GRID"])
+    _, how = build.build_program(cl.Context([dev]), dev, src, ["-DFEATURE_MAJORANT_GRID=1"])
     assert how == "disk"
     # Other options, or another header text, are other programs.
-    _, how = build.build_program(ctx, dev, src, ["-DFEATURE_PHASE_HG"])
+    _, how = build.build_program(ctx, dev, src, ["-DFEATURE_MAJORANT_GRID=0"])
     assert how == "compiled"
     src2 = build.assemble("testing.cl", {"params.h": build.params_header() + "\n/* x */\n"})
     assert build.cache_key(src2, [], dev) != build.cache_key(src, [], dev)
@@ -66,7 +66,7 @@ def test_program_cache(tmp_path, monkeypatch):
     for f in tmp_path.glob("*.bin"):
         f.write_bytes(b"garbage")
     build._memory_cache.clear()
-    _, how = build.build_program(cl.Context([dev]), dev, src, ["-DFEATURE_GRID"])
+    _, how = build.build_program(cl.Context([dev]), dev, src, ["-DFEATURE_MAJORANT_GRID=1"])
     assert how == "compiled"
 
 

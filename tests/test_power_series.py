@@ -331,7 +331,7 @@ RAY_STRIDE = 10  # kernels/testing_power_series.cl
 def cl_prog():
     pytest.importorskip("pyopencl")
     from cl_harness import clc
-    prg, _ = clc().program("testing_power_series.cl", ["-DFEATURE_GRID"])
+    prg, _ = clc().program("testing_power_series.cl")
     return clc().kernel(prg, "t_power_series")
 
 

@@ -474,8 +474,8 @@ def cmd_bench(args):
             res = rb.bench_specialisation(scene, args.spp, args.repeats, args.device)
             rb.print_table("samples per second:", res, baseline="generic")
             gains = rb.specialisation_gains(res)
-            print("  gain of each specialisation (samples per CPU-second; bakes against "
-                  "'unbaked', features against the build with the feature on): " +
+            print("  gain of each switch (samples per CPU-second, specialised against the "
+                  "build with the switch on): " +
                   ", ".join(f"{k} x{v:.3f}" for k, v in gains.items()), flush=True)
             res = {"configs": res, "gains": gains}
         else:

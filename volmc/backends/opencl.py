@@ -4,7 +4,6 @@ batches on one device (volmc/cl/ has the host plumbing)."""
 import numpy as np
 
 from ..cl.context import cl_context
-from ..cl.specialise import DEFAULT_BAKES, bake_options
 from ..pack import pack_scene
 from ..params import N_COUNTERS
 from ..scene.features import define_flags, features
@@ -22,9 +21,8 @@ class OpenCLBackend(RenderBackend):
     name = "opencl"
 
     def __init__(self, scene, device=None, feature_set=None, local_size=DEFAULT_LOCAL_SIZE,
-                 options=(), bakes=None):
+                 options=()):
         """feature_set: the FEATURE_X switches to compile in (default: what the scene needs);
-        bakes: the BAKE_X constants to compile in (default: specialise.DEFAULT_BAKES);
         options: more compiler options; local_size: the work-group size (None: driver's)."""
         self.scene = scene
         self.clc = cl_context(device)
@@ -35,11 +33,9 @@ class OpenCLBackend(RenderBackend):
             raise ValueError(f"a build without {', '.join(sorted(needed - self.features))} "
                              "cannot render this scene")
         pk = pack_scene(scene, np.float32)
-        self.bakes = DEFAULT_BAKES if bakes is None else frozenset(bakes)
         est = ESTIMATORS[scene.render.transmittance]
-        self.options = (define_flags(self.features) + bake_options(pk, self.bakes)
-                        + [f"-DSHADOW_ESTIMATOR={est.kernel}"] + list(est.build_options)
-                        + list(options))
+        self.options = (define_flags(self.features) + [f"-DSHADOW_ESTIMATOR={est.kernel}"]
+                        + list(est.build_options) + list(options))
         self.local_size = local_size
         if pk.grid.size >= 2**31:
             raise ValueError(f"grid of {pk.grid.size} voxels exceeds the kernels' 2^31 limit")
@@ -60,7 +56,6 @@ class OpenCLBackend(RenderBackend):
         self.kernel = clc.kernel(self.program, "render_batch")
         self.techniques = techniques(scene)
         self.techniques["features"] = " ".join(sorted(self.features)) or "none"
-        self.techniques["baked"] = " ".join(sorted(self.bakes)) or "none"
 
     def warm_up(self):
         """The program is built in the constructor; nothing left to compile."""

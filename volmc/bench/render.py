@@ -61,38 +61,27 @@ def run_configs(scene, configs, spp, repeats, log=print):
 
 def specialisation_configs(scene, device=None):
     """{name: backend factory} for `volmc bench specialise`: the production build
-    ("specialised": the scene's features and DEFAULT_BAKES), "unbaked" (its features, no
-    bakes), each bake alone on top of "unbaked" ("bake X"), each feature the scene does not
-    need switched on ("+X": what that switch saves), every bake ("all bakes"), and the
-    generic build (every feature, no bakes)."""
+    ("specialised": the scene's feature switches), each switch the scene does not need turned
+    on ("+X": what compiling X out saves), and the generic build (every switch on)."""
     from ..backends.opencl import OpenCLBackend
-    from ..scene.features import BAKES, FEATURES, features
+    from ..scene.features import FEATURES, features
     needed = features(scene)
 
-    def make(feats=needed, bakes=frozenset()):
-        return lambda: OpenCLBackend(scene, device=device, feature_set=feats, bakes=bakes)
-    configs = {"specialised": lambda: OpenCLBackend(scene, device=device),
-               "unbaked": make()}
-    for b in BAKES:
-        configs[f"bake {b}"] = make(bakes={b})
+    def make(feats):
+        return lambda: OpenCLBackend(scene, device=device, feature_set=feats)
+    configs = {"specialised": make(needed)}
     for f in sorted(set(FEATURES) - needed):
-        configs[f"+{f}"] = make(feats=needed | {f})
-    configs["all bakes"] = make(bakes=set(BAKES))
-    configs["generic"] = make(feats=frozenset(FEATURES))
+        configs[f"+{f}"] = make(needed | {f})
+    configs["generic"] = make(frozenset(FEATURES))
     return configs
 
 
 def specialisation_gains(res):
-    """{bake or feature: samples-per-CPU-second gain of specialising it}: a bake against
-    "unbaked", a feature switched off (as the scene needs) against "+feature"."""
-    base = res["unbaked"]["samples_per_cpu_second"]
-    out = {}
-    for name, r in res.items():
-        if name.startswith("bake "):
-            out[name[5:]] = r["samples_per_cpu_second"] / base
-        elif name.startswith("+"):
-            out[name[1:]] = base / r["samples_per_cpu_second"]
-    return out
+    """{feature: samples-per-CPU-second gain of compiling it out}: "specialised" against
+    the build with that switch on."""
+    base = res["specialised"]["samples_per_cpu_second"]
+    return {name[1:]: base / r["samples_per_cpu_second"]
+            for name, r in res.items() if name.startswith("+")}
 
 
 def bench_specialisation(scene, spp=4, repeats=3, device=None, log=print):
