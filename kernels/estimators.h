@@ -52,15 +52,13 @@ inline float transmittance_by_segments(const MediumData *med, float3 o, float3 d
     MajorantIter it;
     majorant_iter_init(&it, med, o, d, 0.0f, t1 - t0);
     float T = 1.0f;
-    int sampled = 0;
     Segment seg;
     while (majorant_next(&it, med, &seg)) {
+        if (!transmittance_roulette(&T, rng)) return T;
         if (seg.sigma_min >= seg.sigma_maj) {
             T *= exp(-seg.sigma_maj * (seg.t_max - seg.t_min));
             continue;
         }
-        if (sampled && !transmittance_roulette(&T, rng)) return T;
-        sampled = 1;
         T *= segment_estimate(kind, med, o, d, seg.t_min, seg.t_max, seg.sigma_maj,
                               seg.sigma_min, rng, counters, max_steps);
     }
@@ -77,7 +75,8 @@ inline float transmittance_analytic(TRANSMITTANCE_ARGS) {
 
 inline float tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
     float t, T;
-    track(med, o, d, t0, t1, technique, 0, rng, counters, max_steps, &t, &T);
+    track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, rng, counters, max_steps, &t,
+          &T);
     return T;
 }
 

@@ -99,7 +99,7 @@ inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, 
 inline float shadow_transmittance(const Params *prm, const MediumData *med, float3 o, float3 d,
                                   float t_max, Rng *rng_s, ulong *counters) {
     float t0, t1, shift;
-    o = enter_box(o, d, vec3(med->m->bmin), vec3(med->m->bmax), &t0, &t1, &shift);
+    o = enter_box(o, d, vec3(med->m.bmin), vec3(med->m.bmax), &t0, &t1, &shift);
     t1 = fmin(t1, t_max - shift);
     if (t1 <= t0) return 1.0f;
     counters[C_SHADOW] += 1;
@@ -109,7 +109,7 @@ inline float shadow_transmittance(const Params *prm, const MediumData *med, floa
 /* Direct light at p towards -d per unit throughput (twin of sample_direct in integrator.py). */
 inline float3 sample_direct(const Params *prm, global const Light *lights, const MediumData *med,
                             float3 p, float3 d, Rng *rng, Rng *rng_s, ulong *counters) {
-    const Medium *m = med->m;
+    const Medium *m = &med->m;
     float3 L = (float3)(0.0f);
     for (int i = 0; i < prm->n_lights; ++i) {
         float3 wl;
@@ -142,7 +142,7 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
 
 inline float3 trace_path(const Params *prm, global const Light *lights, const MediumData *med,
                          int px, int py, Rng *rng, Rng *rng_s, ulong *counters) {
-    const Medium *m = med->m;
+    const Medium *m = &med->m;
     float3 bmin = vec3(m->bmin), bmax = vec3(m->bmax);
     float3 albedo = vec3(m->albedo);
     float3 env = vec3(prm->env);
@@ -209,7 +209,7 @@ kernel void render_batch(const Params prm, const Medium medium, global const Lig
     if (pix >= prm.width * prm.height) return;
     int py = pix / prm.width;
     int px = pix - py * prm.width;
-    MediumData med = {&medium, grid, maj, mnr};
+    MediumData med = {medium, grid, maj, mnr};
     ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;

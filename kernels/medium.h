@@ -13,7 +13,7 @@
 /* A medium record with the arrays it points to: the density grid [nz][ny][nx] and the
  * majorant grid's per-cell density maxima and minima [cz][cy][cx]. */
 typedef struct {
-    const Medium *m;
+    Medium m; /* a copy: the compiler keeps its fields in registers */
     global const float *grid;
     global const float *maj;
     global const float *mnr;
@@ -36,17 +36,17 @@ inline float profile_density(int kind, const float prof[5], float x) {
 }
 
 inline float medium_density(const MediumData *med, float3 p) {
-    const Medium *m = med->m;
+    const Medium *m = &med->m;
     int kind = m->density_kind;
     if (kind == DENSITY_GRID)
         return grid_lookup(med->grid, (int3)(m->dims[0], m->dims[1], m->dims[2]), vec3(m->bmin),
                            vec3(m->inv_extent), p);
-    if (kind == DENSITY_CONSTANT) return m->density;
+    if (!FEATURE_PROFILES || kind == DENSITY_CONSTANT) return m->density;
     return profile_density(kind, m->profile, p.x);
 }
 
 inline float extinction(const MediumData *med, float3 p, float sigma_maj, ulong *counters) {
-    float mu = med->m->scale * medium_density(med, p);
+    float mu = med->m.scale * medium_density(med, p);
     counters[C_LOOKUPS] += 1;
     if (mu > sigma_maj) counters[C_OVER_MAJORANT] += 1;
     return mu;
@@ -73,7 +73,7 @@ typedef struct {
 
 inline void majorant_iter_init(MajorantIter *it, const MediumData *med, float3 o, float3 d,
                                float t0, float t1) {
-    const Medium *m = med->m;
+    const Medium *m = &med->m;
     it->done = !(t1 > t0);
     it->t0 = t0;
     it->t1 = t1;
@@ -84,7 +84,7 @@ inline void majorant_iter_init(MajorantIter *it, const MediumData *med, float3 o
 
 /* Returns 0 at the end; else writes the next non-empty segment. */
 inline int majorant_next(MajorantIter *it, const MediumData *med, Segment *seg) {
-    const Medium *m = med->m;
+    const Medium *m = &med->m;
     if (FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID) {
         int3 res = (int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]);
         float ta, tb;

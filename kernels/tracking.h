@@ -24,7 +24,9 @@ inline int transmittance_roulette(float *T, Rng *rng) {
 
 /* Walks o + t d over [t0, t1]. Returns the event; writes the distance (t1 on escape) to
  * *t_out and the transmittance estimate to *T_out. */
-inline int track(const MediumData *med, float3 o, float3 d, float t0, float t1, int technique,
+/* Always inlined: each call site passes a constant technique, so the compiler keeps only that
+ * technique's code in the loop. */
+inline __attribute__((always_inline)) int track(const MediumData *med, float3 o, float3 d, float t0, float t1, int technique,
                  int use_control, Rng *rng, ulong *counters, int max_steps, float *t_out,
                  float *T_out) {
     o = o + t0 * d;
@@ -34,41 +36,49 @@ inline int track(const MediumData *med, float3 o, float3 d, float t0, float t1, 
     float budget = -1.0f; /* optical depth left to the next tentative collision; < 0: not drawn */
     float T = 1.0f;
     int steps = 0;
-    int sampled = 0;
     Segment seg;
     *t_out = t1;
     while (majorant_next(&it, med, &seg)) {
         float ta = seg.t_min, tb = seg.t_max, s_maj = seg.sigma_maj;
         int homogeneous = seg.sigma_min >= s_maj;
+        /* Roulette on the product so far before spending work on another segment (a no-op
+         * while T >= TR_RR_THRESHOLD, so on the first segment). Track length keeps its
+         * estimate 0 or 1: a fraction left by homogeneous segments goes on with probability T
+         * as 1, so a shadow ray stops in a dense homogeneous core as soon as delta tracking
+         * would, while a homogeneous medium (one segment) stays exact. */
+        if (technique == TRACK_LENGTH && T < 1.0f) {
+            if (rng_next(rng) >= T) {
+                *T_out = 0.0f;
+                return EVENT_ESCAPE;
+            }
+            T = 1.0f;
+        }
+        if (technique != TRACK_FREE_FLIGHT && !transmittance_roulette(&T, rng)) {
+            *T_out = T;
+            return EVENT_ESCAPE;
+        }
         if (homogeneous && technique != TRACK_FREE_FLIGHT) {
             T *= exp(-s_maj * (tb - ta));
             continue;
         }
-        if (sampled && !flight) {
-            /* Roulette before spending lookups on another segment. */
-            if (!transmittance_roulette(&T, rng)) {
-                *T_out = T;
-                return EVENT_ESCAPE;
-            }
-        }
-        sampled = 1;
         float control = (homogeneous || technique == TRACK_RESIDUAL_RATIO ||
                          (flight && use_control)) ? seg.sigma_min : 0.0f;
         float rate = technique == TRACK_RESIDUAL_RATIO ? s_maj - control : s_maj;
+        float inv_rate = 1.0f / rate; /* a multiplication per step instead of a division */
         if (technique == TRACK_RESIDUAL_RATIO) T *= exp(-control * (tb - ta));
         float w = 1.0f;                       /* next flight: weight of the current vertex */
-        float acc = exp(-s_maj * (tb - ta));  /* next flight: this segment's estimate */
+        /* next flight: this segment's estimate (no exp for the other techniques) */
+        float acc = technique == TRACK_NEXT_FLIGHT ? exp(-s_maj * (tb - ta)) : 0.0f;
         float t = ta;
+        float pdf;
+        if (budget < 0.0f) budget = sample_exponential(rng_next(rng), 1.0f, &pdf);
         while (true) {
-            float pdf;
-            if (budget < 0.0f) budget = sample_exponential(rng_next(rng), 1.0f, &pdf);
-            float step = budget / rate;
+            float step = budget * inv_rate;
             if (t + step >= tb) {
                 budget -= rate * (tb - t);
                 break;
             }
             t += step;
-            budget = -1.0f;
             float3 p = o + t * d;
             if (flight) {
                 if (control >= s_maj) {
@@ -84,7 +94,10 @@ inline int track(const MediumData *med, float3 o, float3 d, float t0, float t1, 
                 }
             } else if (technique == TRACK_NEXT_FLIGHT) {
                 w *= 1.0f - extinction(med, p, s_maj, counters) / s_maj;
-                if (!transmittance_roulette(&w, rng)) break;
+                if (!transmittance_roulette(&w, rng)) {
+                    budget = -1.0f; /* the next segment draws afresh */
+                    break;
+                }
                 acc += w * exp(-s_maj * (tb - t));
             } else {
                 T *= 1.0f - (extinction(med, p, s_maj, counters) - control) / rate;
@@ -93,6 +106,7 @@ inline int track(const MediumData *med, float3 o, float3 d, float t0, float t1, 
                     return EVENT_ESCAPE;
                 }
             }
+            budget = sample_exponential(rng_next(rng), 1.0f, &pdf);
             if (++steps >= max_steps) {
                 counters[C_CAPPED] += 1;
                 if (technique == TRACK_NEXT_FLIGHT) T *= acc;

@@ -418,7 +418,9 @@ def cmd_bench_render(args):
         from .techniques import ESTIMATORS
         ests = _list(args.transmittances, "--transmittances", tuple(ESTIMATORS))
     else:
-        ests = (["analytic"] if homogeneous else []) + cv.grid_estimators()
+        from .techniques import ESTIMATORS
+        exact = [n for n, e in ESTIMATORS.items() if e.homogeneous_only]
+        ests = (exact if homogeneous else []) + cv.grid_estimators()
     peer = args.peer != "none"
     if peer:
         from .peers.mitsuba import PeerUnavailable, probe

@@ -18,7 +18,8 @@ def heatmaps(report, path):
     geometric mean over the 1-D profiles (zero-error cases shown at the colour maximum). MSE,
     not variance, so the biased ray marcher is charged for its bias."""
     plt = _plt()
-    names = [n for n in report["estimators"] if n != "analytic"]
+    from ..techniques import ESTIMATORS
+    names = [n for n in report["estimators"] if not ESTIMATORS[n].homogeneous_only]
     Ts = sorted({r["target_T"] for r in report["profiles"]})
     ks = sorted({r["tightness"] for r in report["profiles"]})
     grids = {}

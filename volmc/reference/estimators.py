@@ -82,19 +82,16 @@ def transmittance_by_segments(med, o, d, t0, t1, kind, rng, counters, max_steps)
     it = np.empty(ITER_STATE_SIZE)
     majorant_iter_init(it, med, o, d, 0.0, t1 - t0)
     T = 1.0
-    sampled = False
     while True:
         ok, ta, tb, s_maj, s_min = majorant_next(it, med)
         if not ok:
             return T
+        alive, T = transmittance_roulette(T, rng)   # a no-op while T >= TR_RR_THRESHOLD
+        if not alive:
+            return T
         if s_min >= s_maj:
             T *= math.exp(-s_maj * (tb - ta))
             continue
-        if sampled:
-            alive, T = transmittance_roulette(T, rng)
-            if not alive:
-                return T
-        sampled = True
         T *= segment_estimate(kind, med, o, d, ta, tb, s_maj, s_min, rng, counters, max_steps)
 
 
@@ -108,15 +105,18 @@ def transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps):
 
 @njit(cache=True, inline="always")
 def tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, technique):
-    """The transmittance estimate of the tracking loop with ``technique`` (delta tracking,
-    no control, for TRACK_LENGTH)."""
-    return track(med, o, d, t0, t1, technique, False, rng, counters, max_steps)[2]
+    """The transmittance estimate of the tracking loop with ``technique``. Track length uses
+    each segment's minorant as control (decomposition tracking): the same 0/1 decisions as
+    delta tracking for the same random numbers, without the lookups the control decides."""
+    return track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, rng, counters,
+                 max_steps)[2]
 
 
 @njit(cache=True)
 def transmittance_track_length(med, o, d, t0, t1, rng, counters, max_steps):
-    """Track-length estimator: the delta-tracking walk of free flight, 1 if it escapes past
-    t1, 0 at its first real collision. Variance T (1 - T)."""
+    """Track-length estimator: the free-flight walk (decomposition tracking, the same decisions
+    as delta tracking), 1 if it escapes past t1, 0 at its first real collision; homogeneous
+    segments contribute exp(-sigma L). Variance at most T (1 - T)."""
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_LENGTH)
 
 

@@ -8,8 +8,8 @@ from one exponential "optical-depth budget" (``sample_exponential`` with rate 1)
 spent at the segment's rate and carried into the next segment when a segment ends first. The
 exponential is memoryless, so carrying the rest of the budget equals drawing afresh at each
 segment, and it costs no random number at a cell face. A new budget is drawn after every
-tentative collision, and only when a segment needs one: a walk through empty and
-homogeneous segments draws nothing.
+tentative collision that does not end the walk; the first is drawn only when a segment
+needs one, so a walk through empty and homogeneous segments draws nothing.
 
 What happens at a tentative collision at distance t, by ``technique``:
 
@@ -39,6 +39,10 @@ Homogeneous segments (sigma_min >= sigma_maj: the density is constant there) are
 transmittance technique multiplies T by exp(-sigma_maj L) with no lookup and no random
 number, and free flight accepts its first tentative collision there without a lookup or an
 accept draw (it is real with probability 1). So a homogeneous medium is tracked analytically.
+
+Between segments the running estimate plays transmittance roulette (below): with exact
+homogeneous segments even track length's estimate can become a small fraction, and a dense
+homogeneous core must not send a shadow ray on through the rest of the medium.
 
 Guards (docs/robustness.md): "local distances" -- the walk starts at o' = o + t0 d and
 accumulates distances from 0, so a segment far along its ray (t0 = 1e5 with a majorant of
@@ -95,39 +99,46 @@ def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
     budget = -1.0   # optical depth left to the next tentative collision; < 0: not drawn yet
     T = 1.0
     steps = 0
-    sampled = False
     while True:
         ok, ta, tb, s_maj, s_min = majorant_next(it, med)
         if not ok:
             return EVENT_ESCAPE, t1, T
         homogeneous = s_min >= s_maj
-        if homogeneous and technique != TRACK_FREE_FLIGHT:
-            T *= math.exp(-s_maj * (tb - ta))
-            continue
-        if sampled and not flight:
-            # Roulette before spending lookups on another segment.
+        # Roulette on the product so far before spending work on another segment (a no-op
+        # while T >= TR_RR_THRESHOLD, so on the first segment). Track length keeps its
+        # estimate 0 or 1: a fraction left by homogeneous segments goes on with probability T
+        # as 1, so a shadow ray stops in a dense homogeneous core as soon as delta tracking
+        # would, while a homogeneous medium (one segment) stays exact.
+        if technique == TRACK_LENGTH and T < 1.0:
+            if rng_next(rng) >= T:
+                return EVENT_ESCAPE, t1, 0.0
+            T = 1.0
+        if technique != TRACK_FREE_FLIGHT:
             alive, T = transmittance_roulette(T, rng)
             if not alive:
                 return EVENT_ESCAPE, t1, T
-        sampled = True
+        if homogeneous and technique != TRACK_FREE_FLIGHT:
+            T *= math.exp(-s_maj * (tb - ta))
+            continue
         control = 0.0
         if homogeneous or technique == TRACK_RESIDUAL_RATIO or (flight and use_control):
             control = s_min
         rate = s_maj - control if technique == TRACK_RESIDUAL_RATIO else s_maj
+        inv_rate = 1.0 / rate   # a multiplication per step instead of a division
         if technique == TRACK_RESIDUAL_RATIO:
             T *= math.exp(-control * (tb - ta))
         w = 1.0                                  # next flight: weight of the current vertex
-        acc = math.exp(-s_maj * (tb - ta))       # next flight: this segment's estimate
+        # next flight: this segment's estimate (no exp for the other techniques)
+        acc = math.exp(-s_maj * (tb - ta)) if technique == TRACK_NEXT_FLIGHT else 0.0
         t = ta
+        if budget < 0.0:
+            budget = sample_exponential(rng_next(rng), 1.0)[0]
         while True:
-            if budget < 0.0:
-                budget = sample_exponential(rng_next(rng), 1.0)[0]
-            step = budget / rate
+            step = budget * inv_rate
             if t + step >= tb:
                 budget -= rate * (tb - t)
                 break
             t += step
-            budget = -1.0
             p = (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2])
             if flight:
                 if control >= s_maj:
@@ -139,6 +150,7 @@ def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
                 w *= 1.0 - extinction(med, p, s_maj, counters) / s_maj
                 alive, w = transmittance_roulette(w, rng)
                 if not alive:
+                    budget = -1.0   # the next segment draws afresh
                     break   # the rest of this segment adds nothing; its estimate is acc
                 acc += w * math.exp(-s_maj * (tb - t))
             else:
@@ -146,6 +158,7 @@ def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
                 alive, T = transmittance_roulette(T, rng)
                 if not alive:
                     return EVENT_ESCAPE, t1, T
+            budget = sample_exponential(rng_next(rng), 1.0)[0]
             steps += 1
             if steps >= max_steps:
                 counters[C_CAPPED] += 1

@@ -3,7 +3,9 @@ scene needs"). The reference decides the same things at run time from the record
 
 A switch stays only while `volmc bench specialise` shows it pays at least 3 % on some
 shipped scene (README, "Specialisation"): of the nine switches and six baked constants
-measured, only MAJORANT_GRID did, so it is the one left.
+measured, only MAJORANT_GRID did, so it is the one scene switch left. PROFILES is not a
+scene's: render builds always compile the 1-D test profiles out (3.5 % on the cloud with a
+global majorant), and the test and benchmark kernels keep them.
 """
 
 from .schema import ConstantDensity
@@ -12,6 +14,13 @@ from .schema import ConstantDensity
 FEATURES = {
     "MAJORANT_GRID": "per-cell majorants along a 3-D DDA walk (a grid with "
                      "render.majorant = \"grid\")",
+}
+
+
+#: Code paths no scene takes: off in every render build, on in the test and benchmark kernels
+#: (which build with the defaults of features.h).
+TEST_FEATURES = {
+    "PROFILES": "1-D test profiles as density sources (tests and the estimator benchmark)",
 }
 
 
@@ -27,7 +36,8 @@ def features(scene) -> frozenset:
 def define_flags(feature_set) -> list:
     """Compiler options ``-DFEATURE_X=1`` for the features in the set and ``=0`` for the
     others, in a stable order (a kernel built without options has every feature on)."""
-    return [f"-DFEATURE_{name}={int(name in feature_set)}" for name in sorted(FEATURES)]
+    return [f"-DFEATURE_{name}={int(name in feature_set)}"
+            for name in sorted(FEATURES) + sorted(TEST_FEATURES)]
 
 
 def features_header() -> str:
@@ -35,7 +45,7 @@ def features_header() -> str:
     unless the build defines it, so kernels test plain constants and need no #ifdef."""
     out = ["/* Generated from volmc/scene/features.py: do not edit. */",
            "#ifndef VOLMC_FEATURES_H", "#define VOLMC_FEATURES_H"]
-    for name, meaning in FEATURES.items():
+    for name, meaning in {**FEATURES, **TEST_FEATURES}.items():
         out += [f"/* {meaning} */", f"#ifndef FEATURE_{name}", f"#define FEATURE_{name} 1",
                 "#endif"]
     return "\n".join(out + ["#endif", ""])
