@@ -55,7 +55,7 @@ inline float transmittance_by_segments(const MediumData *med, float3 o, float3 d
     Segment seg;
     while (majorant_next(&it, med, &seg)) {
         if (!transmittance_roulette(&T, rng)) return T;
-        if (seg.sigma_min >= seg.sigma_maj) {
+        if (seg.sigma_min == seg.sigma_maj) {
             T *= exp(-seg.sigma_maj * (seg.t_max - seg.t_min));
             continue;
         }

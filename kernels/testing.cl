@@ -117,7 +117,7 @@ kernel void t_track(int technique, int use_control, global const Medium *media,
     lookups[i] = cnt[C_LOOKUPS];
 }
 
-/* DDA walks of rays (9 floats each, as t_tracking) into out[r][k] = (ta, tb, iz, iy, ix). */
+/* DDA walks of rays (9 floats each, as t_track) into out[r][k] = (ta, tb, iz, iy, ix). */
 kernel void t_dda(global const float *rays, float3 bmin, float3 bmax, int3 res_zyx,
                   int max_segments, global float *out, global int *count) {
     int r = get_global_id(0);

@@ -40,7 +40,7 @@ inline __attribute__((always_inline)) int track(const MediumData *med, float3 o,
     *t_out = t1;
     while (majorant_next(&it, med, &seg)) {
         float ta = seg.t_min, tb = seg.t_max, s_maj = seg.sigma_maj;
-        int homogeneous = seg.sigma_min >= s_maj;
+        int homogeneous = seg.sigma_min == s_maj;
         /* Roulette on the product so far before spending work on another segment (a no-op
          * while T >= TR_RR_THRESHOLD, so on the first segment). Track length keeps its
          * estimate 0 or 1: a fraction left by homogeneous segments goes on with probability T
@@ -75,7 +75,8 @@ inline __attribute__((always_inline)) int track(const MediumData *med, float3 o,
         while (true) {
             float step = budget * inv_rate;
             if (t + step >= tb) {
-                budget -= rate * (tb - t);
+                /* >= 0: rounding must not turn what is left into the "not drawn" marker */
+                budget = fmax(budget - rate * (tb - t), 0.0f);
                 break;
             }
             t += step;

@@ -167,7 +167,7 @@ def build_parser():
                     help="also render with the volmc checkout in DIR (an earlier version, "
                          "OpenCL, the scene's own techniques); repeatable")
     for name, helptext in (
-            ("specialise", "samples/s of each feature switch and baked constant, per scene"),
+            ("specialise", "samples/s of the scene's build against each feature switch on"),
             ("workgroup", "samples/s of the OpenCL kernel per work-group size")):
         bb = bsub.add_parser(name, help=helptext)
         bb.add_argument("scenes", nargs="*", help="scene files (default: "
@@ -420,7 +420,7 @@ def cmd_bench_render(args):
     else:
         from .techniques import ESTIMATORS
         exact = [n for n, e in ESTIMATORS.items() if e.homogeneous_only]
-        ests = (exact if homogeneous else []) + cv.grid_estimators()
+        ests = (exact if homogeneous else []) + cv.unbiased_grid_estimators()
     peer = args.peer != "none"
     if peer:
         from .peers.mitsuba import PeerUnavailable, probe

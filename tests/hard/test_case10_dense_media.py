@@ -9,7 +9,6 @@ distances" (tracking loops accumulate from the segment start, so 1e-30 steps sti
 import math
 
 import numpy as np
-import pytest
 
 from stats import ALPHA, z_bound
 from volmc.bench.transmittance_runner import OpenCLEstimator, run_numba

@@ -18,7 +18,6 @@ Guards exercised:
 import math
 
 import numpy as np
-import pytest
 
 from stats import ALPHA, z_bound
 from volmc.bench import transmittance_runner as TR

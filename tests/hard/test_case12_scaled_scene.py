@@ -13,7 +13,6 @@ import copy
 import math
 
 import numpy as np
-import pytest
 
 from stats import ALPHA, z_bound
 from volmc.render import render

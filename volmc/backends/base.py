@@ -8,6 +8,8 @@ the work into batches gives the same image.
 
 import abc
 
+from ..constants import RR_MAX_SURVIVAL
+
 #: Backend names, in the order tests and benchmarks use them: the production kernels first.
 BACKENDS = ("opencl", "numba")
 
@@ -59,5 +61,5 @@ def techniques(scene):
         f"{r.transmittance} ({r.majorant} majorant)",
         "phase": scene.medium.phase.type,
         "nee": "all lights; environment by uniform sphere + balance-heuristic MIS",
-        "russian_roulette": f"from depth {r.rr_depth}, q = min(max(beta), 0.95)",
+        "russian_roulette": f"from depth {r.rr_depth}, q = min(max(beta), {RR_MAX_SURVIVAL})",
     }

@@ -48,7 +48,7 @@ class Config:
         return f"{self.backend} {self.majorant} {self.free_flight} {self.transmittance}"
 
 
-def grid_estimators():
+def unbiased_grid_estimators():
     """Unbiased shadow-ray estimators that work on grids (the registry decides)."""
     from ..techniques import ESTIMATORS
     return [n for n, e in ESTIMATORS.items() if e.unbiased and not e.homogeneous_only]

@@ -57,8 +57,8 @@ def profile_case(shape, target_T, tightness):
     lo, hi, mean = X.profile_bounds(med, 0.0, 1.0)
     # The maximum is exact in float64; the OpenCL kernels evaluate the profile in float32,
     # which can land a few ulps above it (the cosine's peak did, and over_majorant counted
-    # it). 2^-20 of relative slack keeps it a true majorant in either precision. (The
-    # minorant is only a control: any value keeps the estimators unbiased.)
+    # it). 2^-20 of relative slack keeps it a true majorant in either precision. The minorant
+    # (the estimators' control) is the profile's true minimum.
     mbar = max(mean / tightness, hi * (1.0 + 2.0 ** -20))
     exact = math.exp(-X.optical_depth_profile(med, 0.0, 1.0))
     return med, mbar, lo, exact, mean / mbar

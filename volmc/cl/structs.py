@@ -1,7 +1,8 @@
-"""C declarations for the kernels, generated from volmc/params.py (never written by hand).
+"""C declarations for the kernels, generated from volmc/params.py and volmc/constants.py
+(never written by hand).
 
 ``params_header()`` is the text of the virtual header ``params.h`` that kernels include:
-the Params and Light structs (float32 reals, the same field order and alignment as
+the Params, Medium and Light structs (float32 reals, the same field order and alignment as
 ``params_dtype(np.float32)``), the counter indices and every constant of volmc/constants.py.
 """
 

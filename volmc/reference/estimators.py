@@ -18,7 +18,7 @@ Two families, each run by one loop over the majorant segments:
   independent unbiased per-segment estimates is unbiased. Between segments the running
   product plays transmittance roulette (tracking.transmittance_roulette).
 
-Either way a homogeneous segment (sigma_min >= sigma_maj) contributes its exact
+Either way a homogeneous segment (sigma_min == sigma_maj) contributes its exact
 exp(-sigma_maj L), with no lookup and no random number: a homogeneous medium always gets the
 analytic transmittance, whichever estimator is chosen.
 """
@@ -89,7 +89,7 @@ def transmittance_by_segments(med, o, d, t0, t1, kind, rng, counters, max_steps)
         alive, T = transmittance_roulette(T, rng)   # a no-op while T >= TR_RR_THRESHOLD
         if not alive:
             return T
-        if s_min >= s_maj:
+        if s_min == s_maj:
             T *= math.exp(-s_maj * (tb - ta))
             continue
         T *= segment_estimate(kind, med, o, d, ta, tb, s_maj, s_min, rng, counters, max_steps)

@@ -28,8 +28,15 @@ structured record) plus the arrays it points to, carried together as ``MediumDat
   the record's ``sigma_maj`` and ``sigma_min``; ``MAJORANT_GRID`` yields one piece per cell of
   the majorant grid crossed by the 3-D DDA (dda.py), scale times the cell's density maximum
   and minimum (majorant.py). Pieces with sigma_maj <= 0 (nothing there) and pieces of zero
-  length are skipped: an empty cell costs nothing. A piece with sigma_min >= sigma_maj is
+  length are skipped: an empty cell costs nothing. A piece with sigma_min == sigma_maj is
   homogeneous, and tracking treats it exactly (tracking.py).
+
+  The bounds are trusted: sigma_min must be a true minorant and sigma_maj a true majorant of
+  the extinction on the piece (pack.py builds them so: majorant.py takes the extremes over
+  every voxel trilinear interpolation can read). A majorant that is too low is caught by
+  ``extinction``'s count wherever a lookup happens; a minorant that is too high, or a density
+  edited after the bounds were built over a homogeneous piece, is not, since those decisions
+  make no lookup.
 
 Adding a source or a structure (RGB extinction, an emission field, an octree of majorants)
 adds a kind here and in medium.h, and every technique built on these three functions
@@ -52,10 +59,6 @@ from .grid import grid_lookup
 #: A medium record with its arrays: the density grid [nz, ny, nx] and the majorant grid's
 #: per-cell density maxima and minima [cz, cy, cx] (1x1x1 placeholders when unused).
 MediumData = namedtuple("MediumData", ["m", "grid", "maj", "mnr"])
-
-PROFILE_NAMES = {DENSITY_CONSTANT: "constant", DENSITY_RAMP: "linear ramp",
-                 DENSITY_GAUSS_BUMP: "Gaussian bump", DENSITY_GAUSS_HOLE: "Gaussian hole",
-                 DENSITY_COSINE: "cosine"}
 
 #: Iterator state: [done, t0, t1, unused] then the DDA's state.
 ITER_STATE_SIZE = 4 + DDA_STATE_SIZE

@@ -4,7 +4,7 @@ Along a straight ray the clamp-to-edge trilinear density is, on each axis, linea
 between successive crossings of voxel-centre planes (and constant in the half-voxel clamp
 zone next to a face), so between consecutive crossings of any axis it is a polynomial of
 degree <= 3 in t. Gauss-Legendre quadrature with 3 nodes is exact for degree 5, so summing
-it over the pieces gives the optical depth up to float64 rounding (docs/estimators.md).
+it over the pieces gives the optical depth up to float64 rounding.
 """
 
 import math

@@ -9,7 +9,8 @@ spent at the segment's rate and carried into the next segment when a segment end
 exponential is memoryless, so carrying the rest of the budget equals drawing afresh at each
 segment, and it costs no random number at a cell face. A new budget is drawn after every
 tentative collision that does not end the walk; the first is drawn only when a segment
-needs one, so a walk through empty and homogeneous segments draws nothing.
+needs one, so a transmittance walk through empty and homogeneous segments draws nothing (but
+track length's roulette, below).
 
 What happens at a tentative collision at distance t, by ``technique``:
 
@@ -35,10 +36,11 @@ A product of independent unbiased per-segment estimates is unbiased, and the ten
 collisions of disjoint segments are independent, so every technique is unbiased over any
 majorant structure.
 
-Homogeneous segments (sigma_min >= sigma_maj: the density is constant there) are exact: a
+Homogeneous segments (sigma_min == sigma_maj: the density is constant there) are exact: a
 transmittance technique multiplies T by exp(-sigma_maj L) with no lookup and no random
 number, and free flight accepts its first tentative collision there without a lookup or an
-accept draw (it is real with probability 1). So a homogeneous medium is tracked analytically.
+accept draw (it is real with probability 1; its distance still takes the budget). So a
+homogeneous medium is tracked analytically.
 
 Between segments the running estimate plays transmittance roulette (below): with exact
 homogeneous segments even track length's estimate can become a small fraction, and a dense
@@ -62,7 +64,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..constants import (EVENT_CAPPED, EVENT_ESCAPE, EVENT_SCATTER, STREAM_TEST, TR_RR_THRESHOLD,
-                         TRACK_FREE_FLIGHT, TRACK_LENGTH, TRACK_NEXT_FLIGHT, TRACK_RATIO,
+                         TRACK_FREE_FLIGHT, TRACK_LENGTH, TRACK_NEXT_FLIGHT,
                          TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, C_LOOKUPS, N_COUNTERS
 from .medium import (ITER_STATE_SIZE, MediumData, extinction, majorant_iter_init,
@@ -103,7 +105,7 @@ def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
         ok, ta, tb, s_maj, s_min = majorant_next(it, med)
         if not ok:
             return EVENT_ESCAPE, t1, T
-        homogeneous = s_min >= s_maj
+        homogeneous = s_min == s_maj
         # Roulette on the product so far before spending work on another segment (a no-op
         # while T >= TR_RR_THRESHOLD, so on the first segment). Track length keeps its
         # estimate 0 or 1: a fraction left by homogeneous segments goes on with probability T
@@ -136,7 +138,8 @@ def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
         while True:
             step = budget * inv_rate
             if t + step >= tb:
-                budget -= rate * (tb - t)
+                # >= 0: rounding must not turn what is left into the "not drawn" marker
+                budget = max(budget - rate * (tb - t), 0.0)
                 break
             t += step
             p = (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2])
