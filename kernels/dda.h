@@ -11,59 +11,59 @@ typedef struct {
 } Dda;
 
 /* res_zyx = (cz, cy, cx) cells tiling [bmin, bmax]; the segment is already clipped. */
-inline void dda_init(Dda *s, float3 o, float3 d, float t0, float t1, float3 bmin, float3 bmax,
+inline void dda_init(Dda *state, float3 o, float3 d, float t0, float t1, float3 bmin, float3 bmax,
                      int3 res_zyx) {
     float oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
     float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
     int n[3] = {res_zyx.z, res_zyx.y, res_zyx.x};
-    s->t = t0;
-    s->t1 = t1;
-    s->done = !(t1 > t0);
+    state->t = t0;
+    state->t1 = t1;
+    state->done = !(t1 > t0);
     for (int a = 0; a < 3; ++a) {
         float size = (hi[a] - lo[a]) / (float)n[a];
         float p = oa[a] + t0 * da[a];
         int i = clamp((int)floor((p - lo[a]) / size), 0, n[a] - 1);
-        s->i[a] = i;
-        s->n[a] = n[a];
+        state->i[a] = i;
+        state->n[a] = n[a];
         if (da[a] > 0.0f) {
-            s->step[a] = 1;
-            s->tnext[a] = (lo[a] + (float)(i + 1) * size - oa[a]) / da[a];
-            s->dt[a] = size / da[a];
+            state->step[a] = 1;
+            state->tnext[a] = (lo[a] + (float)(i + 1) * size - oa[a]) / da[a];
+            state->dt[a] = size / da[a];
         } else if (da[a] < 0.0f) {
-            s->step[a] = -1;
-            s->tnext[a] = (lo[a] + (float)i * size - oa[a]) / da[a];
-            s->dt[a] = -size / da[a];
+            state->step[a] = -1;
+            state->tnext[a] = (lo[a] + (float)i * size - oa[a]) / da[a];
+            state->dt[a] = -size / da[a];
         } else {
-            s->step[a] = 0;
+            state->step[a] = 0;
             /* FLT_MAX: finite-math-only builds may fold infinities (NO_LIMIT, guards.h). */
-            s->tnext[a] = FLT_MAX;
-            s->dt[a] = FLT_MAX;
+            state->tnext[a] = FLT_MAX;
+            state->dt[a] = FLT_MAX;
         }
     }
 }
 
 /* Returns 0 when the walk is over; else writes the segment and its cell (ix, iy, iz). */
-inline int dda_next(Dda *s, float *t_enter, float *t_exit, int3 *cell) {
-    if (s->done) return 0;
+inline int dda_next(Dda *state, float *t_enter, float *t_exit, int3 *cell) {
+    if (state->done) return 0;
     int a = 0;
-    if (s->tnext[1] < s->tnext[a]) a = 1;
-    if (s->tnext[2] < s->tnext[a]) a = 2;
-    *t_enter = s->t;
-    float te = fmin(fmax(s->tnext[a], s->t), s->t1);
-    *cell = (int3)(s->i[0], s->i[1], s->i[2]);
-    if (te >= s->t1) {
-        s->done = 1;
+    if (state->tnext[1] < state->tnext[a]) a = 1;
+    if (state->tnext[2] < state->tnext[a]) a = 2;
+    *t_enter = state->t;
+    float te = fmin(fmax(state->tnext[a], state->t), state->t1);
+    *cell = (int3)(state->i[0], state->i[1], state->i[2]);
+    if (te >= state->t1) {
+        state->done = 1;
     } else {
-        int i = s->i[a] + s->step[a];
-        if (i < 0 || i >= s->n[a]) {
-            s->done = 1;
-            te = s->t1;
+        int i = state->i[a] + state->step[a];
+        if (i < 0 || i >= state->n[a]) {
+            state->done = 1;
+            te = state->t1;
         } else {
-            s->i[a] = i;
-            s->tnext[a] += s->dt[a];
+            state->i[a] = i;
+            state->tnext[a] += state->dt[a];
         }
     }
-    s->t = te;
+    state->t = te;
     *t_exit = te;
     return 1;
 }

@@ -16,11 +16,28 @@ from volmc.techniques import ESTIMATORS
 C_ONLY = {"vec3", "vec3g", "dda_cell_index", "lerp_ab"}
 
 
-def _kernel_functions():
-    names = set()
+#: Twins whose arguments differ, and why: C passes a grid's shape beside its pointer; Numba
+#: passes the four counter and two key words, and the three channels, that C packs in vectors.
+ARGUMENTS_DIFFER = {"grid_lookup", "philox4x32_10", "sample_ok"}
+
+
+def _kernel_signatures():
+    """{name: [parameter names]} of every inline function of kernels/*.h and integrator.cl."""
+    out = {}
     for path in sorted(kernels_dir().glob("*.h")) + [kernels_dir() / "integrator.cl"]:
-        names |= set(re.findall(r"^inline\s+[\w\s\*]+?\b(\w+)\s*\(", path.read_text(), re.M))
-    return names
+        text = path.read_text()
+        for m in re.finditer(r"^inline\s+(?:__attribute__\(\(\w+\)\)\s+)?[\w\s\*]+?\b(\w+)"
+                             r"\s*\(([^)]*)\)", text, re.M):
+            args = m.group(2).replace(
+                "TRANSMITTANCE_ARGS", "const MediumData *med, float3 o, float3 d, float t0, "
+                "float t1, Rng *rng, ulong *counters, int max_steps")
+            out[m.group(1)] = [re.findall(r"(\w+)\s*(?:\[\w*\])?\s*$", a.strip())[0]
+                               for a in args.split(",") if a.strip() not in ("", "void")]
+    return out
+
+
+def _kernel_functions():
+    return set(_kernel_signatures())
 
 
 def _reference_functions():
@@ -37,6 +54,23 @@ def test_every_kernel_function_has_a_numba_twin():
     missing = _kernel_functions() - _reference_functions() - C_ONLY
     assert not missing, f"kernel functions without a Numba twin: {sorted(missing)}"
     assert C_ONLY <= _kernel_functions() | {"vec3g"}
+
+
+def test_twins_take_the_same_arguments():
+    """A Numba twin's parameters are the kernel function's, in order; the kernel may add
+    trailing out-parameters (the pdf, a second result) where Numba returns a tuple."""
+    import ast
+    from pathlib import Path
+
+    import volmc.reference
+    ref = {}
+    for path in Path(volmc.reference.__file__).parent.glob("*.py"):
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.FunctionDef):
+                ref[node.name] = [a.arg for a in node.args.args]
+    bad = {name: (c, ref[name]) for name, c in _kernel_signatures().items()
+           if name in ref and name not in ARGUMENTS_DIFFER and c[:len(ref[name])] != ref[name]}
+    assert not bad, bad
 
 
 @pytest.mark.parametrize("name", list(ESTIMATORS))
