@@ -1,12 +1,13 @@
-/* Volumetric path tracer kernel. Twin of volmc/reference/integrator.py: the algorithm, the
- * order of random numbers and the Russian-roulette policy are described there.
+/* Volumetric path tracer kernel. Twin of volmc/reference/integrator.py: the algorithm, the order
+ * of random numbers and the Russian-roulette policy are described there.
  *
- * Built for the scene: -DFEATURE_X=0/1 options (volmc/scene/features.py; features.h
- * defaults every one to 1) turn a code path off where the scene cannot take it; each is a
- * plain constant in an ordinary `if`, so the compiler drops the dead path. Only the switches
- * `volmc bench specialise` shows to pay are kept (README, "Specialisation"); a build with
- * every one on renders any scene. SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance). params.h
- * (generated from volmc/params.py and volmc/constants.py) defines the records and constants. */
+ * Built for the scene: -DFEATURE_X=0/1 options (volmc/scene/features.py; features.h defaults
+ * every one to 1) turn a code path off where the scene cannot take it; each is a plain constant
+ * in an ordinary `if`, so the compiler drops the dead path. Only the switches `volmc bench
+ * specialise` shows to pay are kept (README, "Specialisation"); a build with every one on
+ * renders any scene. SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance).
+ * params.h (generated from volmc/params.py and volmc/constants.py) defines the records and
+ * constants. */
 
 #include "params.h"
 #include "features.h"

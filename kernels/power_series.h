@@ -1,7 +1,7 @@
-/* Power-series transmittance estimators on one majorant segment: unbiased ray marching
- * (Kettunen et al. 2021) and the p-series CMF estimator (Georgiev et al. 2019). Twin of volmc/reference/power_series.py,
- * where the formulas, parameters, caps and numerical guards are documented; the operation
- * order and the random-number consumption here follow it step by step. */
+/* Power-series transmittance estimators on one majorant segment: unbiased ray marching (Kettunen
+ * et al. 2021) and the p-series CMF estimator (Georgiev et al. 2019). Twin of
+ * volmc/reference/power_series.py, where the formulas, parameters, caps and numerical guards are
+ * documented; the operation order and the random-number consumption here follow it step by step. */
 #ifndef VOLMC_POWER_SERIES_H
 #define VOLMC_POWER_SERIES_H
 

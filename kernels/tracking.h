@@ -26,7 +26,8 @@ inline int transmittance_roulette(float *T, Rng *rng) {
  * *t_out and the transmittance estimate to *T_out. */
 /* Always inlined: each call site passes a constant technique, so the compiler keeps only that
  * technique's code in the loop. */
-inline __attribute__((always_inline)) int track(const MediumData *med, float3 o, float3 d, float t0, float t1, int technique,
+inline __attribute__((always_inline)) int track(const MediumData *med, float3 o, float3 d,
+                                                float t0, float t1, int technique,
                  int use_control, Rng *rng, ulong *counters, int max_steps, float *t_out,
                  float *T_out) {
     o = o + t0 * d;

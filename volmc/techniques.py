@@ -51,7 +51,8 @@ class Estimator:
 
 
 _RECORDS = (
-    Estimator("analytic", C.ESTIMATOR_ANALYTIC, "transmittance_analytic", True, homogeneous_only=True,
+    Estimator("analytic", C.ESTIMATOR_ANALYTIC, "transmittance_analytic", True,
+              homogeneous_only=True,
               summary="exp(-sigma L) per majorant segment: exact on homogeneous segments only"),
     Estimator("track_length", C.ESTIMATOR_TRACK_LENGTH, "transmittance_track_length", True,
               summary="delta tracking: 1 if the walk escapes, 0 at the first real collision"),
@@ -61,12 +62,14 @@ _RECORDS = (
               summary="residual ratio tracking with each segment's minorant as control"),
     Estimator("next_flight", C.ESTIMATOR_NEXT_FLIGHT, "transmittance_next_flight", True,
               summary="next-flight ratio tracking: every vertex adds the chance to escape"),
-    Estimator("biased_raymarch", C.ESTIMATOR_BIASED_RAYMARCH, "transmittance_biased_raymarch", False,
+    Estimator("biased_raymarch", C.ESTIMATOR_BIASED_RAYMARCH, "transmittance_biased_raymarch",
+              False,
               summary="jittered ray marching, exp(-tau estimate): biased (Jensen)"),
     Estimator("power_series", C.ESTIMATOR_POWER_SERIES, "transmittance_power_series", True,
               build_options=("-DVOLMC_POWER_SERIES",),
               summary="p-series CMF power series (Georgiev et al. 2019)"),
-    Estimator("unbiased_raymarch", C.ESTIMATOR_UNBIASED_RAYMARCH, "transmittance_unbiased_raymarch", True, signed=True,
+    Estimator("unbiased_raymarch", C.ESTIMATOR_UNBIASED_RAYMARCH,
+              "transmittance_unbiased_raymarch", True, signed=True,
               build_options=("-DVOLMC_POWER_SERIES",),
               summary="unbiased ray marching (Kettunen et al. 2021)"),
 )

@@ -2,9 +2,10 @@
 
 Kernel sources in ``kernels/`` are assembled into one translation unit: ``#include "x.h"``
 lines are replaced by the file's text (once each); ``params.h`` is generated from
-volmc/params.py and volmc/constants.py, ``features.h`` from volmc/scene/features.py. The cache key is the SHA-256 of that full text, the build options, and the
-device identity (platform, device name, version, driver), so any change to a header, a flag
-or the driver rebuilds. Binaries live in VOLMC_CACHE_DIR (default ~/.cache/volmc/cl).
+volmc/params.py and volmc/constants.py, ``features.h`` from volmc/scene/features.py. The
+cache key is the SHA-256 of that full text, the build options, and the device identity
+(platform, device name, version, driver), so any change to a header, a flag or the driver
+rebuilds. Binaries live in VOLMC_CACHE_DIR (default ~/.cache/volmc/cl).
 """
 
 import hashlib
