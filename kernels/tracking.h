@@ -28,8 +28,8 @@ inline int transmittance_roulette(float *T, Rng *rng) {
  * technique's code in the loop. */
 inline __attribute__((always_inline)) int track(const MediumData *med, float3 o, float3 d,
                                                 float t0, float t1, int technique,
-                 int use_control, Rng *rng, ulong *counters, int max_steps, float *t_out,
-                 float *T_out) {
+                                                int use_control, Rng *rng, ulong *counters,
+                                                int max_steps, float *t_out, float *T_out) {
     o = o + t0 * d;
     MajorantIter it;
     majorant_iter_init(&it, med, o, d, 0.0f, t1 - t0);
@@ -83,13 +83,13 @@ inline __attribute__((always_inline)) int track(const MediumData *med, float3 o,
             t += step;
             float3 p = o + t * d;
             if (flight) {
-                if (control >= s_maj) {
-                    *t_out = t0 + t;
-                    *T_out = 0.0f;
-                    return EVENT_SCATTER;
+                /* Real for sure where the control covers the majorant (no draw, no lookup). */
+                int real = control >= s_maj;
+                if (!real) {
+                    float um = rng_next(rng) * s_maj;
+                    real = um < control || um < extinction(med, p, s_maj, counters);
                 }
-                float um = rng_next(rng) * s_maj;
-                if (um < control || um < extinction(med, p, s_maj, counters)) {
+                if (real) {
                     *t_out = t0 + t;
                     *T_out = 0.0f;
                     return EVENT_SCATTER;

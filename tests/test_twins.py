@@ -53,7 +53,7 @@ def _reference_functions():
 def test_every_kernel_function_has_a_numba_twin():
     missing = _kernel_functions() - _reference_functions() - C_ONLY
     assert not missing, f"kernel functions without a Numba twin: {sorted(missing)}"
-    assert C_ONLY <= _kernel_functions() | {"vec3g"}
+    assert C_ONLY <= _kernel_functions()
 
 
 def test_twins_take_the_same_arguments():

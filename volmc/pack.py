@@ -116,13 +116,14 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["seed_hi"] = seed >> 32
     params = np.zeros(1, params_dtype(real))
     params[0] = p
-    medium, grid = pack_medium(scene, real, local, unit)
     maj, mnr = pack_majorant(scene, real)
+    medium, grid = pack_medium(scene, real, local, unit, maj.shape)
     return Packed(params, larr, medium, grid, maj, mnr)
 
 
-def pack_medium(scene, real, local, unit):
-    """(medium record [1], density grid) of the scene's medium in the scene frame."""
+def pack_medium(scene, real, local, unit, maj_res):
+    """(medium record [1], density grid) of the scene's medium in the scene frame;
+    ``maj_res`` is the shape (cz, cy, cx) of the majorant grid ``pack_majorant`` built."""
     med, rnd = scene.medium, scene.render
     m = np.zeros(1, medium_dtype(real))[0]
     lo, hi = local(med.bounds[0]), local(med.bounds[1])
@@ -149,10 +150,8 @@ def pack_medium(scene, real, local, unit):
         m["sigma_maj"] = sigma_scale * float(scene.grid.max())
         m["sigma_min"] = sigma_scale * float(scene.grid.min())
         if rnd.majorant == "grid":
-            from .reference.majorant import auto_resolution
-            res = rnd.majorant_resolution
             m["majorant_kind"] = MAJORANT_GRID
-            m["maj_res"] = tuple(reversed(res)) if res else auto_resolution(scene.grid.shape)
+            m["maj_res"] = maj_res
     m["albedo"] = med.albedo
     m["phase_kind"] = PHASE_HG if med.phase.type == "hg" else PHASE_ISOTROPIC
     m["g"] = med.phase.g

@@ -40,6 +40,7 @@ from .medium import (ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_n
 from .power_series import power_series_segment, unbiased_raymarch_segment
 from .rng import rng_new, rng_next
 from .tracking import track, transmittance_roulette
+from .vec import madd3
 
 
 @njit(cache=True)
@@ -78,7 +79,7 @@ def transmittance_by_segments(med, o, d, t0, t1, kind, rng, counters, max_steps)
     """Product over the majorant segments of [t0, t1] of per-segment estimates of ``kind``
     (exact on homogeneous segments), with transmittance roulette between segments. Guard
     "local distances": the walk starts at o + t0 d."""
-    o = (o[0] + t0 * d[0], o[1] + t0 * d[1], o[2] + t0 * d[2])
+    o = madd3(o, d, t0)
     it = np.empty(ITER_STATE_SIZE)
     majorant_iter_init(it, med, o, d, 0.0, t1 - t0)
     T = 1.0

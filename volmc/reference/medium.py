@@ -55,6 +55,7 @@ from ..constants import (DENSITY_CONSTANT, DENSITY_COSINE, DENSITY_GAUSS_BUMP,
 from ..params import C_LOOKUPS, C_OVER_MAJORANT, medium_dtype
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .grid import grid_lookup
+from .vec import madd3
 
 #: A medium record with its arrays: the density grid [nz, ny, nx] and the majorant grid's
 #: per-cell density maxima and minima [cz, cy, cx] (1x1x1 placeholders when unused).
@@ -145,16 +146,15 @@ def optical_depth_comb(med, o, d, t0, L, n, u, sigma_maj, counters):
     s = 0.0
     for j in range(n):
         t = t0 + (j + u) * h
-        s += extinction(med, (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]), sigma_maj,
-                        counters)
+        s += extinction(med, madd3(o, d, t), sigma_maj, counters)
     return s * h
 
 
 # --- Host-side constructors and closed forms (tests and the estimator benchmark) ------------
 
-def new_medium(real=np.float64):
-    """A zeroed medium record (a 0-d structured array) with no majorant and unit scale."""
-    m = np.zeros((), medium_dtype(real))
+def new_medium():
+    """A zeroed float64 medium record (a 0-d structured array), no majorant, unit scale."""
+    m = np.zeros((), medium_dtype(np.float64))
     m["scale"] = 1.0
     m["dims"] = (1, 1, 1)
     m["maj_res"] = (1, 1, 1)

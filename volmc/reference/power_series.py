@@ -40,6 +40,7 @@ from ..params import C_CAPPED
 from .medium import extinction, optical_depth_comb
 from .guards import finite_bits
 from .rng import rng_next
+from .vec import madd3
 
 
 @njit(cache=True)
@@ -275,8 +276,7 @@ def power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps
             return acc * g ** (n_det - k)
         k += 1
         x = t0 + rng_next(rng) * L
-        y = (mbar - extinction(med, (o[0] + x * d[0], o[1] + x * d[1], o[2] + x * d[2]),
-                               mbar, counters)) * L
+        y = (mbar - extinction(med, madd3(o, d, x), mbar, counters)) * L
         prod *= g * y / k
         acc = acc * g + prod
         if prod == 0.0:
@@ -291,8 +291,7 @@ def power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps
             break
         k += 1
         x = t0 + rng_next(rng) * L
-        y = (mbar - extinction(med, (o[0] + x * d[0], o[1] + x * d[1], o[2] + x * d[2]),
-                               mbar, counters)) * L
+        y = (mbar - extinction(med, madd3(o, d, x), mbar, counters)) * L
         prod *= y / k
         acc += prod / q
         if prod == 0.0:

@@ -71,6 +71,7 @@ from .medium import (ITER_STATE_SIZE, MediumData, extinction, majorant_iter_init
                      majorant_next)
 from .rng import rng_new, rng_next
 from .sampling import sample_exponential
+from .vec import madd3
 
 
 @njit(cache=True, inline="always")
@@ -94,7 +95,7 @@ def transmittance_roulette(T, rng):
 def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
     """Walk ray o + t d over [t0, t1] through ``med`` with ``technique`` (TRACK_*).
     Returns (event, t, T) (module docstring)."""
-    o = (o[0] + t0 * d[0], o[1] + t0 * d[1], o[2] + t0 * d[2])
+    o = madd3(o, d, t0)
     it = np.empty(ITER_STATE_SIZE)
     majorant_iter_init(it, med, o, d, 0.0, t1 - t0)
     flight = technique == TRACK_FREE_FLIGHT or technique == TRACK_LENGTH
@@ -142,12 +143,14 @@ def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
                 budget = max(budget - rate * (tb - t), 0.0)
                 break
             t += step
-            p = (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2])
+            p = madd3(o, d, t)
             if flight:
-                if control >= s_maj:
-                    return EVENT_SCATTER, t0 + t, 0.0
-                um = rng_next(rng) * s_maj
-                if um < control or um < extinction(med, p, s_maj, counters):
+                # Real for sure where the control covers the majorant (no draw, no lookup).
+                real = control >= s_maj
+                if not real:
+                    um = rng_next(rng) * s_maj
+                    real = um < control or um < extinction(med, p, s_maj, counters)
+                if real:
                     return EVENT_SCATTER, t0 + t, 0.0
             elif technique == TRACK_NEXT_FLIGHT:
                 w *= 1.0 - extinction(med, p, s_maj, counters) / s_maj
