@@ -3,7 +3,8 @@
  * exactly one technique. Work item i estimates ray i / n_per_ray with sample index
  * sample_offset + i % n_per_ray on STREAM_TEST; rays are 9 floats: o(3), d(3), t0, t1, pad;
  * ray r goes through medium record media[r] (its majorant bounds included), all sharing the
- * grid and majorant arrays. Per-estimate counters go to counters_out[i][N_COUNTERS]. */
+ * grid and majorant arrays. Per-estimate counters go to counters_out[i][N_COUNTERS]. The
+ * media are grey: out[i] is the first channel of the estimate. */
 
 #include "params.h"
 #include "rng.h"
@@ -18,13 +19,13 @@ kernel void estimate_batch(global const Medium *media, global const float *grid,
     int i = get_global_id(0);
     int r = i / n_per_ray;
     Medium m = media[r];
-    MediumData med = {m, grid, maj, mnr};
+    MediumData med = {m, grid, maj, mnr, grid, grid};
     float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
     float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
     Rng rng;
     rng_init(&rng, seed, (uint)r, sample_offset + (uint)(i % n_per_ray), STREAM_TEST);
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
-    out[i] = ESTIMATOR(&med, o, d, t0, t1, &rng, cnt, max_steps);
+    out[i] = spec_first(ESTIMATOR(&med, o, d, t0, t1, &rng, cnt, max_steps));
     for (int k = 0; k < N_COUNTERS; ++k) counters_out[(size_t)i * N_COUNTERS + k] = cnt[k];
 }

@@ -73,27 +73,30 @@ inline float transmittance_analytic(TRANSMITTANCE_ARGS) {
                                      max_steps);
 }
 
-inline float tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
-    float t, T;
-    track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, rng, counters, max_steps, &t,
-          &T);
+/* The tracking estimators return spec: RGB in builds with colour-dependent extinction. */
+inline spec tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
+    float t;
+    spec T;
+    float3 E;
+    track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, (float3)(1.0f), rng,
+          counters, max_steps, &t, &T, &E);
     return T;
 }
 
-inline float transmittance_track_length(TRANSMITTANCE_ARGS) {
+inline spec transmittance_track_length(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_LENGTH);
 }
 
-inline float transmittance_ratio_tracking(TRANSMITTANCE_ARGS) {
+inline spec transmittance_ratio_tracking(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_RATIO);
 }
 
-inline float transmittance_residual_ratio(TRANSMITTANCE_ARGS) {
+inline spec transmittance_residual_ratio(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps,
                                  TRACK_RESIDUAL_RATIO);
 }
 
-inline float transmittance_next_flight(TRANSMITTANCE_ARGS) {
+inline spec transmittance_next_flight(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps,
                                  TRACK_NEXT_FLIGHT);
 }

@@ -4,12 +4,14 @@
 
 #include "tracking.h"
 
-/* Returns EVENT_SCATTER, EVENT_ESCAPE or EVENT_CAPPED; writes the distance (t1 on escape). */
+/* Returns EVENT_SCATTER, EVENT_ESCAPE or EVENT_CAPPED; writes the distance (t1 on escape),
+ * the flight's weight w (spectral tracking; 1 when grey) and the emission gathered per unit
+ * beta. The caller adds beta * E and multiplies beta by w. */
 inline int free_flight(const MediumData *med, float3 o, float3 d, float t0, float t1,
-                       int use_control, Rng *rng, ulong *counters, int max_steps, float *t_out) {
-    float T;
-    return track(med, o, d, t0, t1, TRACK_FREE_FLIGHT, use_control, rng, counters, max_steps,
-                 t_out, &T);
+                       int use_control, float3 beta, Rng *rng, ulong *counters, int max_steps,
+                       float *t_out, spec *w_out, float3 *E_out) {
+    return track(med, o, d, t0, t1, TRACK_FREE_FLIGHT, use_control, beta, rng, counters,
+                 max_steps, t_out, w_out, E_out);
 }
 
 #endif

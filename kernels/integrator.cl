@@ -97,8 +97,8 @@ inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, 
     return e;
 }
 
-inline float shadow_transmittance(const Params *prm, const MediumData *med, float3 o, float3 d,
-                                  float t_max, Rng *rng_s, ulong *counters) {
+inline spec shadow_transmittance(const Params *prm, const MediumData *med, float3 o, float3 d,
+                                 float t_max, Rng *rng_s, ulong *counters) {
     float t0, t1, shift;
     o = enter_box(o, d, vec3(med->m.bmin), vec3(med->m.bmax), &t0, &t1, &shift);
     t1 = fmin(t1, t_max - shift);
@@ -126,8 +126,8 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
             falloff = 1.0f / dist2;
         }
         float f = phase_eval(m->phase_kind, m->g, dot(d, wl)) * falloff;
-        float tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
-        L += vec3g(lights[i].color) * (f * tr);
+        spec tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
+        L += vec3g(lights[i].color) * (tr * f);
     }
     if (prm->has_env) {
         float ua = rng_next(rng);
@@ -135,8 +135,8 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
         float pdf_l;
         float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
         float f = phase_eval(m->phase_kind, m->g, dot(d, wl));
-        float tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
-        L += vec3(prm->env) * (f * tr * mis_balance(pdf_l, f) / pdf_l);
+        spec tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
+        L += vec3(prm->env) * (tr * (f * mis_balance(pdf_l, f) / pdf_l));
     }
     return L;
 }
@@ -153,10 +153,16 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
     float u2 = rng_next(rng);
     float3 d;
     float3 o = camera_ray(prm, px, py, u1, u2, &d);
-    if (prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f) {
+    const int emissive = FEATURE_EMISSION ? m->emission_kind != EMISSION_NONE : 0;
+    if (!emissive && (prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f)) {
         /* No scattering can contribute: environment times transmittance (see integrator.py). */
         if (!prm->has_env) return L;
         return env * shadow_transmittance(prm, med, o, d, NO_LIMIT, rng_s, counters);
+    }
+    if (FEATURE_CHROMATIC ? m->spectral == SPECTRAL_CHANNEL : 0) {
+        /* One channel per path (render.spectral = "channel"; see integrator.py). */
+        int c = min(convert_int_rtz(rng_next(rng) * 3.0f), 2);
+        beta = (float3)(c == 0 ? 3.0f : 0.0f, c == 1 ? 3.0f : 0.0f, c == 2 ? 3.0f : 0.0f);
     }
     int depth = 0;
     float pdf_phase = 0.0f;
@@ -165,9 +171,14 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         o = enter_box(o, d, bmin, bmax, &t0, &t1, &shift);
         int event = EVENT_ESCAPE;
         float t = t1;
-        if (t1 > t0)
-            event = free_flight(med, o, d, t0, t1, prm->decomposition, rng, counters,
-                                prm->max_steps, &t);
+        if (t1 > t0) {
+            spec w;
+            float3 E;
+            event = free_flight(med, o, d, t0, t1, prm->decomposition, beta, rng, counters,
+                                prm->max_steps, &t, &w, &E);
+            if (FEATURE_EMISSION) L += beta * E;
+            if (FEATURE_CHROMATIC) beta *= w;
+        }
         if (event == EVENT_CAPPED) break;
         if (event == EVENT_ESCAPE) {
             if (prm->has_env) {
@@ -203,14 +214,15 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
  * as dropped, exactly as in the reference. */
 kernel void render_batch(const Params prm, const Medium medium, global const Light *lights,
                          global const float *grid, global const float *maj,
-                         global const float *mnr, uint sample_start, uint n_samples,
+                         global const float *mnr, global const float *emis,
+                         global const float *table, uint sample_start, uint n_samples,
                          global float *out_mean, global float *out_m2,
                          global ulong *counters_out) {
     int pix = get_global_id(0);
     if (pix >= prm.width * prm.height) return;
     int py = pix / prm.width;
     int px = pix - py * prm.width;
-    MediumData med = {medium, grid, maj, mnr};
+    MediumData med = {medium, grid, maj, mnr, emis, table};
     ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;

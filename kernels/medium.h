@@ -9,14 +9,18 @@
 #include "features.h"
 #include "grid.h"
 #include "dda.h"
+#include "spectrum.h"
 
-/* A medium record with the arrays it points to: the density grid [nz][ny][nx] and the
- * majorant grid's per-cell density maxima and minima [cz][cy][cx]. */
+/* A medium record with the arrays it points to: the density grid [nz][ny][nx], the
+ * majorant grid's per-cell density maxima and minima [cz][cy][cx], the emission field grid
+ * [nz][ny][nx] and the blackbody table [BLACKBODY_TABLE_SIZE][3]. */
 typedef struct {
     Medium m; /* a copy: the compiler keeps its fields in registers */
     global const float *grid;
     global const float *maj;
     global const float *mnr;
+    global const float *emis;
+    global const float *table;
 } MediumData;
 
 inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
@@ -50,6 +54,30 @@ inline float extinction(const MediumData *med, float3 p, float sigma_maj, ulong 
     counters[C_LOOKUPS] += 1;
     if (mu > sigma_maj) counters[C_OVER_MAJORANT] += 1;
     return mu;
+}
+
+/* Extinction per channel relative to extinction(): 1 in grey builds (folded away). */
+inline spec medium_chroma(const MediumData *med) {
+#if FEATURE_CHROMATIC
+    return vec3(med->m.chroma);
+#else
+    return 1.0f;
+#endif
+}
+
+/* Emitted radiance Le at p, RGB (twin of emitted_radiance in medium.py). */
+inline float3 emitted_radiance(const MediumData *med, float3 p) {
+    const Medium *m = &med->m;
+    float3 e = vec3(m->emission_rgb);
+    float f = grid_lookup(med->emis, (int3)(m->emission_dims[0], m->emission_dims[1],
+                                            m->emission_dims[2]),
+                          vec3(m->bmin), vec3(m->inv_extent), p);
+    if (m->emission_kind == EMISSION_RADIANCE) return e * f;
+    float x = clamp(f * m->table_scale, 0.0f, (float)(BLACKBODY_TABLE_SIZE - 1));
+    int i0 = min(convert_int_rtz(x), BLACKBODY_TABLE_SIZE - 2);
+    float w = x - (float)i0;
+    float3 a = vload3(i0, med->table), b = vload3(i0 + 1, med->table);
+    return e * (a * (1.0f - w) + b * w);
 }
 
 inline float optical_depth_comb(const MediumData *med, float3 o, float3 d, float t0, float L,

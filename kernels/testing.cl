@@ -103,17 +103,20 @@ kernel void t_track(int technique, int use_control, global const Medium *media,
     int i = get_global_id(0);
     int r = i / n_per_ray;
     Medium m = media[r];
-    MediumData med = {m, grid, maj, mnr};
+    MediumData med = {m, grid, maj, mnr, grid, grid};
     float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
     float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
     Rng rng;
     rng_init(&rng, seed, (uint)r, (uint)(i % n_per_ray), STREAM_TEST);
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
-    float t, T;
-    int ev = track(&med, o, d, t0, t1, technique, use_control, &rng, cnt, max_steps, &t, &T);
+    float t;
+    spec T;
+    float3 E;
+    int ev = track(&med, o, d, t0, t1, technique, use_control, (float3)(1.0f), &rng, cnt,
+                   max_steps, &t, &T, &E);
     out_t[i] = ev == EVENT_SCATTER ? t : (ev == EVENT_CAPPED ? -2.0f : -1.0f);
-    out_T[i] = T;
+    vstore3(spec_rgb(T), i, out_T);
     lookups[i] = cnt[C_LOOKUPS];
 }
 

@@ -25,6 +25,7 @@ HOMOG = {
 def _variants(tmp_path):
     rng = np.random.default_rng(1)
     np.save(tmp_path / "g.npy", (rng.random((6, 7, 8)) ** 3).astype(np.float32))
+    np.save(tmp_path / "t.npy", (600.0 + 1400.0 * rng.random((5, 4, 6))).astype(np.float32))
     grid = {"file": str(tmp_path / "g.npy")}
     return {
         "homogeneous point+directional, isotropic, no RR": scene_from_dict(HOMOG),
@@ -50,6 +51,20 @@ def _variants(tmp_path):
         "max_depth 0 homogeneous": scene_from_dict(
             dict(HOMOG, lights=[{"type": "environment", "radiance": 1.0}]),
             overrides=["render.max_depth=0"]),
+        "chromatic grid, environment and sun, ratio tracking": scene_from_dict(
+            dict(HOMOG, lights=HOMOG["lights"] + [{"type": "environment",
+                                                   "radiance": [0.2, 0.3, 0.5]}],
+                 medium=dict(HOMOG["medium"], density=grid, scale=[6.0, 3.0, 1.0]))),
+        "chromatic grid, one channel per path, track length": scene_from_dict(
+            dict(HOMOG, medium=dict(HOMOG["medium"], density=grid, scale=[2.0, 5.0, 3.0])),
+            overrides=["render.spectral=channel", "render.transmittance=track_length"]),
+        "emitting grid: temperature field, chromatic": scene_from_dict(
+            dict(HOMOG, medium=dict(HOMOG["medium"], density=grid, scale=[5.0, 4.0, 2.0],
+                                    albedo=0.5, emission={"temperature": {
+                                        "file": str(tmp_path / "t.npy")}, "scale": 1e-4}))),
+        "emitting homogeneous absorber: radiance x grid field": scene_from_dict(
+            dict(HOMOG, lights=[], medium=dict(HOMOG["medium"], albedo=0.0, emission={
+                "radiance": [1.0, 0.6, 0.3], "field": grid}))),
     }
 
 
@@ -57,7 +72,8 @@ def _shipped():
     out = {}
     for f in sorted(scenes_dir().glob("**/*.toml")):
         over = list(SMALL) + ["render.spp=64"]
-        if f.name == "cloud.toml":
+        text = f.read_text()
+        if 'generator = "cloud"' in text or 'generator = "plume"' in text:
             over.append("medium.density.resolution=48")
         out[f.relative_to(scenes_dir()).as_posix()] = load_scene(f, over)
     return out

@@ -53,7 +53,7 @@ def _cloud_rays():
     from volmc.scene import load_scene
     scene = load_scene(default_scene(), ["medium.density.resolution=32"])
     lo, hi = scene.medium.bounds
-    med = X.make_grid_medium(lo, hi, scene.medium.scale)
+    med = X.make_grid_medium(lo, hi, scene.medium.scale[0])
     return scene, med, grid_rays(scene, 48, 48, seed=1)
 
 
@@ -62,7 +62,7 @@ def test_unbiased_on_grid_rays(backend, name):
     """Camera and shadow rays through the cloud: the mean error over all rays and estimates
     is within the bound, against the exact optical depth of each ray."""
     scene, med, sets = _cloud_rays()
-    mbar = scene.medium.scale * float(scene.grid.max())
+    mbar = scene.medium.scale[0] * float(scene.grid.max())
     bound = z_bound(ALPHA, len(sets))
     for label, rays, exact in sets:
         bounds = np.tile([mbar, 0.0], (len(rays), 1))
@@ -130,7 +130,7 @@ def test_biased_raymarch_converges_as_the_step_shrinks():
 def test_kernel_matches_reference(name):
     """Same rays and streams: per-estimate agreement for the vast majority, equal means."""
     scene, med, sets = _cloud_rays()
-    mbar = scene.medium.scale * float(scene.grid.max())
+    mbar = scene.medium.scale[0] * float(scene.grid.max())
     label, rays, exact = sets[1]
     bounds = np.tile([mbar, 0.0], (len(rays), 1))
     if ESTIMATORS[name].homogeneous_only:

@@ -8,7 +8,8 @@ import volmc
 
 #: Lowest first. A module belongs to the layer of its longest matching prefix.
 LAYERS = [
-    ("volmc.constants", "volmc.params", "volmc.resources", "volmc.scene.errors"),
+    ("volmc.constants", "volmc.params", "volmc.resources", "volmc.scene.errors",
+     "volmc.emission"),
     ("volmc.reference",),
     ("volmc.techniques",),
     ("volmc.scene",),

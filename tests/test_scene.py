@@ -52,7 +52,7 @@ def test_defaults_for_optional_keys(tmp_path):
     s = load_scene(write(tmp_path, raw))
     assert s.camera.type == "perspective" and s.camera.fov == 45.0
     assert s.camera.resolution == (256, 256)
-    assert s.medium.scale == 1.0 and s.medium.albedo == (1.0, 1.0, 1.0)
+    assert s.medium.scale == (1.0, 1.0, 1.0) and s.medium.albedo == (1.0, 1.0, 1.0)
     assert s.medium.phase.type == "isotropic"
     assert s.lights == ()
     assert s.render.spp == 64 and s.render.max_depth == 64 and s.render.rr_depth == 5

@@ -28,7 +28,15 @@ def grid_media(bmin, bmax, scale, grid, n_rays, sigma_maj=None, sigma_min=0.0,
 def walks(backend, technique, use_control, media, grid, rays, n_per_ray, seed,
           max_steps=1_000_000, maj=NO_MAJORANT_GRID, mnr=NO_MAJORANT_GRID):
     """(t, T, lookups) of n_per_ray walks per ray: t is the collision distance, -1 on escape,
-    -2 if capped; T the transmittance estimate."""
+    -2 if capped; T the transmittance estimate (first channel; ``walks_rgb`` for all)."""
+    t, T, lk = walks_rgb(backend, technique, use_control, media, grid, rays, n_per_ray, seed,
+                         max_steps, maj, mnr)
+    return t, T[:, 0].copy(), lk
+
+
+def walks_rgb(backend, technique, use_control, media, grid, rays, n_per_ray, seed,
+              max_steps=1_000_000, maj=NO_MAJORANT_GRID, mnr=NO_MAJORANT_GRID):
+    """``walks`` with the RGB estimate T [n, 3] (colour-dependent media)."""
     rays = np.asarray(rays, np.float64)
     if backend == "numba":
         return track_batch(technique, use_control, media.astype(medium_dtype(np.float64)),
@@ -38,11 +46,11 @@ def walks(backend, technique, use_control, media, grid, rays, n_per_ray, seed,
     from cl_harness import out_buf, run, to_dev
     n = len(rays) * n_per_ray
     t, tb = out_buf(n)
-    T, Tb = out_buf(n)
+    T, Tb = out_buf(3 * n)
     lk, lb = out_buf(n, np.uint64)
     run("t_track", n, np.int32(technique), np.int32(use_control),
         to_dev(media.astype(medium_dtype(np.float32))), to_dev(np.asarray(grid, np.float32)),
         to_dev(np.asarray(maj, np.float32)), to_dev(np.asarray(mnr, np.float32)),
         to_dev(rays.astype(np.float32).ravel()), np.int32(n_per_ray), np.uint64(seed),
         np.int32(max_steps), tb, Tb, lb, outs=[(t, tb), (T, Tb), (lk, lb)])
-    return t.astype(np.float64), T.astype(np.float64), lk.astype(np.int64)
+    return t.astype(np.float64), T.reshape(n, 3).astype(np.float64), lk.astype(np.int64)

@@ -143,6 +143,9 @@ def build_parser():
     br.add_argument("--backends", default="opencl,numba",
                     help="comma-separated volmc backends (default opencl,numba)")
     br.add_argument("--majorants", default="grid,global", help="default grid,global")
+    br.add_argument("--spectral", default=None,
+                    help="comma-separated render.spectral modes to compare (tracking, "
+                         "channel; default: the scene's own)")
     br.add_argument("--free-flights", default="delta,decomposition",
                     help="default delta,decomposition")
     br.add_argument("--transmittances", default=None,
@@ -395,7 +398,7 @@ def cmd_bench_render(args):
     from .backends import BACKENDS
     from .resources import default_scene
     from .scene import load_scene
-    from .scene.schema import ConstantDensity
+    from .scene.schema import SPECTRAL_MODES, ConstantDensity
     backends = _list(args.backends, "--backends", BACKENDS)
     majorants = _list(args.majorants, "--majorants", ("grid", "global"))
     flights = _list(args.free_flights, "--free-flights", ("delta", "decomposition"))
@@ -431,7 +434,10 @@ def cmd_bench_render(args):
                 raise SceneError("command line", "--peer", str(e)) from None
             print(f"peer: none ({e})", flush=True)
             peer = False
-    configs = cv.make_configs(backends, majorants, flights, ests, peer, args.baseline)
+    spectrals = ([""] if args.spectral is None else
+                 _list(args.spectral, "--spectral", SPECTRAL_MODES))
+    configs = cv.make_configs(backends, majorants, flights, ests, peer, args.baseline,
+                              spectrals)
     w, h = scene.camera.resolution
     print(f"volmc bench render: {scene_path}: {w}x{h}, {len(configs)} configurations",
           flush=True)

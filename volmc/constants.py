@@ -77,6 +77,25 @@ MAJORANT_GLOBAL = 0
 #: ... or a coarse grid of per-cell bounds, walked cell by cell with a 3-D DDA.
 MAJORANT_GRID = 1
 
+#: How extinction depends on colour: grey (one extinction for all three channels) ...
+SPECTRAL_GREY = 0
+#: ... or per channel (medium.scale = [r, g, b]) with free flight by spectral tracking
+#: (Kutz et al. 2017): one majorant for every channel, collision probabilities from the
+#: channels' weighted coefficients ...
+SPECTRAL_TRACKING = 1
+#: ... or the same with one channel picked at random per path (render.spectral = "channel"):
+#: the baseline spectral tracking is measured against.
+SPECTRAL_CHANNEL = 2
+
+#: Emission (medium.emission): none ...
+EMISSION_NONE = 0
+#: ... radiance x field(x) ...
+EMISSION_RADIANCE = 1
+#: ... or blackbody radiance of temperature(x), through a table in kelvin (medium.py).
+EMISSION_TEMPERATURE = 2
+#: Entries of the blackbody table over [0, the hottest temperature of the scene] kelvin.
+BLACKBODY_TABLE_SIZE = 1024
+
 # --- Tracking (volmc/reference/tracking.py) ----------------------------------------------------
 
 #: What the one tracking loop does at a tentative collision: free flight (a real collision

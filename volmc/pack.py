@@ -7,8 +7,10 @@ from collections import namedtuple
 import numpy as np
 
 from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_CONSTANT, DENSITY_GRID,
+                        EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
                         LIGHT_DIRECTIONAL, LIGHT_POINT, MAJORANT_GLOBAL, MAJORANT_GRID,
-                        PHASE_HG, PHASE_ISOTROPIC)
+                        PHASE_HG, PHASE_ISOTROPIC, SPECTRAL_CHANNEL, SPECTRAL_GREY,
+                        SPECTRAL_TRACKING)
 from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
 from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
@@ -58,8 +60,10 @@ def scene_frame(scene):
 
 
 #: A scene packed for a backend: the parameter record [1], the light array, the medium record
-#: [1], the density grid [nz, ny, nx] and the majorant grid's per-cell maxima and minima.
-Packed = namedtuple("Packed", ["params", "lights", "medium", "grid", "maj", "mnr"])
+#: [1], the density grid [nz, ny, nx], the majorant grid's per-cell maxima and minima, the
+#: emission field grid and the blackbody table (placeholders when unused).
+Packed = namedtuple("Packed", ["params", "lights", "medium", "grid", "maj", "mnr", "emis",
+                               "table"])
 
 
 def pack_scene(scene, real=np.float64, spp_seed=None):
@@ -118,7 +122,33 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     params[0] = p
     maj, mnr = pack_majorant(scene, real)
     medium, grid = pack_medium(scene, real, local, unit, maj.shape)
-    return Packed(params, larr, medium, grid, maj, mnr)
+    emis, table = pack_emission(scene, medium, real)
+    return Packed(params, larr, medium, grid, maj, mnr, emis, table)
+
+
+def pack_emission(scene, medium, real):
+    """(emission field grid, blackbody table) of the scene, and the emission fields of the
+    medium record (set in place). Radiance and temperature are the same in the scene frame
+    (pack.scene_frame): only sigma_a scales, and it is in the record's extinction."""
+    from .emission import blackbody_table
+    e = scene.medium.emission
+    m = medium[0]
+    m["emission_kind"] = EMISSION_NONE
+    m["emission_dims"] = (1, 1, 1)
+    if e is None:
+        return np.zeros((1, 1, 1), real), np.zeros((2, 3), real)
+    emis = np.ascontiguousarray(scene.emission_grid, dtype=real)
+    nz, ny, nx = emis.shape
+    m["emission_dims"] = (nx, ny, nz)
+    if e.radiance is not None:
+        m["emission_kind"] = EMISSION_RADIANCE
+        m["emission_rgb"] = e.radiance
+        return emis, np.zeros((2, 3), real)
+    m["emission_kind"] = EMISSION_TEMPERATURE
+    m["emission_rgb"] = (e.scale, e.scale, e.scale)
+    table, per_kelvin = blackbody_table(float(scene.emission_grid.max()))
+    m["table_scale"] = per_kelvin
+    return emis, np.ascontiguousarray(table, real)
 
 
 def pack_medium(scene, real, local, unit, maj_res):
@@ -129,8 +159,15 @@ def pack_medium(scene, real, local, unit, maj_res):
     lo, hi = local(med.bounds[0]), local(med.bounds[1])
     m["bmin"], m["bmax"] = lo, hi
     m["inv_extent"] = [1.0 / (hi[i] - lo[i]) for i in range(3)]
-    sigma_scale = med.scale * unit
+    # Extinction is scale * density per channel: the record holds the largest channel's
+    # scale (every majorant bounds it) and each channel's share of it.
+    top = max(med.scale)
+    sigma_scale = top * unit
     m["scale"] = sigma_scale
+    m["chroma"] = [x / top for x in med.scale] if top > 0.0 else (1.0, 1.0, 1.0)
+    m["spectral"] = SPECTRAL_GREY
+    if med.chromatic:
+        m["spectral"] = SPECTRAL_CHANNEL if rnd.spectral == "channel" else SPECTRAL_TRACKING
     m["maj_res"] = (1, 1, 1)
     m["majorant_kind"] = MAJORANT_GLOBAL
     if scene.grid is None:

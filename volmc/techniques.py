@@ -35,6 +35,7 @@ class Estimator:
     unbiased: bool
     signed: bool = False
     homogeneous_only: bool = False
+    chromatic: bool = False
     build_options: tuple = ()
     summary: str = ""
 
@@ -55,12 +56,16 @@ _RECORDS = (
               homogeneous_only=True,
               summary="exp(-sigma L) per majorant segment: exact on homogeneous segments only"),
     Estimator("track_length", C.ESTIMATOR_TRACK_LENGTH, "transmittance_track_length", True,
+              chromatic=True,
               summary="delta tracking: 1 if the walk escapes, 0 at the first real collision"),
     Estimator("ratio", C.ESTIMATOR_RATIO, "transmittance_ratio_tracking", True,
+              chromatic=True,
               summary="ratio tracking: product of (1 - mu / sigma_maj) over tentative collisions"),
     Estimator("residual_ratio", C.ESTIMATOR_RESIDUAL_RATIO, "transmittance_residual_ratio", True,
+              chromatic=True,
               summary="residual ratio tracking with each segment's minorant as control"),
     Estimator("next_flight", C.ESTIMATOR_NEXT_FLIGHT, "transmittance_next_flight", True,
+              chromatic=True,
               summary="next-flight ratio tracking: every vertex adds the chance to escape"),
     Estimator("biased_raymarch", C.ESTIMATOR_BIASED_RAYMARCH, "transmittance_biased_raymarch",
               False,
@@ -77,6 +82,11 @@ _RECORDS = (
 #: name -> Estimator, in registry order.
 ESTIMATORS = {e.name: e for e in _RECORDS}
 assert len({e.id for e in _RECORDS}) == len(_RECORDS), "estimator ids are unique"
+
+
+def chromatic_estimators():
+    """Names usable for shadow rays in colour-dependent media."""
+    return tuple(n for n, e in ESTIMATORS.items() if e.chromatic and not e.homogeneous_only)
 
 
 def grid_estimators():

@@ -105,7 +105,7 @@ def test_case15_pure_absorber(backend):
     loop takes exp(-sigma L) there, with no lookup and no random number."""
     expected = documented("absorber.toml", "pixel")
     scene = load_scene(SCENES / "absorber.toml")
-    tau = scene.medium.density.value * scene.medium.scale * 2.0
+    tau = scene.medium.density.value * scene.medium.scale[0] * 2.0
     assert expected == pytest.approx(scene.lights[0].radiance[0] * math.exp(-tau), rel=1e-15)
     rel = 1e-12 if backend == "numba" else 2e-6
     res = render_checked(scene, backend)
@@ -134,7 +134,7 @@ def single_scatter_expected(scene):
     assert cam.type == "orthographic" and cam.size == 2.0 and tuple(cam.eye) == (0, 0, 3)
     assert tuple(sun.direction) == (0.0, -1.0, 0.0) and scene.render.max_depth == 1
     assert med.bounds == ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)) and len(scene.lights) == 1
-    st = med.scale * med.density.value
+    st = med.scale[0] * med.density.value
     g = med.phase.g
     p0 = (1 - g * g) / (4 * math.pi * (1 + g * g) ** 1.5)
     E = sun.irradiance[0]
@@ -202,7 +202,7 @@ def test_case18_roulette_terminates_dense_white_medium(backend):
     = 24 for q = 0.95 (z-test with the geometric variance q / (1 - q)^2)."""
     scene = load_scene(SCENES / "roulette.toml")
     assert scene.medium.albedo == (1.0, 1.0, 1.0) and scene.render.max_depth == -1
-    assert scene.medium.scale * scene.medium.density.value * 2 == 1000.0
+    assert scene.medium.scale[0] * scene.medium.density.value * 2 == 1000.0
     q = 0.95
     expected = scene.render.rr_depth + q / (1 - q)
     assert expected == pytest.approx(documented("roulette.toml", "mean_path_length"))

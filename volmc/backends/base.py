@@ -60,6 +60,13 @@ def techniques(scene):
         "transmittance": "analytic" if homogeneous else
         f"{r.transmittance} ({r.majorant} majorant)",
         "phase": scene.medium.phase.type,
+        "spectral": ("grey" if not scene.medium.chromatic else
+                     "spectral tracking" if r.spectral == "tracking" else
+                     "one random channel per path"),
+        "emission": ("none" if scene.medium.emission is None else
+                     "radiance x field" if scene.medium.emission.radiance is not None else
+                     "blackbody temperature") + (", at every tentative collision"
+                                                  if scene.medium.emission is not None else ""),
         "nee": "all lights; environment by uniform sphere + balance-heuristic MIS",
         "russian_roulette": f"from depth {r.rr_depth}, q = min(max(beta), {RR_MAX_SURVIVAL})",
     }

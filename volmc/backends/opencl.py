@@ -47,6 +47,8 @@ class OpenCLBackend(RenderBackend):
         self.grid_buf = clc.to_device(pk.grid)
         self.maj_buf = clc.to_device(pk.maj)
         self.mnr_buf = clc.to_device(pk.mnr)
+        self.emis_buf = clc.to_device(pk.emis)
+        self.table_buf = clc.to_device(pk.table)
         # Batch outputs: per-pixel mean and sum of squared deviations (Welford).
         self.mean_host, self.mean_buf = clc.output((h, w, 3))
         self.m2_host, self.m2_buf = clc.output((h, w, 3))
@@ -63,7 +65,7 @@ class OpenCLBackend(RenderBackend):
     def render(self, sample_start, n_samples, film):
         self.clc.run(self.kernel, self.n_pix, self.local_size, self.params[0], self.medium[0],
                      self.lights_buf, self.grid_buf, self.maj_buf, self.mnr_buf,
-                     np.uint32(sample_start), np.uint32(n_samples), self.mean_buf, self.m2_buf,
+                     self.emis_buf, self.table_buf, np.uint32(sample_start), np.uint32(n_samples), self.mean_buf, self.m2_buf,
                      self.cnt_buf, outs=[(self.mean_host, self.mean_buf),
                                          (self.m2_host, self.m2_buf)])
         mean = self.mean_host.astype(np.float64)

@@ -38,6 +38,7 @@ class Config:
     free_flight: str = ""
     transmittance: str = ""
     path: str = ""
+    spectral: str = ""
 
     @property
     def name(self):
@@ -45,7 +46,8 @@ class Config:
             return "mitsuba volpath"
         if self.backend == "baseline":
             return f"baseline {self.path}"
-        return f"{self.backend} {self.majorant} {self.free_flight} {self.transmittance}"
+        name = f"{self.backend} {self.majorant} {self.free_flight} {self.transmittance}"
+        return f"{name} {self.spectral}" if self.spectral else name
 
 
 def unbiased_grid_estimators():
@@ -54,9 +56,11 @@ def unbiased_grid_estimators():
     return [n for n, e in ESTIMATORS.items() if e.unbiased and not e.homogeneous_only]
 
 
-def make_configs(backends, majorants, free_flights, transmittances, peer, baselines=()):
-    out = [Config(b, m, f, t) for b in backends for m in majorants for f in free_flights
-           for t in transmittances]
+def make_configs(backends, majorants, free_flights, transmittances, peer, baselines=(),
+                 spectrals=("",)):
+    """Every combination of the technique lists; a spectral mode "" keeps the scene's."""
+    out = [Config(b, m, f, t, spectral=sp) for b in backends for m in majorants
+           for f in free_flights for t in transmittances for sp in spectrals]
     if peer:
         out.append(Config("mitsuba"))
     out += [Config("baseline", path=str(p)) for p in baselines]
@@ -66,7 +70,8 @@ def make_configs(backends, majorants, free_flights, transmittances, peer, baseli
 class _VolmcRunner:
     def __init__(self, scene, cfg, device):
         self.scene = scene.with_render(majorant=cfg.majorant, free_flight=cfg.free_flight,
-                                       transmittance=cfg.transmittance)
+                                       transmittance=cfg.transmittance,
+                                       spectral=cfg.spectral or scene.render.spectral)
         self.be = make_backend(cfg.backend, self.scene, device)
         self.be.warm_up()
         w, h = self.scene.camera.resolution

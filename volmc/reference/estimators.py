@@ -39,7 +39,7 @@ from .medium import (ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_n
                      optical_depth_comb)
 from .power_series import power_series_segment, unbiased_raymarch_segment
 from .rng import rng_new, rng_next
-from .tracking import track, transmittance_roulette
+from .tracking import ONE3, track, transmittance_roulette
 from .vec import madd3
 
 
@@ -109,8 +109,8 @@ def tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, technique
     """The transmittance estimate of the tracking loop with ``technique``. Track length uses
     each segment's minorant as control (decomposition tracking): the same 0/1 decisions as
     delta tracking for the same random numbers, without the lookups the control decides."""
-    return track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, rng, counters,
-                 max_steps)[2]
+    return track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, ONE3, rng,
+                 counters, max_steps)[2]
 
 
 @njit(cache=True)
@@ -172,7 +172,9 @@ def transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
 @njit(cache=True)
 def transmittance(est, med, o, d, t0, t1, rng, counters, max_steps):
     """Run the estimator with id ``est`` (ESTIMATOR_*; techniques.ESTIMATORS[name].id): the
-    reference's run-time counterpart of the kernels' build-time choice."""
+    reference's run-time counterpart of the kernels' build-time choice. Returns RGB: the
+    tracking estimators estimate every channel (colour-dependent extinction), the
+    per-segment ones are grey."""
     if est == ESTIMATOR_TRACK_LENGTH:
         return transmittance_track_length(med, o, d, t0, t1, rng, counters, max_steps)
     if est == ESTIMATOR_RATIO:
@@ -181,15 +183,18 @@ def transmittance(est, med, o, d, t0, t1, rng, counters, max_steps):
         return transmittance_residual_ratio(med, o, d, t0, t1, rng, counters, max_steps)
     if est == ESTIMATOR_NEXT_FLIGHT:
         return transmittance_next_flight(med, o, d, t0, t1, rng, counters, max_steps)
+    # The per-segment estimators are grey (the schema keeps them from colour-dependent media).
     if est == ESTIMATOR_BIASED_RAYMARCH:
-        return transmittance_biased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
-    if est == ESTIMATOR_POWER_SERIES:
-        return transmittance_power_series(med, o, d, t0, t1, rng, counters, max_steps)
-    if est == ESTIMATOR_UNBIASED_RAYMARCH:
-        return transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
-    if est == ESTIMATOR_ANALYTIC:
-        return transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps)
-    raise ValueError("unknown estimator id")
+        T = transmittance_biased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
+    elif est == ESTIMATOR_POWER_SERIES:
+        T = transmittance_power_series(med, o, d, t0, t1, rng, counters, max_steps)
+    elif est == ESTIMATOR_UNBIASED_RAYMARCH:
+        T = transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
+    elif est == ESTIMATOR_ANALYTIC:
+        T = transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps)
+    else:
+        raise ValueError("unknown estimator id")
+    return (T, T, T)
 
 
 @njit(cache=True, parallel=True)
@@ -203,12 +208,14 @@ def estimate_batch(est, media, grid, maj, mnr, rays, n_per_ray, seed, sample_off
     n = rays.shape[0] * n_per_ray
     out = np.empty(n)
     counters = np.zeros((n, N_COUNTERS), np.int64)
+    emis = np.zeros((1, 1, 1))
+    table = np.zeros((2, 3))
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, sample_offset + i % n_per_ray, STREAM_TEST)
-        med = MediumData(media[r], grid, maj, mnr)
+        med = MediumData(media[r], grid, maj, mnr, emis, table)
         o = (rays[r, 0], rays[r, 1], rays[r, 2])
         d = (rays[r, 3], rays[r, 4], rays[r, 5])
         out[i] = transmittance(est, med, o, d, rays[r, 6], rays[r, 7], rng, counters[i],
-                               max_steps)
+                               max_steps)[0]
     return out, counters

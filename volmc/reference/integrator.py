@@ -37,8 +37,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import (CAMERA_ORTHOGRAPHIC, EVENT_CAPPED, EVENT_ESCAPE,
-                         LIGHT_DIRECTIONAL, RR_MAX_SURVIVAL, STREAM_PATH, STREAM_SHADOW)
+from ..constants import (CAMERA_ORTHOGRAPHIC, EMISSION_NONE, EVENT_CAPPED, EVENT_ESCAPE,
+                         LIGHT_DIRECTIONAL, RR_MAX_SURVIVAL, SPECTRAL_CHANNEL, STREAM_PATH,
+                         STREAM_SHADOW)
 from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
 from .estimators import transmittance
 from .free_flight import free_flight
@@ -129,15 +130,15 @@ def camera_ray(prm, px, py, u1, u2):
 
 @njit(cache=True, inline="always")
 def shadow_transmittance(prm, med, o, d, t_max, rng_s, counters):
-    """Transmittance from o towards unit d up to distance t_max (inf for distant lights),
-    by the estimator render.transmittance chose (prm.shadow_estimator)."""
+    """Transmittance (RGB) from o towards unit d up to distance t_max (inf for distant
+    lights), by the estimator render.transmittance chose (prm.shadow_estimator)."""
     m = med.m
     bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
     bmax = (m.bmax[0], m.bmax[1], m.bmax[2])
     o, t0, t1, shift = enter_box(o, d, bmin, bmax)
     t1 = min(t1, t_max - shift)
     if t1 <= t0:
-        return 1.0
+        return (1.0, 1.0, 1.0)
     counters[C_SHADOW] += 1
     return transmittance(prm.shadow_estimator, med, o, d, t0, t1, rng_s, counters,
                          prm.max_steps)
@@ -167,13 +168,13 @@ def sample_direct(prm, lights, med, p, d, rng, rng_s, counters):
             falloff = 1.0 / dist2
         f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * falloff
         tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters)
-        L = add3(L, scale3((lt.color[0], lt.color[1], lt.color[2]), f * tr))
+        L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]), scale3(tr, f)))
     if prm.has_env != 0:
         wl, pdf_l = sample_uniform_sphere(rng_next(rng), rng_next(rng))
         f = phase_eval(m.phase_kind, m.g, dot(d, wl))
         tr = shadow_transmittance(prm, med, p, wl, math.inf, rng_s, counters)
-        L = add3(L, scale3((prm.env[0], prm.env[1], prm.env[2]),
-                           f * tr * mis_balance(pdf_l, f) / pdf_l))
+        L = add3(L, mul3((prm.env[0], prm.env[1], prm.env[2]),
+                         scale3(tr, f * mis_balance(pdf_l, f) / pdf_l)))
     return L
 
 
@@ -190,13 +191,18 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
     u1 = rng_next(rng)
     u2 = rng_next(rng)
     o, d = camera_ray(prm, px, py, u1, u2)
-    if prm.max_depth == 0 or max3(albedo) <= 0.0:
+    if (prm.max_depth == 0 or max3(albedo) <= 0.0) and m.emission_kind == EMISSION_NONE:
         # No scattering can contribute: the pixel is the environment seen through the
         # medium, so estimate the transmittance instead of sampling a collision (exact for
         # a homogeneous medium, lower variance than a 0/1 free-flight outcome for grids).
         if prm.has_env == 0:
             return L
-        return scale3(env, shadow_transmittance(prm, med, o, d, math.inf, rng_s, counters))
+        return mul3(env, shadow_transmittance(prm, med, o, d, math.inf, rng_s, counters))
+    if m.spectral == SPECTRAL_CHANNEL:
+        # One channel per path, chosen uniformly: the baseline spectral tracking is
+        # measured against (render.spectral = "channel").
+        c = min(int(rng_next(rng) * 3.0), 2)
+        beta = (3.0 if c == 0 else 0.0, 3.0 if c == 1 else 0.0, 3.0 if c == 2 else 0.0)
     depth = 0
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
     while True:
@@ -204,8 +210,10 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:
-            event, t = free_flight(med, o, d, t0, t1, prm.decomposition != 0, rng, counters,
-                                   prm.max_steps)
+            event, t, w, E = free_flight(med, o, d, t0, t1, prm.decomposition != 0, beta, rng,
+                                         counters, prm.max_steps)
+            L = add3(L, mul3(beta, E))
+            beta = mul3(beta, w)
         if event == EVENT_CAPPED:
             break
         if event == EVENT_ESCAPE:
@@ -235,11 +243,11 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
 
 
 @njit(cache=True)
-def render_pixel(params, lights, medium, grid, maj, mnr, pix, sample_start, n_samples,
-                 film_sum, film_sq, counters):
+def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, pix, sample_start,
+                 n_samples, film_sum, film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film."""
     prm = params[0]
-    med = MediumData(medium[0], grid, maj, mnr)
+    med = MediumData(medium[0], grid, maj, mnr, emis, table)
     py = pix // prm.width
     px = pix - py * prm.width
     seed = (np.uint64(prm.seed_hi) << np.uint64(32)) | np.uint64(prm.seed_lo)
@@ -274,22 +282,24 @@ def render_pixel(params, lights, medium, grid, maj, mnr, pix, sample_start, n_sa
 
 
 @njit(cache=True, parallel=True)
-def render_batch(params, lights, medium, grid, maj, mnr, sample_start, n_samples, film_sum,
-                 film_sq, counters):
+def render_batch(params, lights, medium, grid, maj, mnr, emis, table, sample_start, n_samples,
+                 film_sum, film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of every pixel to the film.
 
     params: one-element array of ``params_dtype(float64)``; lights: array of
     ``light_dtype(float64)``; medium: one-element array of ``medium_dtype(float64)``; grid:
     float64 [nz, ny, nx] density (a 1x1x1 placeholder unless the density is a grid); maj,
-    mnr: per-cell density bounds [cz, cy, cx] of the majorant grid; film_sum, film_sq:
+    mnr: per-cell density bounds [cz, cy, cx] of the majorant grid; emis: float64 emission
+    field grid [nz, ny, nx]; table: the blackbody table [BLACKBODY_TABLE_SIZE, 3] (1x1x1 and
+    2x3 placeholders without emission); film_sum, film_sq:
     float64 [height, width, 3] running sums of sample values and of their squares;
     counters: int64 [height * width, N_COUNTERS], accumulated in place.
     Pixels are independent, so the loop over them runs in parallel.
     """
     n_pix = film_sum.shape[0] * film_sum.shape[1]
     for pix in prange(n_pix):
-        render_pixel(params, lights, medium, grid, maj, mnr, pix, sample_start, n_samples,
-                     film_sum, film_sq, counters)
+        render_pixel(params, lights, medium, grid, maj, mnr, emis, table, pix, sample_start,
+                     n_samples, film_sum, film_sq, counters)
 
 
 def new_counters(width, height):

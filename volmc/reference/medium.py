@@ -49,17 +49,18 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from ..constants import (DENSITY_CONSTANT, DENSITY_COSINE, DENSITY_GAUSS_BUMP,
-                         DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP, MAJORANT_GLOBAL,
-                         MAJORANT_GRID, TWO_PI)
+from ..constants import (BLACKBODY_TABLE_SIZE, DENSITY_CONSTANT, DENSITY_COSINE,
+                         DENSITY_GAUSS_BUMP, DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP,
+                         EMISSION_RADIANCE, MAJORANT_GLOBAL, MAJORANT_GRID, TWO_PI)
 from ..params import C_LOOKUPS, C_OVER_MAJORANT, medium_dtype
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .grid import grid_lookup
 from .vec import madd3
 
-#: A medium record with its arrays: the density grid [nz, ny, nx] and the majorant grid's
-#: per-cell density maxima and minima [cz, cy, cx] (1x1x1 placeholders when unused).
-MediumData = namedtuple("MediumData", ["m", "grid", "maj", "mnr"])
+#: A medium record with its arrays: the density grid [nz, ny, nx], the majorant grid's
+#: per-cell density maxima and minima [cz, cy, cx], the emission field grid [nz, ny, nx] and
+#: the blackbody table [BLACKBODY_TABLE_SIZE, 3] (1x1x1 / 1x3 placeholders when unused).
+MediumData = namedtuple("MediumData", ["m", "grid", "maj", "mnr", "emis", "table"])
 
 #: Iterator state: [done, t0, t1, unused] then the DDA's state.
 ITER_STATE_SIZE = 4 + DDA_STATE_SIZE
@@ -102,6 +103,34 @@ def extinction(med, p, sigma_maj, counters):
     if mu > sigma_maj:
         counters[C_OVER_MAJORANT] += 1
     return mu
+
+
+@njit(cache=True, inline="always")
+def medium_chroma(med):
+    """Extinction per channel relative to ``extinction`` (the largest channel's): RGB."""
+    c = med.m.chroma
+    return (c[0], c[1], c[2])
+
+
+@njit(cache=True, inline="always")
+def emitted_radiance(med, p):
+    """Emitted radiance Le at world point p, RGB: ``emission_rgb`` x field(p) for
+    EMISSION_RADIANCE; ``emission_rgb`` x the blackbody table at temperature(p) (linear in
+    kelvin between entries, 0 at or below 0 K, the last entry above the table) for
+    EMISSION_TEMPERATURE. The field is trilinear in the emission grid over the medium box."""
+    m = med.m
+    e = m.emission_rgb
+    f = grid_lookup(med.emis, (m.bmin[0], m.bmin[1], m.bmin[2]),
+                    (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), p)
+    if m.emission_kind == EMISSION_RADIANCE:
+        return (e[0] * f, e[1] * f, e[2] * f)
+    x = min(max(f * m.table_scale, 0.0), BLACKBODY_TABLE_SIZE - 1.0)
+    i0 = min(int(x), BLACKBODY_TABLE_SIZE - 2)
+    w = x - i0
+    tb = med.table
+    return (e[0] * (tb[i0, 0] * (1.0 - w) + tb[i0 + 1, 0] * w),
+            e[1] * (tb[i0, 1] * (1.0 - w) + tb[i0 + 1, 1] * w),
+            e[2] * (tb[i0, 2] * (1.0 - w) + tb[i0 + 1, 2] * w))
 
 
 @njit(cache=True, inline="always")
@@ -159,6 +188,8 @@ def new_medium():
     m["dims"] = (1, 1, 1)
     m["maj_res"] = (1, 1, 1)
     m["majorant_kind"] = MAJORANT_GLOBAL
+    m["chroma"] = (1.0, 1.0, 1.0)
+    m["emission_dims"] = (1, 1, 1)
     return m
 
 

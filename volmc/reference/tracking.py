@@ -54,8 +54,29 @@ EVENT_CAPPED (free flight) or T as it stands (track length: 0); "transmittance r
 ratio-type weights below TR_RR_THRESHOLD play Russian roulette (``transmittance_roulette``),
 so dense shadow rays stop after a few lookups.
 
-Returns (event, t, T): the free-flight outcome and distance (t1 on escape; the ray parameter
-of the original o), and the transmittance estimate of the transmittance techniques.
+Colour (``m.spectral``; README "Colour-dependent extinction"): extinction per channel is
+chroma_c x mu(x), with mu the largest channel's extinction (what ``extinction`` returns and
+every majorant bounds) and chroma_c <= 1. So one majorant serves all three channels, the
+segments and the tentative collisions are shared, and
+
+* the ratio-type techniques multiply each channel by its own factor (1 - chroma_c mu /
+  sigma_maj, exp(-chroma_c sigma L) on homogeneous segments): RGB transmittance from the
+  same lookups;
+* free flight and track length use spectral tracking (Kutz et al. 2017, ``spectral_choice``):
+  a tentative collision is real with a probability from the channels' weighted collision
+  and null coefficients, and each channel's weight is corrected by its own coefficient over
+  that probability; ``beta`` (the path throughput) makes the choice history-aware. A grey
+  medium (SPECTRAL_GREY) takes delta tracking's decisions and weights 1.
+
+Emission (``m.emission_kind``): free flight adds W sigma_a(x) Le(x) / sigma_maj at every
+tentative collision (``emission_term``; the collision estimator of pbrt-v4 and Cycles),
+homogeneous segments and those the control decides included.
+
+Returns (event, t, T, E): the free-flight outcome and distance (t1 on escape; the ray
+parameter of the original o); T (RGB): the transmittance estimate of the transmittance
+techniques, or free flight's spectral-tracking weight ((1, 1, 1) for a grey medium); E (RGB):
+the emission free flight gathered, per unit beta. The kernels carry T as ``spec``
+(kernels/spectrum.h): float in builds without colour, where the three channels are equal.
 """
 
 import math
@@ -63,15 +84,18 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import (EVENT_CAPPED, EVENT_ESCAPE, EVENT_SCATTER, STREAM_TEST, TR_RR_THRESHOLD,
-                         TRACK_FREE_FLIGHT, TRACK_LENGTH, TRACK_NEXT_FLIGHT,
-                         TRACK_RESIDUAL_RATIO)
+from ..constants import (EMISSION_NONE, EVENT_CAPPED, EVENT_ESCAPE, EVENT_SCATTER,
+                         SPECTRAL_GREY, STREAM_TEST, TR_RR_THRESHOLD, TRACK_FREE_FLIGHT,
+                         TRACK_LENGTH, TRACK_NEXT_FLIGHT, TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, C_LOOKUPS, N_COUNTERS
-from .medium import (ITER_STATE_SIZE, MediumData, extinction, majorant_iter_init,
-                     majorant_next)
+from .medium import (ITER_STATE_SIZE, MediumData, emitted_radiance, extinction,
+                     majorant_iter_init, majorant_next, medium_chroma)
 from .rng import rng_new, rng_next
 from .sampling import sample_exponential
-from .vec import madd3
+from .vec import add3, exp_neg3, madd3, max3, mul3, one_minus3, scale3
+
+ZERO3 = (0.0, 0.0, 0.0)
+ONE3 = (1.0, 1.0, 1.0)
 
 
 @njit(cache=True, inline="always")
@@ -91,37 +115,94 @@ def transmittance_roulette(T, rng):
     return True, TR_RR_THRESHOLD if T > 0.0 else -TR_RR_THRESHOLD
 
 
+@njit(cache=True, inline="always")
+def spec_roulette(T, rng):
+    """``transmittance_roulette`` on an RGB weight, by its largest |component| a: below the
+    threshold the walk survives with probability a / TR_RR_THRESHOLD and every component is
+    divided by it (each channel's expectation unchanged). A grey weight gives the grey
+    roulette's decisions."""
+    a = max3((abs(T[0]), abs(T[1]), abs(T[2])))
+    if not a < TR_RR_THRESHOLD:
+        return True, T
+    if a == 0.0 or rng_next(rng) * TR_RR_THRESHOLD >= a:
+        return False, ZERO3
+    return True, scale3(T, TR_RR_THRESHOLD / a)
+
+
+@njit(cache=True, inline="always")
+def emission_term(med, p, mu, s_maj, W):
+    """What one tentative collision at p adds to the emission estimate: W sigma_a(p) Le(p) /
+    sigma_maj per channel, sigma_a = (1 - albedo) x chroma x mu the absorption coefficient,
+    W the weight so far. Summed over every tentative collision of a walk at rate sigma_maj
+    it estimates the integral of T sigma_a Le along the ray without bias (the collision
+    estimator of pbrt-v4 and Cycles)."""
+    m = med.m
+    k = medium_chroma(med)
+    Le = emitted_radiance(med, p)
+    s = mu / s_maj
+    return ((1.0 - m.albedo[0]) * k[0] * s * Le[0] * W[0],
+            (1.0 - m.albedo[1]) * k[1] * s * Le[1] * W[1],
+            (1.0 - m.albedo[2]) * k[2] * s * Le[2] * W[2])
+
+
+@njit(cache=True, inline="always")
+def spectral_choice(W, k, mu, s_maj, u):
+    """Spectral tracking's choice at a tentative collision (Kutz et al. 2017, the
+    history-aware maximum rule): with weights W (RGB), per-channel extinction k mu and null
+    coefficient s_maj - k mu, the collision is real with probability
+    P = A / (A + B), A = max_c W_c k_c mu, B = max_c W_c (s_maj - k_c mu), decided by u < P.
+    Returns (real, factor): the weight factor k mu / (s_maj P) (real) or
+    (s_maj - k mu) / (s_maj (1 - P)) (null), RGB; every channel's expectation is then its
+    own collision or null coefficient / s_maj, so each channel is unbiased, and a grey
+    medium with equal weights reduces to delta tracking with factors 1. (False, 0) when
+    every weight is 0."""
+    a = max3((W[0] * k[0] * mu, W[1] * k[1] * mu, W[2] * k[2] * mu))
+    n = (s_maj - k[0] * mu, s_maj - k[1] * mu, s_maj - k[2] * mu)
+    b = max3(mul3(W, n))
+    if not a + b > 0.0:
+        return False, ZERO3
+    if u * (a + b) < a:
+        return True, scale3(k, mu * (a + b) / (s_maj * a))
+    return False, scale3(n, (a + b) / (s_maj * b))
+
+
 @njit(cache=True)
-def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
+def track(med, o, d, t0, t1, technique, use_control, beta, rng, counters, max_steps):
     """Walk ray o + t d over [t0, t1] through ``med`` with ``technique`` (TRACK_*).
-    Returns (event, t, T) (module docstring)."""
+    Returns (event, t, T, E) (module docstring); ``beta`` (RGB) is the path throughput
+    spectral free flight weighs its choices by."""
+    m = med.m
+    spectral = m.spectral != SPECTRAL_GREY
+    emissive = technique == TRACK_FREE_FLIGHT and m.emission_kind != EMISSION_NONE
+    k = medium_chroma(med)
     o = madd3(o, d, t0)
     it = np.empty(ITER_STATE_SIZE)
     majorant_iter_init(it, med, o, d, 0.0, t1 - t0)
     flight = technique == TRACK_FREE_FLIGHT or technique == TRACK_LENGTH
     budget = -1.0   # optical depth left to the next tentative collision; < 0: not drawn yet
-    T = 1.0
+    T = ONE3
+    E = ZERO3
     steps = 0
     while True:
         ok, ta, tb, s_maj, s_min = majorant_next(it, med)
         if not ok:
-            return EVENT_ESCAPE, t1, T
+            return EVENT_ESCAPE, t1, T, E
         homogeneous = s_min == s_maj
         # Roulette on the product so far before spending work on another segment (a no-op
-        # while T >= TR_RR_THRESHOLD, so on the first segment). Track length keeps its
+        # while T >= TR_RR_THRESHOLD, so on the first segment). Grey track length keeps its
         # estimate 0 or 1: a fraction left by homogeneous segments goes on with probability T
         # as 1, so a shadow ray stops in a dense homogeneous core as soon as delta tracking
         # would, while a homogeneous medium (one segment) stays exact.
-        if technique == TRACK_LENGTH and T < 1.0:
-            if rng_next(rng) >= T:
-                return EVENT_ESCAPE, t1, 0.0
-            T = 1.0
+        if technique == TRACK_LENGTH and not spectral and T[0] < 1.0:
+            if rng_next(rng) >= T[0]:
+                return EVENT_ESCAPE, t1, ZERO3, E
+            T = ONE3
         if technique != TRACK_FREE_FLIGHT:
-            alive, T = transmittance_roulette(T, rng)
+            alive, T = spec_roulette(T, rng)
             if not alive:
-                return EVENT_ESCAPE, t1, T
+                return EVENT_ESCAPE, t1, T, E
         if homogeneous and technique != TRACK_FREE_FLIGHT:
-            T *= math.exp(-s_maj * (tb - ta))
+            T = mul3(T, exp_neg3(k, s_maj * (tb - ta)))
             continue
         control = 0.0
         if homogeneous or technique == TRACK_RESIDUAL_RATIO or (flight and use_control):
@@ -129,10 +210,11 @@ def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
         rate = s_maj - control if technique == TRACK_RESIDUAL_RATIO else s_maj
         inv_rate = 1.0 / rate   # a multiplication per step instead of a division
         if technique == TRACK_RESIDUAL_RATIO:
-            T *= math.exp(-control * (tb - ta))
-        w = 1.0                                  # next flight: weight of the current vertex
+            T = mul3(T, exp_neg3(k, control * (tb - ta)))
+        w = ONE3                                 # next flight: weight of the current vertex
         # next flight: this segment's estimate (no exp for the other techniques)
-        acc = math.exp(-s_maj * (tb - ta)) if technique == TRACK_NEXT_FLIGHT else 0.0
+        e_seg = math.exp(-s_maj * (tb - ta)) if technique == TRACK_NEXT_FLIGHT else 0.0
+        acc = (e_seg, e_seg, e_seg)
         t = ta
         if budget < 0.0:
             budget = sample_exponential(rng_next(rng), 1.0)[0]
@@ -144,35 +226,61 @@ def track(med, o, d, t0, t1, technique, use_control, rng, counters, max_steps):
                 break
             t += step
             p = madd3(o, d, t)
-            if flight:
+            if flight and spectral:
+                # Spectral tracking: the density of a homogeneous segment needs no lookup.
+                mu = s_maj if homogeneous else extinction(med, p, s_maj, counters)
+                W = mul3(T, beta) if technique == TRACK_FREE_FLIGHT else T
+                if emissive:
+                    E = add3(E, emission_term(med, p, mu, s_maj, T))
+                real, f = spectral_choice(W, k, mu, s_maj, rng_next(rng))
+                if real:
+                    if technique == TRACK_LENGTH:
+                        return EVENT_SCATTER, t0 + t, ZERO3, E
+                    return EVENT_SCATTER, t0 + t, mul3(T, f), E
+                T = mul3(T, f)
+                if max3(T) <= 0.0:
+                    return EVENT_ESCAPE, t1, ZERO3, E
+            elif flight:
                 # Real for sure where the control covers the majorant (no draw, no lookup).
                 real = control >= s_maj
+                mu = s_maj if real else -1.0   # -1: not looked up
                 if not real:
                     um = rng_next(rng) * s_maj
-                    real = um < control or um < extinction(med, p, s_maj, counters)
+                    real = um < control
+                    if not real:
+                        mu = extinction(med, p, s_maj, counters)
+                        real = um < mu
+                if emissive:
+                    if mu < 0.0:
+                        mu = extinction(med, p, s_maj, counters)
+                    E = add3(E, emission_term(med, p, mu, s_maj, ONE3))
                 if real:
-                    return EVENT_SCATTER, t0 + t, 0.0
+                    return EVENT_SCATTER, t0 + t, ONE3 if technique == TRACK_FREE_FLIGHT \
+                        else ZERO3, E
             elif technique == TRACK_NEXT_FLIGHT:
-                w *= 1.0 - extinction(med, p, s_maj, counters) / s_maj
-                alive, w = transmittance_roulette(w, rng)
+                w = mul3(w, one_minus3(k, extinction(med, p, s_maj, counters) / s_maj))
+                alive, w = spec_roulette(w, rng)
                 if not alive:
                     budget = -1.0   # the next segment draws afresh
                     break   # the rest of this segment adds nothing; its estimate is acc
-                acc += w * math.exp(-s_maj * (tb - t))
+                acc = add3(acc, scale3(w, math.exp(-s_maj * (tb - t))))
             else:
-                T *= 1.0 - (extinction(med, p, s_maj, counters) - control) / rate
-                alive, T = transmittance_roulette(T, rng)
+                T = mul3(T, one_minus3(k, (extinction(med, p, s_maj, counters) - control)
+                                       / rate))
+                alive, T = spec_roulette(T, rng)
                 if not alive:
-                    return EVENT_ESCAPE, t1, T
+                    return EVENT_ESCAPE, t1, T, E
             budget = sample_exponential(rng_next(rng), 1.0)[0]
             steps += 1
             if steps >= max_steps:
                 counters[C_CAPPED] += 1
                 if technique == TRACK_NEXT_FLIGHT:
-                    T *= acc
-                return EVENT_CAPPED, t0 + t, 0.0 if flight else T
+                    T = mul3(T, acc)
+                if technique == TRACK_LENGTH:
+                    T = ZERO3
+                return EVENT_CAPPED, t0 + t, T, E
         if technique == TRACK_NEXT_FLIGHT:
-            T *= acc
+            T = mul3(T, acc)
 
 
 @njit(cache=True, parallel=True)
@@ -180,21 +288,26 @@ def track_batch(technique, use_control, media, grid, maj, mnr, rays, n_per_ray, 
                 max_steps):
     """``track`` over batches of rays, for tests and benchmarks (twin of the t_track test
     kernel): walk i follows ray r = i // n_per_ray (rows o(3), d(3), t0, t1, pad) through
-    media[r] with sample index i % n_per_ray on STREAM_TEST. Returns (t [n]: the collision
-    distance, -1 on escape, -2 if capped; T [n]: the transmittance estimate; lookups [n])."""
+    media[r] with sample index i % n_per_ray on STREAM_TEST and unit throughput. Returns
+    (t [n]: the collision distance, -1 on escape, -2 if capped; T [n, 3]: the transmittance
+    estimate or free flight's weight, RGB; lookups [n])."""
     n = rays.shape[0] * n_per_ray
     t_out = np.empty(n)
-    T_out = np.empty(n)
+    T_out = np.empty((n, 3))
     lookups = np.empty(n, np.int64)
+    emis = np.zeros((1, 1, 1))
+    table = np.zeros((2, 3))
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, i % n_per_ray, STREAM_TEST)
         counters = np.zeros(N_COUNTERS, np.int64)
-        med = MediumData(media[r], grid, maj, mnr)
-        ev, t, T = track(med, (rays[r, 0], rays[r, 1], rays[r, 2]),
-                         (rays[r, 3], rays[r, 4], rays[r, 5]), rays[r, 6], rays[r, 7],
-                         technique, use_control, rng, counters, max_steps)
+        med = MediumData(media[r], grid, maj, mnr, emis, table)
+        ev, t, T, _ = track(med, (rays[r, 0], rays[r, 1], rays[r, 2]),
+                            (rays[r, 3], rays[r, 4], rays[r, 5]), rays[r, 6], rays[r, 7],
+                            technique, use_control, ONE3, rng, counters, max_steps)
         t_out[i] = t if ev == EVENT_SCATTER else (-2.0 if ev == EVENT_CAPPED else -1.0)
-        T_out[i] = T
+        T_out[i, 0] = T[0]
+        T_out[i, 1] = T[1]
+        T_out[i, 2] = T[2]
         lookups[i] = counters[C_LOOKUPS]
     return t_out, T_out, lookups

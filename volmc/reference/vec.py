@@ -1,5 +1,7 @@
 """3-vectors and RGB triples as tuples: the few operations the kernels write with float3."""
 
+import math
+
 from numba import njit
 
 
@@ -37,3 +39,15 @@ def max3(a):
 def madd3(a, b, s):
     """a + b * s: a point along a ray (a origin, b direction, s distance)."""
     return (a[0] + s * b[0], a[1] + s * b[1], a[2] + s * b[2])
+
+
+@njit(cache=True, inline="always")
+def exp_neg3(k, s):
+    """exp(-k s) per component of k, for a scalar s (a transmittance per channel)."""
+    return (math.exp(-(k[0] * s)), math.exp(-(k[1] * s)), math.exp(-(k[2] * s)))
+
+
+@njit(cache=True, inline="always")
+def one_minus3(k, s):
+    """1 - k s per component of k, for a scalar s (a ratio-tracking factor per channel)."""
+    return (1.0 - k[0] * s, 1.0 - k[1] * s, 1.0 - k[2] * s)

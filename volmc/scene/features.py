@@ -3,7 +3,9 @@ scene needs"). The reference decides the same things at run time from the record
 
 A switch stays only while `volmc bench specialise` shows it pays at least 3 % on some
 shipped scene (README, "Specialisation"): of the nine switches and six baked constants
-measured, only MAJORANT_GRID did, so it is the one scene switch left. PROFILES is not a
+measured for issue 10, only MAJORANT_GRID did. CHROMATIC and EMISSION are whole features
+(RGB weights through every tracking loop, an emission lookup at every tentative
+collision) that grey and non-emitting scenes must not pay for. PROFILES is not a
 scene's: render builds always compile the 1-D test profiles out (3.5 % on the cloud with a
 global majorant), and the test and benchmark kernels keep them.
 """
@@ -14,6 +16,10 @@ from .schema import ConstantDensity
 FEATURES = {
     "MAJORANT_GRID": "per-cell majorants along a 3-D DDA walk (a grid with "
                      "render.majorant = \"grid\")",
+    "CHROMATIC": "extinction per colour channel (medium.scale = [r, g, b] with unequal "
+                 "channels): RGB transmittance and spectral tracking",
+    "EMISSION": "an emitting medium (medium.emission): its source term at every tentative "
+                "collision",
 }
 
 
@@ -30,6 +36,10 @@ def features(scene) -> frozenset:
     out = set()
     if not isinstance(m.density, ConstantDensity) and r.majorant == "grid":
         out.add("MAJORANT_GRID")
+    if m.chromatic:
+        out.add("CHROMATIC")
+    if m.emission is not None:
+        out.add("EMISSION")
     return frozenset(out)
 
 

@@ -68,11 +68,12 @@ def write_vol(path, grid, bounds=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))):
         f.write(grid.tobytes())
 
 
-def read_grid_file(path, key="density"):
-    """Read a density array from .npy, .npz (array "density") or .vol, without validation."""
+def read_grid_file(path, key="density", name="density"):
+    """Read a grid array from .npy, .npz (array ``name``) or .vol, without validation."""
     suffix = os.path.splitext(path)[1].lower()
     if suffix not in GRID_SUFFIXES:
-        raise SceneError(path, key, f"unknown grid format '{suffix}' (use .npy, .npz or .vol)")
+        raise SceneError(path, key, f"unknown grid format '{suffix}' (use .npy, .npz, .vol, "
+                                    ".vdb or .nvdb)")
     if not os.path.isfile(path):
         raise SceneError(path, key, "grid file not found")
     try:
@@ -92,10 +93,10 @@ def read_grid_file(path, key="density"):
         if not magic.startswith(b"PK"):
             raise SceneError(path, key, "cannot read grid: not a .npz file (not a zip archive)")
         with np.load(path, allow_pickle=False) as z:
-            if "density" not in z.files:
-                raise SceneError(path, key, f".npz has no array 'density' (has: "
+            if name not in z.files:
+                raise SceneError(path, key, f".npz has no array '{name}' (has: "
                                  f"{', '.join(z.files) or 'nothing'})")
-            return z["density"]
+            return z[name]
     except SceneError:
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, tokenize.TokenError,
@@ -142,9 +143,10 @@ def validate_grid(arr, file, key="density"):
     return out
 
 
-def load_grid(path, key="density"):
-    """Read and validate a grid file; errors name the file and ``key``."""
-    return validate_grid(read_grid_file(path, key), path, key)
+def load_grid(path, key="density", name="density"):
+    """Read and validate a grid file (.npz: its array ``name``); errors name the file and
+    ``key``."""
+    return validate_grid(read_grid_file(path, key, name), path, key)
 
 
 def save_grid(path, grid, bounds=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))):

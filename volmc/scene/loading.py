@@ -15,18 +15,22 @@ import numpy as np
 
 from .errors import SceneError
 from .grids import load_grid, validate_grid
-from .schema import (FLOAT32_MAX, ConstantDensity, FileDensity, GeneratedDensity, SceneSpec,
-                     validate)
+from .schema import (FLOAT32_MAX, GENERATORS, ConstantDensity, FileDensity, GeneratedDensity, SceneSpec,
+                     check_box, validate)
 
 
 @dataclass(frozen=True)
 class Scene:
-    """A validated scene with its density grid loaded.
+    """A validated scene with its grids loaded.
 
-    ``grid`` is a float32 [z, y, x] array, or None for a homogeneous medium.
+    ``grid`` is the float32 [z, y, x] density array, or None for a homogeneous medium;
+    ``emission_grid`` the float32 [z, y, x] emission field (radiance emission) or temperature
+    (kelvin) spanning the medium box, a 1x1x1 array for a constant one, None without emission.
+    A VDB density's bounds are in ``spec.medium.bounds`` once loaded.
     """
     spec: SceneSpec
     grid: Optional[np.ndarray] = field(default=None, compare=False, repr=False)
+    emission_grid: Optional[np.ndarray] = field(default=None, compare=False, repr=False)
 
     @property
     def file(self):
@@ -52,7 +56,7 @@ class Scene:
         """This scene with some ``render`` keys replaced (spp, seed, techniques); the
         grid is shared, not copied. The values are taken as given (not re-validated)."""
         spec = replace(self.spec, render=replace(self.spec.render, **keys))
-        return Scene(spec, self.grid)
+        return Scene(spec, self.grid, self.emission_grid)
 
 
 def read_toml(path):
@@ -131,26 +135,99 @@ def apply_overrides(raw, overrides, file):
     return raw
 
 
+def _read_source(spec, src, key, vdb_density=None):
+    """(float32 [z, y, x] array, VdbGrid or None) of a grid source: a file or a generator.
+    A VDB field grid is placed onto the VDB density's voxels (``vdb_density``) by index."""
+    if isinstance(src, FileDensity):
+        if not os.path.exists(src.resolved):
+            raise SceneError(spec.file, key + ".file", f"grid file not found: {src.path}")
+        if src.resolved.lower().endswith((".vdb", ".nvdb")):
+            from .vdb import read_vdb
+            vg = read_vdb(src.resolved, src.grid, key)
+            if vdb_density is not None:
+                return _align_vdb(vg, vdb_density, src.resolved, key), vg
+            return vg.to_dense(), vg
+        return load_grid(src.resolved, key, src.grid), None
+    if isinstance(src, GeneratedDensity):
+        from . import generators
+        out = getattr(generators, src.generator)(src.resolution, src.seed)
+        if isinstance(out, tuple):   # several fields: density first
+            out = out[GENERATORS[src.generator].index(src.channel)]
+        return out, None
+    raise TypeError(src)
+
+
+def _align_vdb(vg, density, path, key):
+    """Grid ``vg`` resampled onto the voxels of the VDB density grid (same voxel size and
+    voxel-centre lattice required): the overlap is copied, the rest is vg's background."""
+    if not np.allclose(vg.voxel_size, density.voxel_size, rtol=1e-6, atol=0.0):
+        raise SceneError(path, key, f"grid '{vg.name}' has voxel size {tuple(vg.voxel_size)}, "
+                                    f"the density {tuple(density.voxel_size)}: they must match")
+    shift = (np.asarray(vg.index_to_world) - np.asarray(density.index_to_world)) \
+        / np.asarray(density.voxel_size)
+    if not np.allclose(shift, np.round(shift), atol=1e-4):
+        raise SceneError(path, key, f"grid '{vg.name}' is offset from the density by a "
+                                    "fraction of a voxel; the voxels must line up")
+    dense = vg.to_dense()
+    lo_d = np.asarray(density.bbox[0])
+    hi_d = np.asarray(density.bbox[1])
+    lo_v = np.asarray(vg.bbox[0]) + np.round(shift).astype(int)
+    shape = tuple(int(x) for x in (hi_d - lo_d + 1)[::-1])
+    out = np.full(shape, np.float32(vg.background), np.float32)
+    a = np.maximum(lo_d, lo_v)
+    b = np.minimum(hi_d, lo_v + np.array(dense.shape[::-1]) - 1)
+    if np.all(b >= a):
+        so = (a - lo_d)[::-1]
+        si = (a - lo_v)[::-1]
+        n = (b - a + 1)[::-1]
+        out[so[0]:so[0] + n[0], so[1]:so[1] + n[1], so[2]:so[2] + n[2]] = \
+            dense[si[0]:si[0] + n[0], si[1]:si[1] + n[1], si[2]:si[2] + n[2]]
+    return out
+
+
 def load_density(spec: SceneSpec):
-    """The scene's density grid (float32 [z, y, x]) or None for a homogeneous medium."""
+    """(density grid float32 [z, y, x] or None for a homogeneous medium, VdbGrid or None)."""
     d = spec.medium.density
     if isinstance(d, ConstantDensity):
-        return None
-    if isinstance(d, FileDensity):
-        if not os.path.exists(d.resolved):
-            raise SceneError(spec.file, "medium.density.file", f"grid file not found: {d.path}")
-        grid = load_grid(d.resolved, "medium.density")
-    elif isinstance(d, GeneratedDensity):
-        from .generators import cloud
-        grid = validate_grid(cloud(d.resolution, d.seed), spec.file, "medium.density")
-    else:
-        raise TypeError(d)
+        return None, None
+    raw, vg = _read_source(spec, d, "medium.density")
+    grid = validate_grid(raw, spec.file if vg is None and not isinstance(d, FileDensity)
+                         else d.resolved, "medium.density")
     # The float32 kernels hold the global majorant scale * max(density).
-    if spec.medium.scale * float(grid.max()) > FLOAT32_MAX:
+    top = max(spec.medium.scale) * float(grid.max())
+    if top > FLOAT32_MAX:
         raise SceneError(spec.file, "medium.scale",
-                         f"scale * max(density) = {spec.medium.scale * float(grid.max()):g} "
-                         f"overflows float32 (at most {FLOAT32_MAX:g})")
-    return grid
+                         f"scale * max(density) = {top:g} overflows float32 (at most "
+                         f"{FLOAT32_MAX:g})")
+    return grid, vg
+
+
+def load_emission(spec: SceneSpec, vdb_density=None):
+    """The emission field or temperature grid (float32 [z, y, x]; 1x1x1 when constant), or
+    None without emission."""
+    e = spec.medium.emission
+    if e is None:
+        return None
+    src, key = (e.field, "medium.emission.field") if e.radiance is not None else \
+        (e.temperature, "medium.emission.temperature")
+    if isinstance(src, ConstantDensity):
+        return np.full((1, 1, 1), src.value, np.float32)
+    raw, _ = _read_source(spec, src, key, vdb_density)
+    where = src.resolved if isinstance(src, FileDensity) else spec.file
+    return validate_grid(raw, where, key)
+
+
+def _complete(spec: SceneSpec):
+    """Load every grid; a VDB density without medium.bounds gives the box."""
+    grid, vg = load_density(spec)
+    if spec.medium.bounds is None:
+        lo, hi = vg.world_bounds()
+
+        def fail(key, msg):
+            raise SceneError(spec.medium.density.resolved, key, msg)
+        check_box(fail, lo, hi)
+        spec = replace(spec, medium=replace(spec.medium, bounds=(tuple(lo), tuple(hi))))
+    return Scene(spec, grid, load_emission(spec, vg))
 
 
 def load_scene(path, overrides=()):
@@ -159,7 +236,7 @@ def load_scene(path, overrides=()):
     raw = read_toml(path)
     apply_overrides(raw, list(overrides), path)
     spec = validate(raw, path)
-    return Scene(spec, load_density(spec))
+    return _complete(spec)
 
 
 def scene_from_dict(raw, file="<dict>", base_dir=".", overrides=()):
@@ -167,4 +244,4 @@ def scene_from_dict(raw, file="<dict>", base_dir=".", overrides=()):
     import copy
     raw = apply_overrides(copy.deepcopy(raw), list(overrides), file)
     spec = validate(raw, file, file_dir=os.path.abspath(base_dir))
-    return Scene(spec, load_density(spec))
+    return _complete(spec)

@@ -14,7 +14,7 @@ import sys
 from dataclasses import dataclass
 from typing import Optional, Union
 
-from ..techniques import grid_estimators
+from ..techniques import ESTIMATORS, chromatic_estimators, grid_estimators
 from .errors import SceneError
 
 Vec3 = tuple[float, float, float]
@@ -23,7 +23,11 @@ RGB = tuple[float, float, float]
 CAMERA_TYPES = ("perspective", "orthographic")
 PHASE_TYPES = ("isotropic", "hg")
 LIGHT_TYPES = ("environment", "directional", "point")
-GENERATORS = ("cloud",)
+#: Procedural sources and the fields each returns, in order (``channel``; generators.py
+#: returns a tuple when there are several).
+GENERATORS = {"cloud": ("density",), "plume": ("density", "temperature")}
+#: Formats that hold several named grids (``grid`` picks one).
+NAMED_GRID_SUFFIXES = (".npz", ".vdb", ".nvdb")
 #: Largest finite float32: every number reaches the kernels as a float32.
 FLOAT32_MAX = 3.4028234663852886e38
 
@@ -48,17 +52,21 @@ class ConstantDensity:
 
 @dataclass(frozen=True)
 class FileDensity:
-    """Density grid read from a .npy, .npz (array "density") or Mitsuba .vol file."""
+    """Grid read from a .npy, .npz (array ``grid``), Mitsuba .vol, OpenVDB .vdb or NanoVDB
+    .nvdb (grid ``grid``) file."""
     path: str          # as written in the scene
     resolved: str      # absolute path (relative paths are relative to the scene file)
+    grid: str = "density"
 
 
 @dataclass(frozen=True)
 class GeneratedDensity:
-    """Procedural density grid, e.g. the "cloud" generator at resolution^3 voxels."""
+    """Procedural grid: the ``channel`` field ("density", or "temperature" for "plume") of
+    a generator at resolution^3 voxels."""
     generator: str
     resolution: int
     seed: int = 0
+    channel: str = "density"
 
 
 Density = Union[ConstantDensity, FileDensity, GeneratedDensity]
@@ -72,13 +80,31 @@ class Phase:
 
 
 @dataclass(frozen=True)
-class Medium:
-    """Axis-aligned box of medium: extinction = scale * density (1/world unit)."""
-    bounds: tuple[Vec3, Vec3]
-    density: Density
+class Emission:
+    """Emitted radiance Le(x) of the medium (its source term is sigma_a(x) Le(x)): either
+    ``radiance`` (RGB) x ``field``(x), or the blackbody radiance of ``temperature``(x)
+    (kelvin) in linear sRGB, in nits, x ``scale`` (volmc/emission.py)."""
+    radiance: Optional[RGB] = None
+    field: Density = ConstantDensity(1.0)
+    temperature: Optional[Density] = None
     scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class Medium:
+    """Axis-aligned box of medium: extinction = scale * density per channel (1/world unit).
+    ``bounds`` is None only before a VDB file has given it (loading.py)."""
+    bounds: Optional[tuple[Vec3, Vec3]]
+    density: Density
+    scale: RGB = (1.0, 1.0, 1.0)
     albedo: RGB = (1.0, 1.0, 1.0)
     phase: Phase = Phase()
+    emission: Optional[Emission] = None
+
+    @property
+    def chromatic(self):
+        """True when extinction depends on colour (the scale's channels differ)."""
+        return not self.scale[0] == self.scale[1] == self.scale[2]
 
 
 @dataclass(frozen=True)
@@ -119,6 +145,7 @@ class Render:
     majorant: str = "grid"
     free_flight: str = "delta"
     majorant_resolution: tuple = ()
+    spectral: str = "tracking"
 
 
 @dataclass(frozen=True)
@@ -134,10 +161,12 @@ class SceneSpec:
 # (key, default or REQUIRED); the kind of each key is checked in the section functions.
 REQUIRED = object()
 CAMERA_KEYS = ("type", "eye", "target", "up", "fov", "size", "resolution")
-MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase")
+MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase", "emission")
+EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
-               "majorant_resolution", "free_flight")
+               "majorant_resolution", "free_flight", "spectral")
+SPECTRAL_MODES = ("tracking", "channel")
 MAJORANTS = ("global", "grid")
 FREE_FLIGHTS = ("delta", "decomposition")
 #: Shadow-ray transmittance estimators for grids: every estimator of the registry
@@ -149,8 +178,8 @@ LIGHT_KEYS = {
     "point": ("type", "position", "intensity"),
 }
 TOP_KEYS = ("camera", "medium", "lights", "render")
-FILE_DENSITY_KEYS = ("file",)
-GENERATOR_KEYS = ("generator", "resolution", "seed")
+FILE_DENSITY_KEYS = ("file", "grid")
+GENERATOR_KEYS = ("generator", "resolution", "seed", "channel")
 
 
 class _Checker:
@@ -289,9 +318,11 @@ def _camera(c, raw):
     return Camera(cam_type, eye, target, up, fov, size, res)
 
 
-def _density(c, v, file_dir):
+def _source(c, v, key, file_dir, channel="density"):
+    """A grid source at ``key``: a number (constant), { file, grid } or { generator,
+    resolution, seed, channel }. ``channel`` is the field the key asks of a generator by
+    default."""
     import os
-    key = "medium.density"
     if isinstance(v, dict):
         if "file" in v and "generator" in v:
             c.fail(key, "give either 'file' or 'generator', not both")
@@ -300,40 +331,67 @@ def _density(c, v, file_dir):
             path = v["file"]
             if not isinstance(path, str) or not path:
                 c.fail(key + ".file", f"expected a file path, got {_show(path)}")
+            suffix = os.path.splitext(path)[1].lower()
+            grid = v.get("grid", "density")
+            if not isinstance(grid, str) or not grid:
+                c.fail(key + ".grid", f"expected a grid name, got {_show(grid)}")
+            if "grid" in v and suffix not in NAMED_GRID_SUFFIXES:
+                c.fail(key + ".grid", f"a {suffix} file holds one grid; 'grid' names one of "
+                                      f"several in {', '.join(NAMED_GRID_SUFFIXES)} files")
             resolved = path if os.path.isabs(path) else os.path.join(file_dir, path)
-            return FileDensity(path, os.path.abspath(resolved))
+            return FileDensity(path, os.path.abspath(resolved), grid)
         if "generator" in v:
             c.known(v, GENERATOR_KEYS, key + ".")
-            gen = c.choice(v["generator"], key + ".generator", GENERATORS)
+            gen = c.choice(v["generator"], key + ".generator", tuple(GENERATORS))
             res = c.integer(c.required(v, "resolution", key + "."), key + ".resolution",
                             lo=1, hi=2048)
             seed = c.integer(v.get("seed", 0), key + ".seed", lo=0, hi=2**63 - 1)
-            return GeneratedDensity(gen, res, seed)
-        c.fail(key, "a density table needs 'file' or 'generator'")
+            ch = c.choice(v.get("channel", channel), key + ".channel", GENERATORS[gen])
+            return GeneratedDensity(gen, res, seed, ch)
+        c.fail(key, "a grid table needs 'file' or 'generator'")
     return ConstantDensity(c.number(v, key, 0.0))
+
+
+def _density(c, v, file_dir):
+    return _source(c, v, "medium.density", file_dir)
+
+
+def _emission(c, raw, file_dir):
+    p = "medium.emission."
+    c.table(raw, p[:-1])
+    c.known(raw, EMISSION_KEYS, p)
+    if ("radiance" in raw) == ("temperature" in raw):
+        c.fail(p[:-1], "give either 'radiance' (with an optional 'field') or 'temperature' "
+                       "(with an optional 'scale')")
+    if "radiance" in raw:
+        if "scale" in raw:
+            c.fail(p + "scale", "only 'temperature' emission takes a scale; scale the "
+                                "radiance instead")
+        radiance = c.rgb(raw["radiance"], p + "radiance")
+        field = _source(c, raw.get("field", 1.0), p + "field", file_dir)
+        return Emission(radiance=radiance, field=field)
+    if "field" in raw:
+        c.fail(p + "field", "only 'radiance' emission takes a field")
+    temperature = _source(c, raw["temperature"], p + "temperature", file_dir, "temperature")
+    scale = c.number(raw.get("scale", 1.0), p + "scale", 0.0)
+    return Emission(temperature=temperature, scale=scale)
 
 
 def _medium(c, raw, file_dir):
     p = "medium."
     c.known(raw, MEDIUM_KEYS, p)
-    b = c.required(raw, "bounds", p)
-    if not isinstance(b, list) or len(b) != 2:
-        c.fail(p + "bounds", f"expected [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {_show(b)}")
-    lo = c.vec3(b[0], p + "bounds")
-    hi = c.vec3(b[1], p + "bounds")
-    for a, name in enumerate("xyz"):
-        if not lo[a] < hi[a]:
-            what = "zero size" if lo[a] == hi[a] else "inverted"
-            c.fail(p + "bounds", f"box has {what} along {name} ({_fmt(lo[a])} .. {_fmt(hi[a])});"
-                                 " need min < max on every axis")
-        if 1.0 / (hi[a] - lo[a]) > FLOAT32_MAX:   # the kernels hold 1 / extent in float32
-            c.fail(p + "bounds", f"box is too thin along {name} (extent "
-                                 f"{_fmt(hi[a] - lo[a])}); 1 / extent overflows float32")
     density = _density(c, c.required(raw, "density", p), file_dir)
-    scale = c.number(raw.get("scale", 1.0), p + "scale", 0.0)
-    if isinstance(density, ConstantDensity) and scale * density.value > FLOAT32_MAX:
-        c.fail(p + "scale", f"scale * density = {scale * density.value:g} overflows float32 "
-                            f"(at most {FLOAT32_MAX:g})")
+    from_file = isinstance(density, FileDensity) and \
+        density.path.lower().endswith((".vdb", ".nvdb"))
+    if "bounds" in raw or not from_file:
+        lo, hi = _bounds(c, c.required(raw, "bounds", p))
+        bounds = (lo, hi)
+    else:
+        bounds = None   # from the VDB file's active voxels (loading.py)
+    scale = c.rgb(raw.get("scale", 1.0), p + "scale")
+    if isinstance(density, ConstantDensity) and max(scale) * density.value > FLOAT32_MAX:
+        c.fail(p + "scale", f"scale * density = {max(scale) * density.value:g} overflows "
+                            f"float32 (at most {FLOAT32_MAX:g})")
     albedo = c.rgb(raw.get("albedo", 1.0), p + "albedo", hi=1.0)
     ph = c.table(raw.get("phase", {"type": "isotropic"}), p + "phase")
     c.known(ph, PHASE_KEYS, p + "phase.")
@@ -344,7 +402,31 @@ def _medium(c, raw, file_dir):
                      lo_open=True, hi_open=True)
     elif "g" in ph:
         c.fail(p + "phase.g", "only the 'hg' phase function takes g")
-    return Medium((lo, hi), density, scale, albedo, Phase(ptype, g))
+    emission = _emission(c, raw["emission"], file_dir) if "emission" in raw else None
+    return Medium(bounds, density, scale, albedo, Phase(ptype, g), emission)
+
+
+def _bounds(c, b):
+    p = "medium."
+    if not isinstance(b, list) or len(b) != 2:
+        c.fail(p + "bounds", f"expected [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {_show(b)}")
+    lo = c.vec3(b[0], p + "bounds")
+    hi = c.vec3(b[1], p + "bounds")
+    check_box(c.fail, lo, hi)
+    return lo, hi
+
+
+def check_box(fail, lo, hi, key="medium.bounds"):
+    """Every axis of the box [lo, hi] has min < max and an extent whose inverse is finite in
+    float32; else fail(key, message)."""
+    for a, name in enumerate("xyz"):
+        if not lo[a] < hi[a]:
+            what = "zero size" if lo[a] == hi[a] else "inverted"
+            fail(key, f"box has {what} along {name} ({_fmt(lo[a])} .. {_fmt(hi[a])});"
+                      " need min < max on every axis")
+        if 1.0 / (hi[a] - lo[a]) > FLOAT32_MAX:   # the kernels hold 1 / extent in float32
+            fail(key, f"box is too thin along {name} (extent {_fmt(hi[a] - lo[a])}); "
+                      "1 / extent overflows float32")
 
 
 def _light(c, raw, i):
@@ -389,6 +471,7 @@ def _render(c, raw):
         free_flight=c.choice(raw.get("free_flight", d.free_flight), p + "free_flight",
                              FREE_FLIGHTS),
         majorant_resolution=_majorant_resolution(c, raw.get("majorant_resolution", [])),
+        spectral=c.choice(raw.get("spectral", d.spectral), p + "spectral", SPECTRAL_MODES),
     )
 
 
@@ -420,4 +503,9 @@ def validate(raw: dict, file: str, file_dir: Optional[str] = None) -> SceneSpec:
                 c.fail(f"lights[{i}].radiance", f"the environment radiances sum to "
                                                 f"{max(env):g}, which overflows float32")
     render = _render(c, c.table(raw.get("render", {}), "render"))
+    est = ESTIMATORS[render.transmittance]
+    if medium.chromatic and not est.chromatic:
+        c.fail("render.transmittance", f"'{est.name}' estimates grey transmittance only; "
+               "medium.scale differs per channel, so use one of "
+               f"{', '.join(chromatic_estimators())}")
     return SceneSpec(str(file), camera, medium, lights, render)

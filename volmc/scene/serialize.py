@@ -11,15 +11,7 @@ from .schema import (ConstantDensity, DirectionalLight, EnvironmentLight, FileDe
 def to_dict(spec: SceneSpec) -> dict:
     """Plain dictionary in the TOML layout of docs/scene_format.md, every key explicit."""
     c, m, r = spec.camera, spec.medium, spec.render
-    d = m.density
-    if isinstance(d, ConstantDensity):
-        density = d.value
-    elif isinstance(d, FileDensity):
-        density = {"file": d.resolved}
-    elif isinstance(d, GeneratedDensity):
-        density = {"generator": d.generator, "resolution": d.resolution, "seed": d.seed}
-    else:
-        raise TypeError(d)
+    density = _source(m.density)
     phase = {"type": m.phase.type}
     if m.phase.type == "hg":
         phase["g"] = m.phase.g
@@ -33,18 +25,41 @@ def to_dict(spec: SceneSpec) -> dict:
         elif isinstance(lt, PointLight):
             lights.append({"type": "point", "position": list(lt.position),
                            "intensity": list(lt.intensity)})
+    medium = {"density": density,
+              "scale": m.scale[0] if not m.chromatic else list(m.scale),
+              "albedo": list(m.albedo), "phase": phase}
+    if m.bounds is not None:
+        medium = {"bounds": [list(m.bounds[0]), list(m.bounds[1])], **medium}
+    if m.emission is not None:
+        e = m.emission
+        if e.radiance is not None:
+            medium["emission"] = {"radiance": list(e.radiance), "field": _source(e.field)}
+        else:
+            medium["emission"] = {"temperature": _source(e.temperature), "scale": e.scale}
     return {
         "camera": {"type": c.type, "eye": list(c.eye), "target": list(c.target),
                    "up": list(c.up), "fov": c.fov, "size": c.size,
                    "resolution": list(c.resolution)},
-        "medium": {"bounds": [list(m.bounds[0]), list(m.bounds[1])], "density": density,
-                   "scale": m.scale, "albedo": list(m.albedo), "phase": phase},
+        "medium": medium,
         "lights": lights,
         "render": {"spp": r.spp, "max_depth": r.max_depth, "rr_depth": r.rr_depth,
                    "seed": r.seed, "max_steps": r.max_steps, "transmittance": r.transmittance,
                    "majorant": r.majorant, "majorant_resolution": list(r.majorant_resolution),
-                   "free_flight": r.free_flight},
+                   "free_flight": r.free_flight, "spectral": r.spectral},
     }
+
+
+def _source(d):
+    """A grid source as the scene writes it."""
+    if isinstance(d, ConstantDensity):
+        return d.value
+    if isinstance(d, FileDensity):
+        return {"file": d.resolved, "grid": d.grid} if d.grid != "density" or \
+            d.resolved.lower().endswith((".npz", ".vdb", ".nvdb")) else {"file": d.resolved}
+    if isinstance(d, GeneratedDensity):
+        return {"generator": d.generator, "resolution": d.resolution, "seed": d.seed,
+                "channel": d.channel}
+    raise TypeError(d)
 
 
 def _value(v):
