@@ -299,3 +299,25 @@ def test_memory_of_a_512_cubed_grid_at_three_percent():
     assert sparse_nbytes(table, pool) < 0.06 * dense_bytes
     mx, mn = majorant_from_bricks(table, pool, dims)
     assert mx.max() == values.max() and np.count_nonzero(mx) < 0.06 * mx.size
+
+
+def test_benchmark_kernel_and_twin_read_the_same_points():
+    """volmc/bench/sparse.py: the kernel and its Numba twin sum lookups at the same points
+    (float32 against float64 positions, so nearly equal), and a small run reports sparse sums
+    equal to the dense ones on both backends (no timing is checked)."""
+    from volmc.bench.sparse import (LOOKUPS, MODES, OpenCLSparseBench, bench_sums, blobs_grid,
+                                    run)
+    g = blobs_grid(48, 0.05, 3)
+    table, pool = bricks_from_dense(g)
+    bricks = np.ascontiguousarray(np.argwhere(table)[:, ::-1], np.int32)
+    bmin, bmax = (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)
+    ocl = OpenCLSparseBench(g, table, pool, bricks, bmin, bmax)
+    for m in range(len(MODES)):
+        for k in range(len(LOOKUPS)):
+            a = ocl.sums(k, m, 512, 32, 7)
+            b = bench_sums(k, g.astype(np.float64), table, pool.astype(np.float64), (48,) * 3,
+                           bmin, bmax, bricks, m, 512, 32, 7)
+            assert np.allclose(a, b, rtol=1e-4, atol=1e-4 * 32), (MODES[m], LOOKUPS[k])
+    r = run(size=40, fill=0.05, lookups=1 << 12, per_item=16, repeats=1, log=lambda s: None)
+    assert all(r["identical"].values()) and len(r["identical"]) == 6
+    assert r["bytes"]["table"] + r["bytes"]["pool_f32"] < r["bytes"]["dense_f32"]
