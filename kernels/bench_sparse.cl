@@ -1,7 +1,8 @@
 /* Sparse-grid lookup speed for volmc/bench/sparse.py (twin of its Numba loops: same hash,
- * same points). Built with -DLOOKUP_KIND=0 (grid_lookup on the dense grid), 1 (sparse_lookup)
- * or 2 (sparse_lookup_every_corner below: the table read for every corner, no one-brick fast
- * path; kept here only to measure that fast path).
+ * same points). Built with -DLOOKUP_KIND=0 (grid_lookup on the dense grid), 1
+ * (sparse_lookup_fast_path below: one table read when the eight corners share a brick, as
+ * the Numba sparse_lookup does; kept here only to measure it) or 2 (sparse_lookup of grid.h:
+ * the table read for every corner, no branch).
  *
  * Work item i sums n_per_item lookups at points drawn by a 32-bit hash:
  *   mode 0: uniform in the box;
@@ -21,28 +22,39 @@ inline float sb_unit(uint *st) {
     return (float)(*st >> 8) * 0x1p-24f;
 }
 
-inline float sparse_lookup_every_corner(global const int *table, global const float *pool,
-                                        int3 dims, float3 bmin, float3 inv_extent, float3 p) {
+inline float sparse_lookup_fast_path(global const int *table, global const float *pool,
+                                     int3 dims, float3 bmin, float3 inv_extent, float3 p) {
     float3 x = (p - bmin) * inv_extent * convert_float3(dims) - 0.5f;
     x = clamp(x, (float3)(0.0f), convert_float3(dims - 1));
     int3 i0 = min(convert_int3_rtz(x), dims - 1);
     float3 f = x - convert_float3(i0);
     int3 i1 = min(i0 + 1, dims - 1);
-    int3 nb = (dims + 7) >> 3;
-    int3 b0 = i0 >> 3, b1 = i1 >> 3;
-    int3 a0 = i0 & 7, a1 = i1 & 7;
+    int3 nb = (dims + 7) >> 3;     /* bricks per axis */
+    int3 b0 = i0 >> 3, b1 = i1 >> 3; /* brick of the lower and upper corner */
+    int3 a0 = i0 & 7, a1 = i1 & 7;   /* voxel within its brick */
+    /* offsets within a brick: rows (z, y) and columns x */
     int r00 = (a0.z << 6) | (a0.y << 3), r10 = (a0.z << 6) | (a1.y << 3);
     int r01 = (a1.z << 6) | (a0.y << 3), r11 = (a1.z << 6) | (a1.y << 3);
-    int t00 = (b0.z * nb.y + b0.y) * nb.x, t10 = (b0.z * nb.y + b1.y) * nb.x;
-    int t01 = (b1.z * nb.y + b0.y) * nb.x, t11 = (b1.z * nb.y + b1.y) * nb.x;
-    float v000 = pool[((size_t)table[t00 + b0.x] << 9) | (r00 | a0.x)];
-    float v001 = pool[((size_t)table[t00 + b1.x] << 9) | (r00 | a1.x)];
-    float v010 = pool[((size_t)table[t10 + b0.x] << 9) | (r10 | a0.x)];
-    float v011 = pool[((size_t)table[t10 + b1.x] << 9) | (r10 | a1.x)];
-    float v100 = pool[((size_t)table[t01 + b0.x] << 9) | (r01 | a0.x)];
-    float v101 = pool[((size_t)table[t01 + b1.x] << 9) | (r01 | a1.x)];
-    float v110 = pool[((size_t)table[t11 + b0.x] << 9) | (r11 | a0.x)];
-    float v111 = pool[((size_t)table[t11 + b1.x] << 9) | (r11 | a1.x)];
+    float v000, v001, v010, v011, v100, v101, v110, v111;
+    if (all(b0 == b1)) {
+        global const float *b = pool + ((size_t)table[(b0.z * nb.y + b0.y) * nb.x + b0.x] << 9);
+        v000 = b[r00 | a0.x]; v001 = b[r00 | a1.x];
+        v010 = b[r10 | a0.x]; v011 = b[r10 | a1.x];
+        v100 = b[r01 | a0.x]; v101 = b[r01 | a1.x];
+        v110 = b[r11 | a0.x]; v111 = b[r11 | a1.x];
+    } else {
+        int t00 = (b0.z * nb.y + b0.y) * nb.x, t10 = (b0.z * nb.y + b1.y) * nb.x;
+        int t01 = (b1.z * nb.y + b0.y) * nb.x, t11 = (b1.z * nb.y + b1.y) * nb.x;
+        v000 = pool[((size_t)table[t00 + b0.x] << 9) | (r00 | a0.x)];
+        v001 = pool[((size_t)table[t00 + b1.x] << 9) | (r00 | a1.x)];
+        v010 = pool[((size_t)table[t10 + b0.x] << 9) | (r10 | a0.x)];
+        v011 = pool[((size_t)table[t10 + b1.x] << 9) | (r10 | a1.x)];
+        v100 = pool[((size_t)table[t01 + b0.x] << 9) | (r01 | a0.x)];
+        v101 = pool[((size_t)table[t01 + b1.x] << 9) | (r01 | a1.x)];
+        v110 = pool[((size_t)table[t11 + b0.x] << 9) | (r11 | a0.x)];
+        v111 = pool[((size_t)table[t11 + b1.x] << 9) | (r11 | a1.x)];
+    }
+    /* grid_lookup's order: c[zy] along x, then y, then z. */
     float c00 = lerp_ab(v000, v001, f.x), c10 = lerp_ab(v010, v011, f.x);
     float c01 = lerp_ab(v100, v101, f.x), c11 = lerp_ab(v110, v111, f.x);
     return lerp_ab(lerp_ab(c00, c10, f.y), lerp_ab(c01, c11, f.y), f.z);
@@ -54,9 +66,9 @@ inline float sb_lookup(global const float *grid, global const int *table,
 #if LOOKUP_KIND == 0
     return grid_lookup(grid, dims, bmin, inv_extent, p);
 #elif LOOKUP_KIND == 1
-    return sparse_lookup(table, pool, dims, bmin, inv_extent, p);
+    return sparse_lookup_fast_path(table, pool, dims, bmin, inv_extent, p);
 #else
-    return sparse_lookup_every_corner(table, pool, dims, bmin, inv_extent, p);
+    return sparse_lookup(table, pool, dims, bmin, inv_extent, p);
 #endif
 }
 
