@@ -78,8 +78,8 @@ def test_reference_lookup_equals_dense_bit_for_bit(dims, fill):
 
 
 def test_reference_lookup_in_float32_is_the_dense_float32_lookup():
-    """Same operation order: with float32 arrays Numba's float64 arithmetic on float32 values
-    still reads the same voxels with the same weights."""
+    """With float32 arrays (pool and dense grid) the reference still equals grid_lookup bit
+    for bit: the same voxels with the same weights."""
     dims = (33, 17, 20)
     g = _sparse_grid(dims, 0.1, 3)
     table, pool = bricks_from_dense(g)

@@ -50,7 +50,13 @@ is bounded by the voxels 8k - 1 .. 8k + 8 along each axis (the brick and a one-v
 of its neighbours, clamped at the grid's edge). When a dim is not a multiple of 8 the cells
 of that axis are n / ceil(n / 8) < 8 voxels wide and do not line up with the bricks; the
 bounds are still exact for those cells (each is the extreme over that cell's own influence
-range), so the DDA needs no change, but a cell is no longer one brick.
+range), so the DDA needs no change, but a cell is no longer one brick. (Cells that are the
+bricks for any dims would need the DDA to walk a box padded to 8 ceil(n / 8) voxels, i.e. a
+majorant box apart from the medium box in the Medium record; the lookup does not need the
+cells to be bricks, so this module does not do that.) Any other resolution works too: with
+n / c a multiple of 8 the cells are unions of bricks. The scene schema caps
+render.majorant_resolution at 256 cells per axis and the automatic choice at 64, so cells
+are bricks only up to 2048 (explicit) or 512 (automatic) voxels per axis.
 """
 
 import math
