@@ -141,3 +141,10 @@ kernel void t_dda(global const float *rays, float3 bmin, float3 bmax, int3 res_z
     }
     count[r] = k;
 }
+
+kernel void t_sparse_lookup(global const int *table, global const float *pool, int3 dims,
+                            float3 bmin, float3 inv_extent, global const float *p,
+                            global float *out) {
+    int i = get_global_id(0);
+    out[i] = sparse_lookup(table, pool, dims, bmin, inv_extent, vload3(i, p));
+}
