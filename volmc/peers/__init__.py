@@ -25,10 +25,9 @@ def compare_with_mitsuba(scene, spp=None, passes=16, reference_spp=None, device=
     reference_spp = 8 * spp if reference_spp is None else reference_spp
     seed = scene.render.seed
     passes = max(2, min(passes, spp))
-    log(f"volmc against Mitsuba {version} (volpath, llvm): {spp} spp each, Mitsuba in "
-        f"{passes} passes")
-
     peer = MitsubaRenderer(scene)
+    log(f"volmc against Mitsuba {version} ({peer.mode}, llvm): {spp} spp each, Mitsuba in "
+        f"{passes} passes")
     peer.warm_up()
     be = make_backend("opencl", scene, device)
     be.warm_up()
@@ -40,7 +39,8 @@ def compare_with_mitsuba(scene, spp=None, passes=16, reference_spp=None, device=
     log(f"  Mitsuba: {sec_p:8.2f} s")
     agr = compare.agreement(mean_v, var_v, mean_p, var_p, pass_means, spp)
     log("  " + agr.summary("Mitsuba"))
-    report = {"mitsuba_version": version, "spp": spp, "passes": passes,
+    report = {"mitsuba_version": version, "mitsuba_mode": peer.mode, "spp": spp,
+              "passes": passes,
               "agreement": {**agr.__dict__, "passed": agr.passed},
               "volmc": {"seconds": rv.seconds, "mean": agr.mean_volmc},
               "mitsuba": {"seconds": sec_p, "mean": agr.mean_peer}}

@@ -17,6 +17,20 @@ or by the README's cross-check):
   (Mitsuba's ``gridvolume`` with its default ``filter_type = "bilinear"``, ``wrap_mode =
   "clamp"``). Its ``to_world`` maps the unit cube to ``medium.bounds``. Extinction is
   ``scale * density`` on both sides (``heterogeneous.scale``).
+- **Colour-dependent extinction.** ``medium.scale`` is an RGB triple (a float, for a grey
+  medium, counts as three equal values); extinction in channel c is scale[c] * density.
+  A grey medium is translated as above. A chromatic one gets ``sigma_t`` as an RGB value
+  (``srgb`` with ``unbounded``: the ``rgb`` type refuses values above 1) when homogeneous,
+  and as a 3-channel ``gridvolume`` holding scale[c] * density, with ``heterogeneous.scale``
+  1, when a grid; Mitsuba's majorant is then the largest value of any channel, and its
+  integrators pick one channel per path and weight the others. ``volpathmis`` (spectral MIS)
+  renders it: with ``volpath`` a homogeneous chromatic medium's weights exp((s_hero - s_c) t)
+  are unbounded. Checked against exp(-scale[c] * density * d) through an absorbing slab. For
+  the comparison with volmc, MitsubaRenderer renders a chromatic scene as one grey scene per
+  distinct scale value instead (``split_scenes``): exact, and far less noisy.
+  (``volpath`` before Mitsuba 3.7 chose null against real collisions by the hero channel
+  alone, biased wherever that channel's extinction reaches the majorant: mitsuba3 issue
+  #1387, fixed by #1628. ``volpathmis`` and the grey scenes are unaffected.)
 - **Lights.** ``environment`` becomes ``constant`` (radiance), ``directional`` stays
   ``directional`` (irradiance, direction of travel), ``point`` becomes ``point`` (intensity).
   The units agree: an empty scene shows the environment radiance in both.
@@ -25,6 +39,8 @@ or by the README's cross-check):
   vertices including the camera ray's end, so Mitsuba gets max_depth + 1 (and rr_depth + 1);
   -1 (unbounded) stays -1.
 - **Colour.** Mitsuba's ``llvm_ad_rgb`` variant: RGB throughout, as in volmc.
+- **Not translated.** An emissive medium (``medium.emission``): Mitsuba 3's media do not
+  emit, so such a scene raises PeerUnavailable instead of being compared without it.
 
 Mitsuba is optional (``pip install 'volmc[peers]'``). Its LLVM backend needs a libLLVM it
 can load; ``DRJIT_LIBLLVM_PATH`` names one, otherwise the newest ``libLLVM.so.1x`` in the
@@ -114,13 +130,30 @@ def _rgb(v):
     return {"type": "rgb", "value": [float(x) for x in v]}
 
 
+def medium_scale(med):
+    """``medium.scale`` as an RGB triple of floats: a float s (a grey medium) gives (s, s, s)."""
+    s = med.scale
+    return tuple(float(x) for x in s) if isinstance(s, (tuple, list)) else (float(s),) * 3
+
+
 def _inside(p, bounds):
     return all(bounds[0][i] < p[i] < bounds[1][i] for i in range(3))
 
 
+def check_translatable(scene):
+    """Raise PeerUnavailable when the scene has what Mitsuba 3 cannot render: an emissive
+    medium (its media have no emission; neither ``volpath`` nor ``volpathmis`` adds any)."""
+    if getattr(scene.spec.medium, "emission", None) is not None:
+        raise PeerUnavailable("Mitsuba 3 has no emissive media, so it cannot render "
+                              "medium.emission; compare without it")
+
+
 def scene_dict(scene, mi=None):
-    """The Mitsuba 3 scene dictionary of a volmc Scene (see the module docstring)."""
+    """The Mitsuba 3 scene dictionary of a volmc Scene (see the module docstring).
+
+    Raises PeerUnavailable for a scene Mitsuba cannot render (see check_translatable)."""
     from ..scene.schema import ConstantDensity
+    check_translatable(scene)
     mi = mi or _mi()
     T = mi.ScalarTransform4f
     spec = scene.spec
@@ -130,13 +163,26 @@ def scene_dict(scene, mi=None):
 
     phase = ({"type": "hg", "g": float(med.phase.g)} if med.phase.type == "hg"
              else {"type": "isotropic"})
+    scale = medium_scale(med)
+    grey = scale[0] == scale[1] == scale[2]
     if isinstance(med.density, ConstantDensity):
-        medium = {"type": "homogeneous", "sigma_t": float(med.scale * med.density.value),
-                  "albedo": _rgb(med.albedo), "phase": phase}
+        sigma_t = [s * med.density.value for s in scale]
+        medium = {"type": "homogeneous", "albedo": _rgb(med.albedo), "phase": phase,
+                  # "rgb" refuses values above 1 (a reflectance); "srgb" with "unbounded"
+                  # takes any non-negative colour as it is.
+                  "sigma_t": (float(sigma_t[0]) if grey else
+                              {"type": "srgb", "color": sigma_t, "unbounded": True})}
     else:
-        grid = np.ascontiguousarray(np.asarray(scene.grid, np.float32)[..., None])
-        medium = {"type": "heterogeneous", "scale": float(med.scale), "phase": phase,
-                  "sigma_t": {"type": "gridvolume", "grid": mi.VolumeGrid(grid),
+        grid = np.asarray(scene.grid, np.float32)
+        if grey:
+            data, mscale = grid[..., None], scale[0]
+        else:
+            # One channel per colour: the extinction scale[c] * density baked into the grid
+            # (float32 products, as volmc forms them), heterogeneous.scale left at 1.
+            data, mscale = grid[..., None] * np.asarray(scale, np.float32), 1.0
+        medium = {"type": "heterogeneous", "scale": float(mscale), "phase": phase,
+                  "sigma_t": {"type": "gridvolume",
+                              "grid": mi.VolumeGrid(np.ascontiguousarray(data, np.float32)),
                               "to_world": T().translate([x0, y0, z0]).scale(list(ext))},
                   "albedo": {"type": "constvolume", "value": _rgb(med.albedo)}}
     medium["id"] = "volmc_medium"
@@ -157,7 +203,7 @@ def scene_dict(scene, mi=None):
 
     depth = -1 if ren.max_depth < 0 else ren.max_depth + 1
     d = {"type": "scene",
-         "integrator": {"type": "volpath", "max_depth": int(depth),
+         "integrator": {"type": "volpath" if grey else "volpathmis", "max_depth": int(depth),
                         "rr_depth": int(ren.rr_depth + 1)},
          "sensor": sensor,
          "volmc_medium": medium,
@@ -178,6 +224,27 @@ def scene_dict(scene, mi=None):
     return d
 
 
+def split_scenes(scene):
+    """[(grey scene, channels)]: the scene once per distinct value of its RGB scale, with that
+    value on every channel, and the channels that take it.
+
+    Light transport in channel c involves only channel c's extinction, albedo and light, so
+    channel c of the grey scene of scale[c] is channel c of the chromatic scene. Mitsuba's
+    own chromatic estimator (one hero channel samples the path, the others are weighted by
+    extinction ratios) is unbiased but heavy-tailed in the thinner channels; on the
+    chromatic test scene of tests/test_peer_mitsuba.py its blue channel is about 10^4 times
+    less efficient than a grey render, far too noisy for a per-pixel test."""
+    from dataclasses import replace
+    from ..scene import Scene
+    scale = medium_scale(scene.spec.medium)
+    out = []
+    for s in dict.fromkeys(scale):   # distinct values, in channel order
+        med = replace(scene.spec.medium, scale=(s, s, s))
+        out.append((Scene(replace(scene.spec, medium=med), scene.grid),
+                    tuple(c for c in range(3) if scale[c] == s)))
+    return out
+
+
 class MitsubaRenderer:
     """A volmc scene loaded into Mitsuba 3, rendered in passes of independent seeds.
 
@@ -185,22 +252,41 @@ class MitsubaRenderer:
     mean, wall seconds). The variance comes from the spread of the passes (``passes`` of
     them, each spp / passes samples per pixel), because Mitsuba's films keep only means."""
 
-    def __init__(self, scene):
+    def __init__(self, scene, split_channels=None):
         self.mi = _mi()
         self.scene = scene
+        scale = medium_scale(scene.spec.medium)
+        chromatic = len(set(scale)) > 1
+        #: True: each channel comes from a grey Mitsuba scene of that channel's extinction
+        #: (the default for a chromatic medium; see split_scenes).
+        self.split = chromatic if split_channels is None else bool(split_channels) and chromatic
         t = time.perf_counter()
-        self.mi_scene = self.mi.load_dict(scene_dict(scene, self.mi))
+        parts = split_scenes(scene) if self.split else [(scene, (0, 1, 2))]
+        self.mi_scenes = [(self.mi.load_dict(scene_dict(sc, self.mi)), list(channels))
+                          for sc, channels in parts]
         self.load_seconds = time.perf_counter() - t
         w, h = scene.spec.camera.resolution
         self.pixels = w * h
+
+    @property
+    def mode(self):
+        """How the image is rendered, for reports."""
+        if self.split:
+            return f"volpath on {len(self.mi_scenes)} grey scenes, one per extinction scale"
+        return "volpath" if len(set(medium_scale(self.scene.spec.medium))) == 1 else "volpathmis"
 
     def warm_up(self):
         """Compile the megakernel once (Dr.Jit caches it), so timings exclude compilation."""
         self._pass(1, 2**31 - 1)
 
     def _pass(self, spp, seed):
-        img = self.mi.render(self.mi_scene, seed=int(seed) % (2**31 - 1), spp=int(spp))
-        return np.asarray(img, np.float64)[..., :3]
+        img = None
+        for mi_scene, channels in self.mi_scenes:
+            one = self.mi.render(mi_scene, seed=int(seed) % (2**31 - 1), spp=int(spp))
+            one = np.asarray(one, np.float64)[..., :3]
+            img = one if img is None else img
+            img[..., channels] = one[..., channels]
+        return img
 
     def render(self, spp, seed=0, passes=None):
         """(mean, variance of the mean, wall seconds, [passes, 3] pass image means).
