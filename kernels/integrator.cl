@@ -215,14 +215,15 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
 kernel void render_batch(const Params prm, const Medium medium, global const Light *lights,
                          global const float *grid, global const float *maj,
                          global const float *mnr, global const float *emis,
-                         global const float *table, uint sample_start, uint n_samples,
+                         global const float *table, global const int *bricks,
+                         global const float *pool, uint sample_start, uint n_samples,
                          global float *out_mean, global float *out_m2,
                          global ulong *counters_out) {
     int pix = get_global_id(0);
     if (pix >= prm.width * prm.height) return;
     int py = pix / prm.width;
     int px = pix - py * prm.width;
-    MediumData med = {medium, grid, maj, mnr, emis, table};
+    MediumData med = {medium, grid, maj, mnr, emis, table, bricks, pool};
     ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;

@@ -13,7 +13,8 @@
 
 /* A medium record with the arrays it points to: the density grid [nz][ny][nx], the
  * majorant grid's per-cell density maxima and minima [cz][cy][cx], the emission field grid
- * [nz][ny][nx] and the blackbody table [BLACKBODY_TABLE_SIZE][3]. */
+ * [nz][ny][nx], the blackbody table [BLACKBODY_TABLE_SIZE][3], and a brick grid's index
+ * table [bz][by][bx] and pool [n_slots][8][8][8] (grid.h). */
 typedef struct {
     Medium m; /* a copy: the compiler keeps its fields in registers */
     global const float *grid;
@@ -21,6 +22,8 @@ typedef struct {
     global const float *mnr;
     global const float *emis;
     global const float *table;
+    global const int *bricks;
+    global const float *pool;
 } MediumData;
 
 inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
@@ -45,6 +48,9 @@ inline float medium_density(const MediumData *med, float3 p) {
     if (kind == DENSITY_GRID)
         return grid_lookup(med->grid, (int3)(m->dims[0], m->dims[1], m->dims[2]), vec3(m->bmin),
                            vec3(m->inv_extent), p);
+    if (FEATURE_BRICKS && kind == DENSITY_BRICKS)
+        return sparse_lookup(med->bricks, med->pool, (int3)(m->dims[0], m->dims[1], m->dims[2]),
+                             vec3(m->bmin), vec3(m->inv_extent), p);
     if (!FEATURE_PROFILES || kind == DENSITY_CONSTANT) return m->density;
     return profile_density(kind, m->profile, p.x);
 }

@@ -88,14 +88,14 @@ def test_dispatch_runs_the_registered_function(name):
     """reference.estimators.transmittance(id, ...) gives what the registered function gives,
     estimate for estimate, on the same random streams."""
     from volmc.reference.estimators import transmittance
-    from volmc.reference.medium import MediumData, make_grid_medium
+    from volmc.reference.medium import medium_data, make_grid_medium
     from volmc.reference.rng import STREAM_TEST, rng_new
     est = ESTIMATORS[name]
     grid = 0.2 + np.random.default_rng(3).random((4, 5, 6))
     m = make_grid_medium((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0), 2.0, (6, 5, 4))
     m["sigma_maj"] = 2.0 * grid.max()
     m["sigma_min"] = 2.0 * grid.max() if est.homogeneous_only else 2.0 * grid.min()
-    med = MediumData(np.atleast_1d(m)[0], grid, grid, grid, grid, np.zeros((2, 3)))
+    med = medium_data(np.atleast_1d(m)[0], grid, grid, grid)
     o, d = (-1.0, 0.1, 0.2), (1.0 / math.sqrt(2.0), 1.0 / math.sqrt(2.0), 0.0)
     for i in range(200):
         c1 = np.zeros(6, np.int64)

@@ -426,9 +426,11 @@ def cmd_bench_render(args):
         ests = (exact if homogeneous else []) + cv.unbiased_grid_estimators()
     peer = args.peer != "none"
     if peer:
-        from .peers.mitsuba import PeerUnavailable, probe
+        from .peers.mitsuba import PeerUnavailable, check_translatable, probe
         try:
-            print(f"peer: Mitsuba {probe()}", flush=True)
+            version = probe()
+            check_translatable(scene)
+            print(f"peer: Mitsuba {version}", flush=True)
         except PeerUnavailable as e:
             if args.peer == "mitsuba":
                 raise SceneError("command line", "--peer", str(e)) from None

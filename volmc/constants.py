@@ -71,6 +71,9 @@ DENSITY_RAMP = 2
 DENSITY_GAUSS_BUMP = 3
 DENSITY_GAUSS_HOLE = 4
 DENSITY_COSINE = 5
+#: ... or a voxel grid stored as 8^3 bricks behind an index table (sparse_grid.py): the same
+#: trilinear values as DENSITY_GRID, in memory that scales with the non-empty bricks.
+DENSITY_BRICKS = 6
 
 #: The majorant structure: one segment with the medium's global bounds ...
 MAJORANT_GLOBAL = 0

@@ -6,8 +6,8 @@ from collections import namedtuple
 
 import numpy as np
 
-from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_CONSTANT, DENSITY_GRID,
-                        EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
+from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_BRICKS,
+                        DENSITY_CONSTANT, DENSITY_GRID, EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
                         LIGHT_DIRECTIONAL, LIGHT_POINT, MAJORANT_GLOBAL, MAJORANT_GRID,
                         PHASE_HG, PHASE_ISOTROPIC, SPECTRAL_CHANNEL, SPECTRAL_GREY,
                         SPECTRAL_TRACKING)
@@ -15,15 +15,23 @@ from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
 from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
 
-def pack_majorant(scene, real=np.float64):
+def pack_majorant(scene, real=np.float64, grid=None):
     """(maxima, minima): per-cell density bounds [cz, cy, cx] of the majorant grid when the
     scene has a density grid and render.majorant = "grid", else 1x1x1 placeholders (the
-    global bounds travel in the medium record)."""
-    from .reference.majorant import build_majorant_grid
+    global bounds travel in the medium record). ``grid``: the scene's grid as stored
+    (``density_storage``; default: looked up)."""
+    from .reference.majorant import auto_resolution, build_majorant_grid
+    from .reference.sparse_grid import majorant_from_bricks
+    from .scene.bricks import BrickGrid, density_storage
     if scene.grid is None or scene.render.majorant != "grid":
         return np.zeros((1, 1, 1), real), np.zeros((1, 1, 1), real)
+    grid = density_storage(scene) if grid is None else grid
     res = scene.render.majorant_resolution
-    mx, mn = build_majorant_grid(scene.grid, tuple(reversed(res)) if res else None)
+    res = tuple(reversed(res)) if res else auto_resolution(grid.shape)
+    if isinstance(grid, BrickGrid):
+        mx, mn = majorant_from_bricks(grid.table, grid.pool, grid.dims, res)
+    else:
+        mx, mn = build_majorant_grid(grid, res)
     return np.ascontiguousarray(mx, real), np.ascontiguousarray(mn, real)
 
 
@@ -61,9 +69,10 @@ def scene_frame(scene):
 
 #: A scene packed for a backend: the parameter record [1], the light array, the medium record
 #: [1], the density grid [nz, ny, nx], the majorant grid's per-cell maxima and minima, the
-#: emission field grid and the blackbody table (placeholders when unused).
+#: emission field grid, the blackbody table, and a brick grid's index table and pool
+#: (placeholders when unused).
 Packed = namedtuple("Packed", ["params", "lights", "medium", "grid", "maj", "mnr", "emis",
-                               "table"])
+                               "table", "bricks", "pool"])
 
 
 def pack_scene(scene, real=np.float64, spp_seed=None):
@@ -120,10 +129,12 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["seed_hi"] = seed >> 32
     params = np.zeros(1, params_dtype(real))
     params[0] = p
-    maj, mnr = pack_majorant(scene, real)
-    medium, grid = pack_medium(scene, real, local, unit, maj.shape)
+    from .scene.bricks import density_storage
+    stored = density_storage(scene)
+    maj, mnr = pack_majorant(scene, real, stored)
+    medium, grid, bricks, pool = pack_medium(scene, real, local, unit, maj.shape, stored)
     emis, table = pack_emission(scene, medium, real)
-    return Packed(params, larr, medium, grid, maj, mnr, emis, table)
+    return Packed(params, larr, medium, grid, maj, mnr, emis, table, bricks, pool)
 
 
 def pack_emission(scene, medium, real):
@@ -151,9 +162,14 @@ def pack_emission(scene, medium, real):
     return emis, np.ascontiguousarray(table, real)
 
 
-def pack_medium(scene, real, local, unit, maj_res):
-    """(medium record [1], density grid) of the scene's medium in the scene frame;
-    ``maj_res`` is the shape (cz, cy, cx) of the majorant grid ``pack_majorant`` built."""
+def pack_medium(scene, real, local, unit, maj_res, stored=None):
+    """(medium record [1], density grid, brick table, brick pool) of the scene's medium in
+    the scene frame (placeholders for what the storage does not use); ``maj_res`` is the
+    shape (cz, cy, cx) of the majorant grid ``pack_majorant`` built, ``stored`` the grid as
+    ``density_storage`` keeps it."""
+    from .scene.bricks import BrickGrid, density_storage
+    stored = density_storage(scene) if stored is None else stored
+    bricks, pool = np.zeros((1, 1, 1), np.int32), np.zeros((1, 8, 8, 8), real)
     med, rnd = scene.medium, scene.render
     m = np.zeros(1, medium_dtype(real))[0]
     lo, hi = local(med.bounds[0]), local(med.bounds[1])
@@ -179,13 +195,18 @@ def pack_medium(scene, real, local, unit, maj_res):
         m["sigma_maj"] = m["sigma_min"] = sigma
         grid = np.zeros((1, 1, 1), real)
     else:
-        m["density_kind"] = DENSITY_GRID
-        grid = np.ascontiguousarray(scene.grid, dtype=real)
-        nz, ny, nx = grid.shape
+        if isinstance(stored, BrickGrid):
+            m["density_kind"] = DENSITY_BRICKS
+            grid = np.zeros((1, 1, 1), real)
+            bricks, pool = stored.table, np.ascontiguousarray(stored.pool, dtype=real)
+        else:
+            m["density_kind"] = DENSITY_GRID
+            grid = np.ascontiguousarray(stored, dtype=real)
+        nz, ny, nx = stored.shape
         m["dims"] = (nx, ny, nz)
         # Trilinear interpolation never exceeds the largest voxel: a true global bound.
-        m["sigma_maj"] = sigma_scale * float(scene.grid.max())
-        m["sigma_min"] = sigma_scale * float(scene.grid.min())
+        m["sigma_maj"] = sigma_scale * float(stored.max())
+        m["sigma_min"] = sigma_scale * float(stored.min())
         if rnd.majorant == "grid":
             m["majorant_kind"] = MAJORANT_GRID
             m["maj_res"] = maj_res
@@ -194,4 +215,4 @@ def pack_medium(scene, real, local, unit, maj_res):
     m["g"] = med.phase.g
     medium = np.zeros(1, medium_dtype(real))
     medium[0] = m
-    return medium, grid
+    return medium, grid, bricks, pool

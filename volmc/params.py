@@ -39,12 +39,12 @@ PARAM_FIELDS = (
 #: The medium record (volmc/reference/medium.py, kernels/medium.h): what is where, and what
 #: bounds it. Arrays travel beside it: the density grid and the per-cell majorant grid.
 MEDIUM_FIELDS = (
-    ("density_kind", "i4", 1, "DENSITY_CONSTANT, DENSITY_GRID or a 1-D test profile"),
+    ("density_kind", "i4", 1, "DENSITY_CONSTANT, DENSITY_GRID, DENSITY_BRICKS or a profile"),
     ("majorant_kind", "i4", 1, "MAJORANT_GLOBAL (one segment) or MAJORANT_GRID (DDA cells)"),
     ("bmin", "real", 3, "medium box minimum corner"),
     ("bmax", "real", 3, "medium box maximum corner"),
     ("inv_extent", "real", 3, "1 / (bmax - bmin) per axis"),
-    ("dims", "i4", 3, "DENSITY_GRID: voxels (nx, ny, nz)"),
+    ("dims", "i4", 3, "DENSITY_GRID, DENSITY_BRICKS: voxels (nx, ny, nz)"),
     ("density", "real", 1, "DENSITY_CONSTANT: the density"),
     ("profile", "real", 5, "1-D profiles: a, b, c, s, L (density as a function of x)"),
     ("scale", "real", 1, "extinction = scale * density, 1/world unit"),

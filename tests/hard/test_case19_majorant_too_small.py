@@ -91,8 +91,8 @@ def test_case19_cli_reports_over_majorant(backend, tmp_path, monkeypatch, capsys
     count, err, meta = run("good")
     assert count == 0 and "majorant" not in err and int(meta["count.over_majorant"]) == 0
 
-    def too_small(scene, real=np.float64):
-        mx, mn = pack_majorant(scene, real)
+    def too_small(scene, real=np.float64, grid=None):
+        mx, mn = pack_majorant(scene, real, grid)
         return mx * real(0.5), mn * real(0.5)
     monkeypatch.setattr(volmc.pack, "pack_majorant", too_small)
     count, err, meta = run("bad")

@@ -37,8 +37,10 @@ class OpenCLBackend(RenderBackend):
         self.options = (define_flags(self.features) + [f"-DSHADOW_ESTIMATOR={est.kernel}"]
                         + list(est.build_options) + list(options))
         self.local_size = local_size
-        if pk.grid.size >= 2**31:
-            raise ValueError(f"grid of {pk.grid.size} voxels exceeds the kernels' 2^31 limit")
+        if pk.grid.size >= 2**31 or pk.emis.size >= 2**31:
+            raise ValueError(f"grid of {max(pk.grid.size, pk.emis.size)} voxels exceeds the "
+                             "kernels' 2^31 limit for dense grids (use render.grid_storage = "
+                             "\"bricks\")")
         self.params, self.medium = pk.params, pk.medium
         w, h = scene.camera.resolution
         self.n_pix = w * h
@@ -49,6 +51,8 @@ class OpenCLBackend(RenderBackend):
         self.mnr_buf = clc.to_device(pk.mnr)
         self.emis_buf = clc.to_device(pk.emis)
         self.table_buf = clc.to_device(pk.table)
+        self.bricks_buf = clc.to_device(pk.bricks)
+        self.pool_buf = clc.to_device(pk.pool)
         # Batch outputs: per-pixel mean and sum of squared deviations (Welford).
         self.mean_host, self.mean_buf = clc.output((h, w, 3))
         self.m2_host, self.m2_buf = clc.output((h, w, 3))
@@ -65,7 +69,8 @@ class OpenCLBackend(RenderBackend):
     def render(self, sample_start, n_samples, film):
         self.clc.run(self.kernel, self.n_pix, self.local_size, self.params[0], self.medium[0],
                      self.lights_buf, self.grid_buf, self.maj_buf, self.mnr_buf,
-                     self.emis_buf, self.table_buf, np.uint32(sample_start), np.uint32(n_samples), self.mean_buf, self.m2_buf,
+                     self.emis_buf, self.table_buf, self.bricks_buf, self.pool_buf,
+                     np.uint32(sample_start), np.uint32(n_samples), self.mean_buf, self.m2_buf,
                      self.cnt_buf, outs=[(self.mean_host, self.mean_buf),
                                          (self.m2_host, self.m2_buf)])
         mean = self.mean_host.astype(np.float64)

@@ -210,10 +210,12 @@ def estimate_batch(est, media, grid, maj, mnr, rays, n_per_ray, seed, sample_off
     counters = np.zeros((n, N_COUNTERS), np.int64)
     emis = np.zeros((1, 1, 1))
     table = np.zeros((2, 3))
+    bricks = np.zeros((1, 1, 1), np.int32)
+    pool = np.zeros((1, 8, 8, 8))
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, sample_offset + i % n_per_ray, STREAM_TEST)
-        med = MediumData(media[r], grid, maj, mnr, emis, table)
+        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool)
         o = (rays[r, 0], rays[r, 1], rays[r, 2])
         d = (rays[r, 3], rays[r, 4], rays[r, 5])
         out[i] = transmittance(est, med, o, d, rays[r, 6], rays[r, 7], rng, counters[i],

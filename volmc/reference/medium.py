@@ -5,7 +5,8 @@ structured record) plus the arrays it points to, carried together as ``MediumDat
 (m, grid, maj, mnr); the kernels' ``MediumData`` struct holds the same four things.
 
 * **Density sources** (``m.density_kind``): ``DENSITY_CONSTANT`` (``m.density`` everywhere:
-  a homogeneous medium), ``DENSITY_GRID`` (trilinear in ``grid``, see grid.py), or a 1-D
+  a homogeneous medium), ``DENSITY_GRID`` (trilinear in ``grid``, see grid.py),
+  ``DENSITY_BRICKS`` (the same values from 8^3 bricks, sparse_grid.py), or a 1-D
   test profile of the x coordinate alone, with parameters a, b, c, s, L = ``m.profile``:
 
   =====================  ============================================  ===================
@@ -49,18 +50,21 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from ..constants import (BLACKBODY_TABLE_SIZE, DENSITY_CONSTANT, DENSITY_COSINE,
+from ..constants import (BLACKBODY_TABLE_SIZE, DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_COSINE,
                          DENSITY_GAUSS_BUMP, DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP,
                          EMISSION_RADIANCE, MAJORANT_GLOBAL, MAJORANT_GRID, TWO_PI)
 from ..params import C_LOOKUPS, C_OVER_MAJORANT, medium_dtype
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .grid import grid_lookup
+from .sparse_grid import sparse_lookup
 from .vec import madd3
 
 #: A medium record with its arrays: the density grid [nz, ny, nx], the majorant grid's
-#: per-cell density maxima and minima [cz, cy, cx], the emission field grid [nz, ny, nx] and
-#: the blackbody table [BLACKBODY_TABLE_SIZE, 3] (1x1x1 / 1x3 placeholders when unused).
-MediumData = namedtuple("MediumData", ["m", "grid", "maj", "mnr", "emis", "table"])
+#: per-cell density maxima and minima [cz, cy, cx], the emission field grid [nz, ny, nx],
+#: the blackbody table [BLACKBODY_TABLE_SIZE, 3], and a brick grid's index table int32
+#: [bz, by, bx] and pool [n_slots, 8, 8, 8] (small placeholders when unused).
+MediumData = namedtuple("MediumData", ["m", "grid", "maj", "mnr", "emis", "table", "bricks",
+                                       "pool"])
 
 #: Iterator state: [done, t0, t1, unused] then the DDA's state.
 ITER_STATE_SIZE = 4 + DDA_STATE_SIZE
@@ -89,6 +93,10 @@ def medium_density(med, p):
     if kind == DENSITY_GRID:
         return grid_lookup(med.grid, (m.bmin[0], m.bmin[1], m.bmin[2]),
                            (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), p)
+    if kind == DENSITY_BRICKS:
+        return sparse_lookup(med.bricks, med.pool, (m.dims[0], m.dims[1], m.dims[2]),
+                             (m.bmin[0], m.bmin[1], m.bmin[2]),
+                             (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), p)
     if kind == DENSITY_CONSTANT:
         return m.density
     return profile_density(kind, m.profile, p[0])
@@ -180,6 +188,20 @@ def optical_depth_comb(med, o, d, t0, L, n, u, sigma_maj, counters):
 
 
 # --- Host-side constructors and closed forms (tests and the estimator benchmark) ------------
+
+def no_bricks():
+    """(index table, pool) placeholders of a medium whose density is not a brick grid."""
+    return np.zeros((1, 1, 1), np.int32), np.zeros((1, 8, 8, 8))
+
+
+def medium_data(m, grid, maj=None, mnr=None):
+    """A ``MediumData`` of record ``m`` and density grid ``grid`` (float64), with placeholder
+    majorant, emission and brick arrays where none are given."""
+    one = np.zeros((1, 1, 1))
+    bricks, pool = no_bricks()
+    return MediumData(m, grid, one if maj is None else maj, one if mnr is None else mnr, one,
+                      np.zeros((2, 3)), bricks, pool)
+
 
 def new_medium():
     """A zeroed float64 medium record (a 0-d structured array), no majorant, unit scale."""

@@ -297,11 +297,13 @@ def track_batch(technique, use_control, media, grid, maj, mnr, rays, n_per_ray, 
     lookups = np.empty(n, np.int64)
     emis = np.zeros((1, 1, 1))
     table = np.zeros((2, 3))
+    bricks = np.zeros((1, 1, 1), np.int32)
+    pool = np.zeros((1, 8, 8, 8))
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, i % n_per_ray, STREAM_TEST)
         counters = np.zeros(N_COUNTERS, np.int64)
-        med = MediumData(media[r], grid, maj, mnr, emis, table)
+        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool)
         ev, t, T, _ = track(med, (rays[r, 0], rays[r, 1], rays[r, 2]),
                             (rays[r, 3], rays[r, 4], rays[r, 5]), rays[r, 6], rays[r, 7],
                             technique, use_control, ONE3, rng, counters, max_steps)

@@ -10,6 +10,7 @@ scene's: render builds always compile the 1-D test profiles out (3.5 % on the cl
 global majorant), and the test and benchmark kernels keep them.
 """
 
+from .bricks import stores_bricks
 from .schema import ConstantDensity
 
 #: Every feature switch, with the condition that turns it on.
@@ -20,6 +21,8 @@ FEATURES = {
                  "channels): RGB transmittance and spectral tracking",
     "EMISSION": "an emitting medium (medium.emission): its source term at every tentative "
                 "collision",
+    "BRICKS": "a density grid stored as 8^3 bricks behind an index table "
+              "(render.grid_storage)",
 }
 
 
@@ -40,6 +43,8 @@ def features(scene) -> frozenset:
         out.add("CHROMATIC")
     if m.emission is not None:
         out.add("EMISSION")
+    if stores_bricks(scene):
+        out.add("BRICKS")
     return frozenset(out)
 
 

@@ -14,6 +14,7 @@ from typing import Optional
 import numpy as np
 
 from .errors import SceneError
+from .bricks import BrickGrid
 from .grids import load_grid, validate_grid
 from .schema import (FLOAT32_MAX, GENERATORS, ConstantDensity, FileDensity, GeneratedDensity, SceneSpec,
                      check_box, validate)
@@ -185,14 +186,42 @@ def _align_vdb(vg, density, path, key):
     return out
 
 
+def _vdb_bricks(vg, path, key):
+    """A VDB grid (background 0) as a BrickGrid straight from its 8^3 leaves, its stored
+    values checked as validate_grid checks an array."""
+    v = vg.values
+    n_nan, n_inf = int(np.isnan(v).sum()), int(np.isinf(v).sum())
+    if n_nan or n_inf:
+        raise SceneError(path, key, f"grid '{vg.name}' contains {n_nan} NaN and {n_inf} "
+                                    "infinite values")
+    n_neg = int((v < 0).sum())
+    if n_neg:
+        raise SceneError(path, key, f"grid '{vg.name}' contains {n_neg} negative values "
+                                    f"(minimum {float(v.min()):g})")
+    lo, hi = (np.asarray(c) for c in vg.bbox)
+    dims = tuple(int(x) for x in hi - lo + 1)
+    return BrickGrid.from_blocks(dims, np.asarray(vg.origins) - lo, v)
+
+
 def load_density(spec: SceneSpec):
-    """(density grid float32 [z, y, x] or None for a homogeneous medium, VdbGrid or None)."""
+    """(density grid or None for a homogeneous medium, VdbGrid or None). The grid is a
+    float32 [z, y, x] array, or a BrickGrid for a VDB file whose background is 0 (unless
+    render.grid_storage = "dense"): its leaves become bricks without a dense copy."""
     d = spec.medium.density
     if isinstance(d, ConstantDensity):
         return None, None
-    raw, vg = _read_source(spec, d, "medium.density")
-    grid = validate_grid(raw, spec.file if vg is None and not isinstance(d, FileDensity)
-                         else d.resolved, "medium.density")
+    if isinstance(d, FileDensity) and d.resolved.lower().endswith((".vdb", ".nvdb")) and \
+            os.path.exists(d.resolved):
+        from .vdb import read_vdb
+        vg = read_vdb(d.resolved, d.grid, "medium.density")
+        if spec.render.grid_storage != "dense" and vg.background == 0.0:
+            grid = _vdb_bricks(vg, d.resolved, "medium.density")
+        else:
+            grid = validate_grid(vg.to_dense(), d.resolved, "medium.density")
+    else:
+        raw, vg = _read_source(spec, d, "medium.density")
+        grid = validate_grid(raw, spec.file if not isinstance(d, FileDensity)
+                             else d.resolved, "medium.density")
     # The float32 kernels hold the global majorant scale * max(density).
     top = max(spec.medium.scale) * float(grid.max())
     if top > FLOAT32_MAX:

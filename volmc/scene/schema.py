@@ -146,6 +146,7 @@ class Render:
     free_flight: str = "delta"
     majorant_resolution: tuple = ()
     spectral: str = "tracking"
+    grid_storage: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -165,7 +166,8 @@ MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase", "emission")
 EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
-               "majorant_resolution", "free_flight", "spectral")
+               "majorant_resolution", "free_flight", "spectral", "grid_storage")
+GRID_STORAGES = ("auto", "dense", "bricks")
 SPECTRAL_MODES = ("tracking", "channel")
 MAJORANTS = ("global", "grid")
 FREE_FLIGHTS = ("delta", "decomposition")
@@ -472,6 +474,8 @@ def _render(c, raw):
                              FREE_FLIGHTS),
         majorant_resolution=_majorant_resolution(c, raw.get("majorant_resolution", [])),
         spectral=c.choice(raw.get("spectral", d.spectral), p + "spectral", SPECTRAL_MODES),
+        grid_storage=c.choice(raw.get("grid_storage", d.grid_storage), p + "grid_storage",
+                              GRID_STORAGES),
     )
 
 

@@ -45,7 +45,8 @@ def to_dict(spec: SceneSpec) -> dict:
         "render": {"spp": r.spp, "max_depth": r.max_depth, "rr_depth": r.rr_depth,
                    "seed": r.seed, "max_steps": r.max_steps, "transmittance": r.transmittance,
                    "majorant": r.majorant, "majorant_resolution": list(r.majorant_resolution),
-                   "free_flight": r.free_flight, "spectral": r.spectral},
+                   "free_flight": r.free_flight, "spectral": r.spectral,
+                   "grid_storage": r.grid_storage},
     }
 
 

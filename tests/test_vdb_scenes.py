@@ -1,0 +1,118 @@
+"""OpenVDB/NanoVDB densities in scenes: bounds from the file, the same image as the same grid
+given as .npy with the equivalent bounds, brick storage equal to dense storage, emission
+fields from the same file, and bad files as one-line errors (exit status 2)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from volmc.render import render
+from volmc.scene import scene_from_dict
+from volmc.scene.bricks import BrickGrid
+from volmc.scene.errors import SceneError
+
+DATA = Path(__file__).parent / "data" / "vdb"
+
+
+def _scene(density, bounds=None, extra=None, render_keys=None):
+    med = {"density": density, "scale": 30.0, "albedo": 0.8,
+           "phase": {"type": "hg", "g": 0.3}, **(extra or {})}
+    if bounds is not None:
+        med["bounds"] = bounds
+    return scene_from_dict({
+        "camera": {"eye": [0.2, 0.0, 1.4], "target": [0.2, -0.05, 0.3], "fov": 35.0,
+                   "resolution": [10, 8]},
+        "medium": med,
+        "lights": [{"type": "environment", "radiance": [0.2, 0.3, 0.4]},
+                   {"type": "directional", "direction": [0.3, -1, -0.2], "irradiance": 2.0}],
+        "render": {"spp": 16, **(render_keys or {})}})
+
+
+def _truth(name="blobs_density"):
+    meta = json.loads((DATA / f"{name}.json").read_text())
+    return meta, [list(meta["world_bounds"][0]), list(meta["world_bounds"][1])]
+
+
+@pytest.mark.parametrize("file", ["blobs.vdb", "blobs_zip.nvdb"])
+def test_vdb_bounds_come_from_the_file(file):
+    meta, bounds = _truth()
+    s = _scene({"file": str(DATA / file)})
+    assert np.allclose(s.medium.bounds, bounds, rtol=0, atol=1e-12)
+    assert isinstance(s.grid, BrickGrid)   # loaded from the leaves, no dense copy
+    assert np.array_equal(np.asarray(s.grid), np.load(DATA / "blobs_density.npy"))
+
+
+@pytest.mark.parametrize("file", ["blobs.vdb", "blobs_blosc.nvdb"])
+def test_vdb_renders_the_image_of_the_npy_grid(backend, file):
+    """The VDB scene (bricks) and the .npy scene (dense) with the equivalent bounds: the same
+    lookups, majorants and random numbers, so the same image bit for bit."""
+    _, bounds = _truth()
+    a = render(_scene({"file": str(DATA / file)}), backend=backend, progress=False)
+    b = render(_scene({"file": str(DATA / "blobs_density.npy")}, bounds), backend=backend,
+               progress=False)
+    assert np.array_equal(a.film.mean(), b.film.mean())
+    assert a.counters == b.counters and a.counters["lookups"] > 0
+
+
+def test_brick_storage_renders_the_dense_image(backend):
+    _, bounds = _truth()
+    npy = {"file": str(DATA / "blobs_density.npy")}
+    a = render(_scene(npy, bounds, render_keys={"grid_storage": "bricks"}), backend=backend,
+               progress=False)
+    b = render(_scene(npy, bounds, render_keys={"grid_storage": "dense"}), backend=backend,
+               progress=False)
+    assert np.array_equal(a.film.mean(), b.film.mean()) and a.counters == b.counters
+
+
+def test_temperature_grid_from_the_same_file_is_placed_by_index():
+    """The temperature grid has its own active box; it lands on the density's voxels."""
+    meta_d, _ = _truth()
+    meta_t, _ = _truth("blobs_temperature")
+    s = _scene({"file": str(DATA / "blobs.vdb")},
+               extra={"emission": {"temperature": {"file": str(DATA / "blobs.vdb"),
+                                                   "grid": "temperature"}, "scale": 1e-4}})
+    t = np.load(DATA / "blobs_temperature.npy")
+    lo_d, hi_d = np.array(meta_d["imin"]), np.array(meta_d["imax"])
+    lo_t = np.array(meta_t["imin"])
+    expected = np.full(tuple((hi_d - lo_d + 1)[::-1]), meta_t["background"], np.float32)
+    for z in range(t.shape[0]):
+        for y in range(t.shape[1]):
+            for x in range(t.shape[2]):
+                i = np.array([x, y, z]) + lo_t - lo_d
+                if np.all(i >= 0) and np.all(i <= hi_d - lo_d):
+                    expected[i[2], i[1], i[0]] = t[z, y, x]
+    assert np.array_equal(s.emission_grid, expected)
+
+
+@pytest.mark.parametrize("file, grid, words", [
+    ("blobs.vdb", "smoke", "smoke"),
+    ("blobs.vdb", "velocity", "velocity"),
+    ("rotated.vdb", "density", "rotat"),
+    ("levelset.vdb", "density", "negative"),
+])
+def test_bad_vdb_density_is_a_scene_error(file, grid, words):
+    with pytest.raises(SceneError) as e:
+        _scene({"file": str(DATA / file), "grid": grid})
+    assert words in str(e.value).lower() and file in str(e.value)
+
+
+def test_bounds_required_without_a_vdb_file():
+    with pytest.raises(SceneError, match="medium.bounds"):
+        _scene({"file": str(DATA / "blobs_density.npy")})
+
+
+def test_truncated_vdb_cli_exit_status_2(tmp_path):
+    data = (DATA / "blobs.vdb").read_bytes()
+    bad = tmp_path / "cut.vdb"
+    bad.write_bytes(data[: len(data) // 2])
+    scene = tmp_path / "s.toml"
+    scene.write_text(f'[camera]\nresolution = [4, 4]\n[medium]\ndensity = {{ file = "{bad}" }}\n'
+                     '[[lights]]\ntype = "environment"\nradiance = 1\n')
+    r = subprocess.run([sys.executable, "-m", "volmc.cli", "render", str(scene), "-o",
+                        str(tmp_path / "x.exr"), "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "cut.vdb" in r.stderr
