@@ -21,6 +21,15 @@ The density is a continuous function of the normalised point, evaluated at
 voxel centres, so every resolution samples the same cloud.  All randomness
 comes from ``numpy.random.default_rng(seed)`` (puff layout and the noise
 permutation table), never from global RNG state.
+
+``plume`` builds a rising smoke plume with its temperature: a column that
+widens linearly with height from a small hot source near the floor, its axis
+drifting and meandering, its cross-section domain-warped by fBm and its edge
+eroded by fBm into wisps.  The noise is sampled in coordinates that scale with
+the local plume width (eddies grow as the plume spreads), the density thins
+with height, and the temperature falls from a glowing core at the base to the
+ambient air.  Same conventions as ``cloud``: a continuous function of the
+point, evaluated at voxel centres, seeded only through ``default_rng(seed)``.
 """
 
 from __future__ import annotations
@@ -31,7 +40,7 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["cloud"]
+__all__ = ["cloud", "plume"]
 
 # Voxel centres closer than this (fraction of the extent) to any face are
 # forced to zero; the puff layout also keeps the cloud clear of this band so
@@ -517,3 +526,185 @@ def cloud(resolution, seed: int = 0) -> np.ndarray:
     coarse = _coarse_sdf(core, puffs, float(base_y), _COARSE)
     _cloud_kernel(out, core, puffs, perm, float(base_y), float(top_y), coarse)
     return out
+
+
+# --------------------------------------------------------------------------
+# Plume
+# --------------------------------------------------------------------------
+
+# Ambient and peak temperature of the plume, kelvin.
+PLUME_T_AMBIENT = 300.0
+PLUME_T_CORE = 1800.0
+# Height of the source (the plume starts here) and of the plume's end (h = 1):
+# the wisps are gone below the top face's margin.
+_PLUME_Y0 = 0.08
+_PLUME_Y1 = 0.93
+# Radius at the source, unit cube (the radius at the top is drawn per seed).
+_PLUME_R0 = 0.05
+# Horizontal domain warp, in units of the local radius (a hard bound: the warp
+# vector's length is clamped to it): small at the source, where the flow is
+# still laminar, growing to the full amount by mid-height.  Then the fBm
+# frequency of the warp and of the wisps, in local-radius units.
+_PLUME_WARP0 = 0.2
+_PLUME_WARP = 0.55
+_PLUME_WARP_FREQ = 0.7
+_PLUME_WISP_FREQ = 2.2
+# Bulges of the column: the radius varies by up to this fraction with height.
+_PLUME_BULGE = 0.25
+# Coverage (radial profile less erosion) over which the density rises from 0
+# to full: a soft edge.
+_PLUME_SHELL = 0.6
+# Distance from the faces over which the plume is faded out (it is exactly 0
+# within _FACE_MARGIN).
+_PLUME_FADE = 0.07
+# The core stays at full heat up to _PLUME_HOT_H, then cools with height
+# scale _PLUME_COOL (h units); the hot core's radius is _PLUME_HOT_R of the
+# local radius.
+_PLUME_HOT_H = 0.1
+_PLUME_COOL = 0.15
+_PLUME_HOT_R = 0.9
+
+
+@njit(cache=True, inline="always")
+def _smooth(a, b, x):
+    t = min(1.0, max(0.0, (x - a) / (b - a)))
+    return t * t * (3.0 - 2.0 * t)
+
+
+@njit(parallel=True, cache=True)
+def _plume_kernel(dens, temp, perm, par):
+    nz, ny, nx = dens.shape
+    cx, cz, lean_x, lean_z, meander, r1, o0, o1 = (par[0], par[1], par[2], par[3], par[4],
+                                                   par[5], par[6], par[7])
+    height = _PLUME_Y1 - _PLUME_Y0
+    spread = (r1 - _PLUME_R0) / height      # dr/dy
+    # Beyond this many local radii from the axis nothing is left: the radial
+    # profile and the hot core end at q = 1, and the warp moves a point by at
+    # most _PLUME_WARP radii.
+    q_out = 1.0 + _PLUME_WARP
+    for k in prange(nz):
+        z = (k + 0.5) / nz
+        for j in range(ny):
+            y = (j + 0.5) / ny
+            for i in range(nx):
+                dens[k, j, i] = 0.0
+                temp[k, j, i] = PLUME_T_AMBIENT
+            h = (y - _PLUME_Y0) / height
+            if h <= 0.0 or h >= 1.0:
+                continue
+            # Window: zero within the face margin, fading in over _PLUME_FADE.
+            wz = _smooth(_FACE_MARGIN, _FACE_MARGIN + _PLUME_FADE, min(z, 1.0 - z))
+            wy = _smooth(_FACE_MARGIN, _FACE_MARGIN + _PLUME_FADE, min(y, 1.0 - y))
+            if wz <= 0.0 or wy <= 0.0:
+                continue
+            # Axis: a steady drift (lean, growing as h^2) plus a meander whose
+            # amplitude grows with height.
+            ax = cx + lean_x * h * h + meander * h * _fbm(perm, o0, y * 2.5, o1, 3)
+            az = cz + lean_z * h * h + meander * h * _fbm(perm, o1, y * 2.5 + 37.0, o0, 3)
+            r = _PLUME_R0 + spread * (y - _PLUME_Y0)
+            r *= 1.0 + _PLUME_BULGE * _fbm(perm, o0 + 11.0, y * 6.0, o1 + 5.0, 2)
+            # Self-similar height coordinate: integral of dy / r (unbulged),
+            # so the eddies are as tall as they are wide.
+            s = math.log(1.0 + spread * (y - _PLUME_Y0) / _PLUME_R0) / spread
+            # Thinning with height and the top fade.
+            amp = 1.0 / (1.0 + 3.0 * max(0.0, h - 0.08))
+            top = 1.0 - _smooth(0.75, 1.0, h)
+            base = _smooth(0.0, 0.03, h)
+            heat_h = math.exp(-max(0.0, h - _PLUME_HOT_H) / _PLUME_COOL)
+            warp = _PLUME_WARP0 + (_PLUME_WARP - _PLUME_WARP0) * _smooth(0.0, 0.5, h)
+            for i in range(nx):
+                x = (i + 0.5) / nx
+                wx = _smooth(_FACE_MARGIN, _FACE_MARGIN + _PLUME_FADE, min(x, 1.0 - x))
+                if wx <= 0.0:
+                    continue
+                u = (x - ax) / r
+                w = (z - az) / r
+                if u * u + w * w >= q_out * q_out:
+                    continue
+                # Turbulent cross-section: warp the local coordinates.
+                fu = _fbm(perm, u * _PLUME_WARP_FREQ + o0, s * _PLUME_WARP_FREQ,
+                          w * _PLUME_WARP_FREQ + o1, 4)
+                fw = _fbm(perm, u * _PLUME_WARP_FREQ + o1 + 53.0,
+                          s * _PLUME_WARP_FREQ + 19.0, w * _PLUME_WARP_FREQ + o0, 4)
+                fl = math.sqrt(fu * fu + fw * fw)
+                ws = 2.5 * warp / max(1.0, 2.5 * fl)
+                uu = u + fu * ws
+                ww = w + fw * ws
+                q2 = uu * uu + ww * ww
+                if q2 >= 1.0:
+                    continue
+                # Flat-topped radial profile: full inside 0.4 radii, 0 at 1.
+                prof = 1.0 - _smooth(0.4, 1.0, math.sqrt(q2))
+                window = wx * wy * wz * top * base
+                # Wisps: fBm erodes the edge and, higher up, the whole plume:
+                # the erosion grows with height, and the height at which the
+                # wisps give out varies across the plume (a slow fBm), so the
+                # top is ragged, not flat.
+                n = _fbm(perm, uu * _PLUME_WISP_FREQ + 71.0, s * _PLUME_WISP_FREQ + o0,
+                         ww * _PLUME_WISP_FREQ + 29.0, 4)
+                hv = h + 0.5 * _fbm(perm, uu * 0.5 + o1, s * 0.5 + 3.0, ww * 0.5 + o0, 2)
+                ero = 0.15 + 0.35 * h + 0.6 * _smooth(0.3, 1.1, hv)
+                cov = (prof - ero * (1.0 - n)) / _PLUME_SHELL
+                if cov > 0.0:
+                    cov = min(1.0, cov)
+                    dens[k, j, i] = amp * window * cov * cov * (3.0 - 2.0 * cov)
+                # Temperature: a hot core near the base, cooling with height;
+                # flickering with the wisp noise.
+                qh = q2 / (_PLUME_HOT_R * _PLUME_HOT_R)
+                if qh < 1.0:
+                    core = (1.0 - qh) * (1.0 - qh)
+                    flick = min(1.0, max(0.0, 0.85 + 0.5 * n))
+                    heat = core * heat_h * flick * window
+                    temp[k, j, i] = PLUME_T_AMBIENT + (PLUME_T_CORE - PLUME_T_AMBIENT) * heat
+
+
+def plume(resolution, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Procedural rising smoke plume: density and temperature on a regular grid.
+
+    Parameters
+    ----------
+    resolution:
+        ``n`` for an n x n x n grid, or ``(nx, ny, nz)``.
+    seed:
+        Selects the plume; the same seed always gives the same plume.
+
+    Returns
+    -------
+    (density, temperature)
+        Two float32, C-contiguous arrays of shape ``(nz, ny, nx)`` indexed
+        ``[z, y, x]`` (x fastest), spanning the unit cube with +y up; voxel
+        (i, j, k) samples the point ((i+0.5)/nx, (j+0.5)/ny, (k+0.5)/nz), so
+        every resolution describes the same plume.
+
+        density: dimensionless, in [0, 1] (scale by the medium's extinction
+        coefficient when rendering).  About 1 in the core just above the
+        source (near the floor, around the centre of the x-z square),
+        thinning as the column rises and widens (the source's radius is 5 %
+        of the box, the top's 26-30 %), its edge broken into wisps that fade
+        out before the top.  Exactly 0 wherever the voxel centre
+        lies within 5 % of the extent of a face.
+
+        temperature: kelvin, in [PLUME_T_AMBIENT, PLUME_T_CORE] = [300, 1800].
+        Exactly the ambient 300 K outside the plume's hot core (all empty
+        space, the 5 % band at the faces, and the cooled upper plume);
+        hottest (1600-1700 K at the hottest voxel, at most 1800 K) in the
+        dense core just above the source, which keeps its heat over the
+        first 10 % of the plume's height and then cools with height
+        (e-folding over about 13 % of the box height) and towards the
+        plume's edge.  The hot voxels are dense ones: the core glows.
+    """
+    nx, ny, nz = _parse_resolution(resolution)
+    rng = np.random.default_rng(seed)
+    perm = rng.permutation(256).astype(np.int32)
+    perm = np.concatenate([perm, perm])
+    cx, cz = 0.5 + rng.uniform(-0.04, 0.04, size=2)
+    lean = rng.normal(size=2)
+    lean *= rng.uniform(0.03, 0.08) / np.linalg.norm(lean)
+    meander = rng.uniform(0.04, 0.07)
+    r1 = rng.uniform(0.26, 0.3)
+    o0, o1 = rng.uniform(0.0, 128.0, size=2)
+    par = np.array([cx, cz, lean[0], lean[1], meander, r1, o0, o1], dtype=np.float64)
+    dens = np.empty((nz, ny, nx), dtype=np.float32)
+    temp = np.empty((nz, ny, nx), dtype=np.float32)
+    _plume_kernel(dens, temp, perm, par)
+    return dens, temp
