@@ -62,6 +62,9 @@ def _variants(tmp_path):
             dict(HOMOG, medium=dict(HOMOG["medium"], density=grid, scale=[5.0, 4.0, 2.0],
                                     albedo=0.5, emission={"temperature": {
                                         "file": str(tmp_path / "t.npy")}, "scale": 1e-4}))),
+        "grid stored as bricks, residual ratio": scene_from_dict(
+            dict(HOMOG, medium=dict(HOMOG["medium"], density=grid, scale=5.0)),
+            overrides=["render.grid_storage=bricks", "render.transmittance=residual_ratio"]),
         "emitting homogeneous absorber: radiance x grid field": scene_from_dict(
             dict(HOMOG, lights=[], medium=dict(HOMOG["medium"], albedo=0.0, emission={
                 "radiance": [1.0, 0.6, 0.3], "field": grid}))),

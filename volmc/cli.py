@@ -229,6 +229,9 @@ def cmd_render(args):
         png = ""
     if png == "":
         png = os.path.splitext(out)[0] + ".png"
+    if not out.lower().endswith(".exr"):   # the render is float: an EXR, a PNG beside it
+        raise SceneError("command line", "-o", f"expected a path ending in .exr, got {out!r} "
+                                               "(--png writes a PNG preview as well)")
     _check_writable(out, "-o")
     if png:
         if not png.lower().endswith(".png"):   # the image writer picks the format by suffix

@@ -161,7 +161,7 @@ def assert_valid_scene(scene):
         assert np.all(np.isfinite(g)) and g.min() >= 0
     for real in (np.float64, np.float32):
         with np.errstate(over="ignore", invalid="ignore"):
-            params, lights, medium, grid, maj, mnr, _, _ = pack_scene(scene, real)
+            params, lights, medium, grid, maj, mnr, *_ = pack_scene(scene, real)
         for arr in (params, lights, medium):
             for name in arr.dtype.names:
                 if arr.dtype[name].base.kind == "f":

@@ -136,9 +136,10 @@ def apply_overrides(raw, overrides, file):
     return raw
 
 
-def _read_source(spec, src, key, vdb_density=None):
+def _read_source(spec, src, key, vdb_density=None, cache=None):
     """(float32 [z, y, x] array, VdbGrid or None) of a grid source: a file or a generator.
-    A VDB field grid is placed onto the VDB density's voxels (``vdb_density``) by index."""
+    A VDB field grid is placed onto the VDB density's voxels (``vdb_density``) by index;
+    ``cache`` (a dict) keeps generator outputs for the other fields of one scene."""
     if isinstance(src, FileDensity):
         if not os.path.exists(src.resolved):
             raise SceneError(spec.file, key + ".file", f"grid file not found: {src.path}")
@@ -151,7 +152,13 @@ def _read_source(spec, src, key, vdb_density=None):
         return load_grid(src.resolved, key, src.grid), None
     if isinstance(src, GeneratedDensity):
         from . import generators
-        out = getattr(generators, src.generator)(src.resolution, src.seed)
+        key_g = (src.generator, src.resolution, src.seed)
+        if cache is not None and key_g in cache:
+            out = cache[key_g]
+        else:
+            out = getattr(generators, src.generator)(src.resolution, src.seed)
+            if cache is not None:   # density and temperature of one plume: generate once
+                cache[key_g] = out
         if isinstance(out, tuple):   # several fields: density first
             out = out[GENERATORS[src.generator].index(src.channel)]
         return out, None
@@ -203,7 +210,7 @@ def _vdb_bricks(vg, path, key):
     return BrickGrid.from_blocks(dims, np.asarray(vg.origins) - lo, v)
 
 
-def load_density(spec: SceneSpec):
+def load_density(spec: SceneSpec, cache=None):
     """(density grid or None for a homogeneous medium, VdbGrid or None). The grid is a
     float32 [z, y, x] array, or a BrickGrid for a VDB file whose background is 0 (unless
     render.grid_storage = "dense"): its leaves become bricks without a dense copy."""
@@ -219,7 +226,7 @@ def load_density(spec: SceneSpec):
         else:
             grid = validate_grid(vg.to_dense(), d.resolved, "medium.density")
     else:
-        raw, vg = _read_source(spec, d, "medium.density")
+        raw, vg = _read_source(spec, d, "medium.density", cache=cache)
         grid = validate_grid(raw, spec.file if not isinstance(d, FileDensity)
                              else d.resolved, "medium.density")
     # The float32 kernels hold the global majorant scale * max(density).
@@ -231,7 +238,7 @@ def load_density(spec: SceneSpec):
     return grid, vg
 
 
-def load_emission(spec: SceneSpec, vdb_density=None):
+def load_emission(spec: SceneSpec, vdb_density=None, cache=None):
     """The emission field or temperature grid (float32 [z, y, x]; 1x1x1 when constant), or
     None without emission."""
     e = spec.medium.emission
@@ -241,14 +248,15 @@ def load_emission(spec: SceneSpec, vdb_density=None):
         (e.temperature, "medium.emission.temperature")
     if isinstance(src, ConstantDensity):
         return np.full((1, 1, 1), src.value, np.float32)
-    raw, _ = _read_source(spec, src, key, vdb_density)
+    raw, _ = _read_source(spec, src, key, vdb_density, cache)
     where = src.resolved if isinstance(src, FileDensity) else spec.file
     return validate_grid(raw, where, key)
 
 
 def _complete(spec: SceneSpec):
     """Load every grid; a VDB density without medium.bounds gives the box."""
-    grid, vg = load_density(spec)
+    cache = {}
+    grid, vg = load_density(spec, cache)
     if spec.medium.bounds is None:
         lo, hi = vg.world_bounds()
 
@@ -256,7 +264,7 @@ def _complete(spec: SceneSpec):
             raise SceneError(spec.medium.density.resolved, key, msg)
         check_box(fail, lo, hi)
         spec = replace(spec, medium=replace(spec.medium, bounds=(tuple(lo), tuple(hi))))
-    return Scene(spec, grid, load_emission(spec, vg))
+    return Scene(spec, grid, load_emission(spec, vg, cache))
 
 
 def load_scene(path, overrides=()):
