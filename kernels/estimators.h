@@ -78,7 +78,7 @@ inline spec tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
     float t;
     spec T;
     float3 E;
-    track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, (float3)(1.0f), rng,
+    track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, (float3)(1.0f), -1, rng,
           counters, max_steps, &t, &T, &E);
     return T;
 }

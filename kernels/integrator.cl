@@ -159,10 +159,16 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         if (!prm->has_env) return L;
         return env * shadow_transmittance(prm, med, o, d, NO_LIMIT, rng_s, counters);
     }
-    if (FEATURE_CHROMATIC ? m->spectral == SPECTRAL_CHANNEL : 0) {
-        /* One channel per path (render.spectral = "channel"; see integrator.py). */
+    int hero = -1;
+    float3 R = (float3)(1.0f); /* hero MIS: decision probabilities over the hero's */
+    if (FEATURE_CHROMATIC ? m->spectral == SPECTRAL_CHANNEL || m->spectral == SPECTRAL_HERO
+                          : 0) {
+        /* A channel per path: alone ("channel") or as the hero of spectral MIS ("hero"). */
         int c = min(convert_int_rtz(rng_next(rng) * 3.0f), 2);
-        beta = (float3)(c == 0 ? 3.0f : 0.0f, c == 1 ? 3.0f : 0.0f, c == 2 ? 3.0f : 0.0f);
+        if (m->spectral == SPECTRAL_HERO)
+            hero = c;
+        else
+            beta = (float3)(c == 0 ? 3.0f : 0.0f, c == 1 ? 3.0f : 0.0f, c == 2 ? 3.0f : 0.0f);
     }
     int depth = 0;
     float pdf_phase = 0.0f;
@@ -174,16 +180,24 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         if (t1 > t0) {
             spec w;
             float3 E;
-            event = free_flight(med, o, d, t0, t1, prm->decomposition, beta, rng, counters,
-                                prm->max_steps, &t, &w, &E);
+            event = free_flight(med, o, d, t0, t1, prm->decomposition, hero >= 0 ? R : beta,
+                                hero, rng, counters, prm->max_steps, &t, &w, &E);
             if (FEATURE_EMISSION) L += beta * E;
-            if (FEATURE_CHROMATIC) beta *= w;
+            if (FEATURE_CHROMATIC && hero >= 0) {
+                R *= w;
+                float r = fmax(R.x, fmax(R.y, R.z));
+                if (r > 0.0f) R *= 1.0f / r; /* ratios only */
+            } else if (FEATURE_CHROMATIC) {
+                beta *= w;
+            }
         }
+        /* The throughput contributions are weighed by (hero MIS: the balance heuristic). */
+        float3 beta_w = FEATURE_CHROMATIC && hero >= 0 ? beta * mis_weights(R) : beta;
         if (event == EVENT_CAPPED) break;
         if (event == EVENT_ESCAPE) {
             if (prm->has_env) {
                 float w = depth > 0 ? mis_balance(pdf_phase, uniform_sphere_pdf()) : 1.0f;
-                L += beta * (env * w);
+                L += beta_w * (env * w);
             }
             break;
         }
@@ -191,11 +205,12 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         if (prm->max_depth >= 0 && depth > prm->max_depth) break;
         counters[C_SCATTER] += 1;
         beta *= albedo;
-        if (fmax(beta.x, fmax(beta.y, beta.z)) <= 0.0f) break;
+        beta_w *= albedo;
+        if (fmax(beta_w.x, fmax(beta_w.y, beta_w.z)) <= 0.0f) break;
         float3 p = o + t * d;
-        L += beta * sample_direct(prm, lights, med, p, d, rng, rng_s, counters);
+        L += beta_w * sample_direct(prm, lights, med, p, d, rng, rng_s, counters);
         if (depth >= prm->rr_depth) {
-            float q = fmin(fmax(beta.x, fmax(beta.y, beta.z)), RR_MAX_SURVIVAL);
+            float q = fmin(fmax(beta_w.x, fmax(beta_w.y, beta_w.z)), RR_MAX_SURVIVAL);
             if (rng_next(rng) >= q) break;
             beta /= q;
         }

@@ -113,7 +113,7 @@ kernel void t_track(int technique, int use_control, global const Medium *media,
     float t;
     spec T;
     float3 E;
-    int ev = track(&med, o, d, t0, t1, technique, use_control, (float3)(1.0f), &rng, cnt,
+    int ev = track(&med, o, d, t0, t1, technique, use_control, (float3)(1.0f), -1, &rng, cnt,
                    max_steps, &t, &T, &E);
     out_t[i] = ev == EVENT_SCATTER ? t : (ev == EVENT_CAPPED ? -2.0f : -1.0f);
     vstore3(spec_rgb(T), i, out_T);

@@ -46,6 +46,13 @@ inline float3 emission_term(const MediumData *med, float3 p, float mu, float s_m
     return sa * emitted_radiance(med, p) * W;
 }
 
+/* Hero MIS: balance-heuristic weights R / mean(R) (twin in tracking.py). */
+inline float3 mis_weights(float3 R) {
+    float s = (R.x + R.y + R.z) / 3.0f;
+    if (!(s > 0.0f)) return (float3)(0.0f);
+    return R / s;
+}
+
 #if FEATURE_CHROMATIC
 /* Spectral tracking's choice at a tentative collision (twin in tracking.py): returns 1 if
  * real; writes the weight factor. */
@@ -73,7 +80,8 @@ inline int spectral_choice(float3 W, float3 k, float mu, float s_maj, float u, f
  * technique's code in the loop. */
 inline __attribute__((always_inline)) int track(const MediumData *med, float3 o, float3 d,
                                                 float t0, float t1, int technique,
-                                                int use_control, float3 beta, Rng *rng,
+                                                int use_control, float3 beta, int hero,
+                                                Rng *rng,
                                                 ulong *counters, int max_steps, float *t_out,
                                                 spec *T_out, float3 *E_out) {
     /* Plain constants 0 in builds without the feature: they lead any condition they join,
@@ -142,8 +150,16 @@ inline __attribute__((always_inline)) int track(const MediumData *med, float3 o,
             if (flight && spectral) {
                 /* Spectral tracking: the density of a homogeneous segment needs no lookup. */
                 float mu = homogeneous ? s_maj : extinction(med, p, s_maj, counters);
-                float3 W = technique == TRACK_FREE_FLIGHT ? T * beta : T;
-                if (emissive) E += emission_term(med, p, mu, s_maj, T);
+                float3 W;
+                if (hero >= 0) {
+                    /* The hero's one-hot weights: its delta tracking decides (tracking.py). */
+                    W = (float3)(hero == 0 ? 1.0f : 0.0f, hero == 1 ? 1.0f : 0.0f,
+                                 hero == 2 ? 1.0f : 0.0f);
+                    if (emissive) E += emission_term(med, p, mu, s_maj, mis_weights(T * beta));
+                } else {
+                    W = technique == TRACK_FREE_FLIGHT ? T * beta : T;
+                    if (emissive) E += emission_term(med, p, mu, s_maj, T);
+                }
                 float3 f;
                 int real = spectral_choice(W, k, mu, s_maj, rng_next(rng), &f);
                 if (real) {

@@ -55,6 +55,11 @@ def _variants(tmp_path):
             dict(HOMOG, lights=HOMOG["lights"] + [{"type": "environment",
                                                    "radiance": [0.2, 0.3, 0.5]}],
                  medium=dict(HOMOG["medium"], density=grid, scale=[6.0, 3.0, 1.0]))),
+        "chromatic emitting grid, hero MIS, next flight": scene_from_dict(
+            dict(HOMOG, medium=dict(HOMOG["medium"], density=grid, scale=[1.0, 3.0, 6.0],
+                                    albedo=0.7, emission={"radiance": [0.5, 0.3, 0.1],
+                                                          "field": grid})),
+            overrides=["render.spectral=hero", "render.transmittance=next_flight"]),
         "chromatic grid, one channel per path, track length": scene_from_dict(
             dict(HOMOG, medium=dict(HOMOG["medium"], density=grid, scale=[2.0, 5.0, 3.0])),
             overrides=["render.spectral=channel", "render.transmittance=track_length"]),

@@ -82,10 +82,10 @@ def test_chromatic_absorber_grid(tmp_path, backend, estimator):
     assert np.abs(z).max() < z_bound(ALPHA, z.size)
 
 
-@pytest.mark.parametrize("spectral", ["tracking", "channel"])
+@pytest.mark.parametrize("spectral", ["tracking", "hero", "channel"])
 def test_chromatic_white_furnace(backend, spectral):
     """Albedo 1, chromatic extinction, unbounded depth: every channel equals the environment
-    (spectral tracking, and one random channel per path)."""
+    (spectral tracking, hero MIS, and one random channel per path)."""
     scene = load_scene(FURNACE, ["medium.scale=[12.0, 5.0, 1.5]", "render.spp=256",
                                  "camera.resolution=[8, 8]", "render.rr_depth=1000000",
                                  f"render.spectral={spectral}"])
@@ -164,9 +164,11 @@ def test_emitting_absorber_temperature(backend):
     assert np.abs(z).max() < z_bound(ALPHA, z.size)
 
 
-@pytest.mark.parametrize("albedo, g, scale", [(0.5, 0.4, 3.0), (0.8, -0.3, [6.0, 2.0, 0.5]),
-                                              (0.0, 0.0, 4.0)])
-def test_equilibrium_furnace(tmp_path, backend, albedo, g, scale):
+@pytest.mark.parametrize("albedo, g, scale, spectral", [
+    (0.5, 0.4, 3.0, "tracking"), (0.8, -0.3, [6.0, 2.0, 0.5], "tracking"),
+    (0.7, 0.5, [1.0, 4.0, 9.0], "hero"), (0.6, 0.0, [5.0, 2.5, 1.0], "channel"),
+    (0.0, 0.0, 4.0, "tracking")])
+def test_equilibrium_furnace(tmp_path, backend, albedo, g, scale, spectral):
     """Emission Le inside, environment Le outside: radiance is Le everywhere, whatever the
     albedo, phase, density or colour of the extinction."""
     Le = [0.7, 0.4, 0.2]
@@ -180,7 +182,7 @@ def test_equilibrium_furnace(tmp_path, backend, albedo, g, scale):
                       "emission": {"radiance": Le}},
            "lights": [{"type": "environment", "radiance": Le}],
            "render": {"spp": 512, "max_depth": -1, "rr_depth": 1000000,
-                      "transmittance": "ratio"}}
+                      "transmittance": "ratio", "spectral": spectral}}
     res = render(scene_from_dict(raw), progress=False, backend=backend)
     z = _z(res, np.array(Le))
     assert np.abs(z).max() < z_bound(ALPHA, z.size)
@@ -261,7 +263,7 @@ def test_blackbody_table_interpolates_the_conversion():
     ("medium.emission={temperature={generator='cloud', resolution=8, channel='temperature'}}",
      "medium.emission.temperature.channel"),
     ("medium.density={file='x.npy', grid='a'}", "medium.density.grid"),
-    ("render.spectral=hero", "render.spectral"),
+    ("render.spectral=wavelength", "render.spectral"),
 ])
 def test_bad_new_keys(define, key):
     with pytest.raises(SceneError) as e:

@@ -187,6 +187,18 @@ def build_parser():
             bb.add_argument("--sizes", default="driver,1,2,4,8,16,32,64",
                             help="comma-separated work-group sizes ('driver' = driver's choice)")
 
+    bs = bsub.add_parser("sparse", help="memory and lookup speed of brick (sparse) storage "
+                                        "against the dense grid")
+    bs.add_argument("--size", type=_positive_int, default=512, help="voxels per axis (512)")
+    bs.add_argument("--fill", type=_finite_float, default=0.03,
+                    help="fraction of active voxels (0.03)")
+    bs.add_argument("--lookups", type=_positive_int, default=1 << 22,
+                    help="lookups per timed launch")
+    bs.add_argument("--repeats", type=_positive_int, default=5)
+    bs.add_argument("--backends", default="opencl,numba")
+    bs.add_argument("--device", help="OpenCL device (as for render)")
+    bs.add_argument("--json", help="also write the figures to this JSON file")
+
     c = sub.add_parser("convert", help="convert a density grid between .npy, .npz and .vol")
     c.add_argument("input")
     c.add_argument("output")
@@ -466,6 +478,19 @@ def cmd_bench(args):
         return cmd_bench_transmittance(args)
     if args.bench == "render":
         return cmd_bench_render(args)
+    if args.bench == "sparse":
+        from .backends import BACKENDS
+        from .bench import sparse
+        if not 0.0 < args.fill <= 1.0:
+            raise SceneError("command line", "--fill", f"must be in (0, 1], got {args.fill}")
+        backends = _list(args.backends, "--backends", BACKENDS)
+        if args.json:
+            _check_writable(args.json, "--json")
+        argv = ["--size", str(args.size), "--fill", str(args.fill), "--lookups",
+                str(args.lookups), "--repeats", str(args.repeats), "--backends",
+                ",".join(backends)] + (["--device", args.device] if args.device else []) + \
+            (["--json", args.json] if args.json else [])
+        return sparse.main(argv)
     from .bench import render as rb
     from .resources import default_scene, scenes_dir
     from .scene import load_scene

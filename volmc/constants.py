@@ -87,8 +87,12 @@ SPECTRAL_GREY = 0
 #: channels' weighted coefficients ...
 SPECTRAL_TRACKING = 1
 #: ... or the same with one channel picked at random per path (render.spectral = "channel"):
-#: the baseline spectral tracking is measured against.
+#: the baseline the others are measured against ...
 SPECTRAL_CHANNEL = 2
+#: ... or hero-channel spectral MIS (Miller et al. 2019; pbrt-v4): a random hero channel's
+#: delta tracking decides, every channel is weighted by the balance heuristic over the three
+#: channels' decision probabilities (render.spectral = "hero").
+SPECTRAL_HERO = 3
 
 #: Emission (medium.emission): none ...
 EMISSION_NONE = 0

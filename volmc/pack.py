@@ -10,7 +10,7 @@ from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_BRICKS,
                         DENSITY_CONSTANT, DENSITY_GRID, EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
                         LIGHT_DIRECTIONAL, LIGHT_POINT, MAJORANT_GLOBAL, MAJORANT_GRID,
                         PHASE_HG, PHASE_ISOTROPIC, SPECTRAL_CHANNEL, SPECTRAL_GREY,
-                        SPECTRAL_TRACKING)
+                        SPECTRAL_HERO, SPECTRAL_TRACKING)
 from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
 from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
@@ -183,7 +183,8 @@ def pack_medium(scene, real, local, unit, maj_res, stored=None):
     m["chroma"] = [x / top for x in med.scale] if top > 0.0 else (1.0, 1.0, 1.0)
     m["spectral"] = SPECTRAL_GREY
     if med.chromatic:
-        m["spectral"] = SPECTRAL_CHANNEL if rnd.spectral == "channel" else SPECTRAL_TRACKING
+        m["spectral"] = {"channel": SPECTRAL_CHANNEL, "hero": SPECTRAL_HERO,
+                         "tracking": SPECTRAL_TRACKING}[rnd.spectral]
     m["maj_res"] = (1, 1, 1)
     m["majorant_kind"] = MAJORANT_GLOBAL
     if scene.grid is None:

@@ -62,6 +62,7 @@ def techniques(scene):
         "phase": scene.medium.phase.type,
         "spectral": ("grey" if not scene.medium.chromatic else
                      "spectral tracking" if r.spectral == "tracking" else
+                     "hero-channel spectral MIS" if r.spectral == "hero" else
                      "one random channel per path"),
         "emission": ("none" if scene.medium.emission is None else
                      "radiance x field" if scene.medium.emission.radiance is not None else

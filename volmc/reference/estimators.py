@@ -109,7 +109,7 @@ def tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, technique
     """The transmittance estimate of the tracking loop with ``technique``. Track length uses
     each segment's minorant as control (decomposition tracking): the same 0/1 decisions as
     delta tracking for the same random numbers, without the lookups the control decides."""
-    return track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, ONE3, rng,
+    return track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, ONE3, -1, rng,
                  counters, max_steps)[2]
 
 

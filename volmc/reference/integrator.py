@@ -38,14 +38,15 @@ import numpy as np
 from numba import njit, prange
 
 from ..constants import (CAMERA_ORTHOGRAPHIC, EMISSION_NONE, EVENT_CAPPED, EVENT_ESCAPE,
-                         LIGHT_DIRECTIONAL, RR_MAX_SURVIVAL, SPECTRAL_CHANNEL, STREAM_PATH,
-                         STREAM_SHADOW)
+                         LIGHT_DIRECTIONAL, RR_MAX_SURVIVAL, SPECTRAL_CHANNEL, SPECTRAL_HERO,
+                         STREAM_PATH, STREAM_SHADOW)
 from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
 from .estimators import transmittance
 from .free_flight import free_flight
 from .guards import sample_ok
 from .medium import MediumData
 from .phase import phase_eval, phase_sample
+from .tracking import mis_weights
 from .rng import RNG_STATE_SIZE, rng_init, rng_next
 from .sampling import (dot, mis_balance, normalize, sample_uniform_sphere,
                        uniform_sphere_pdf)
@@ -198,11 +199,16 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
         if prm.has_env == 0:
             return L
         return mul3(env, shadow_transmittance(prm, med, o, d, math.inf, rng_s, counters))
-    if m.spectral == SPECTRAL_CHANNEL:
-        # One channel per path, chosen uniformly: the baseline spectral tracking is
-        # measured against (render.spectral = "channel").
+    hero = -1
+    R = (1.0, 1.0, 1.0)   # hero MIS: each channel's decision probability over the hero's
+    if m.spectral == SPECTRAL_CHANNEL or m.spectral == SPECTRAL_HERO:
+        # A channel per path, chosen uniformly: alone (render.spectral = "channel", the
+        # baseline) or as the hero of spectral MIS ("hero").
         c = min(int(rng_next(rng) * 3.0), 2)
-        beta = (3.0 if c == 0 else 0.0, 3.0 if c == 1 else 0.0, 3.0 if c == 2 else 0.0)
+        if m.spectral == SPECTRAL_HERO:
+            hero = c
+        else:
+            beta = (3.0 if c == 0 else 0.0, 3.0 if c == 1 else 0.0, 3.0 if c == 2 else 0.0)
     depth = 0
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
     while True:
@@ -210,28 +216,39 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:
-            event, t, w, E = free_flight(med, o, d, t0, t1, prm.decomposition != 0, beta, rng,
-                                         counters, prm.max_steps)
-            L = add3(L, mul3(beta, E))
-            beta = mul3(beta, w)
+            if hero >= 0:
+                event, t, w, E = free_flight(med, o, d, t0, t1, prm.decomposition != 0, R,
+                                             hero, rng, counters, prm.max_steps)
+                L = add3(L, mul3(beta, E))
+                R = mul3(R, w)
+                R = scale3(R, 1.0 / max3(R)) if max3(R) > 0.0 else R   # ratios only
+            else:
+                event, t, w, E = free_flight(med, o, d, t0, t1, prm.decomposition != 0, beta,
+                                             -1, rng, counters, prm.max_steps)
+                L = add3(L, mul3(beta, E))
+                beta = mul3(beta, w)
+        # The throughput every contribution is weighed by: with hero MIS, the balance
+        # heuristic's weights on top of the common factors.
+        beta_w = mul3(beta, mis_weights(R)) if hero >= 0 else beta
         if event == EVENT_CAPPED:
             break
         if event == EVENT_ESCAPE:
             if prm.has_env != 0:
                 w = mis_balance(pdf_phase, uniform_sphere_pdf()) if depth > 0 else 1.0
-                L = add3(L, mul3(beta, scale3(env, w)))
+                L = add3(L, mul3(beta_w, scale3(env, w)))
             break
         depth += 1
         if prm.max_depth >= 0 and depth > prm.max_depth:
             break
         counters[C_SCATTER] += 1
         beta = mul3(beta, albedo)
-        if max3(beta) <= 0.0:
+        beta_w = mul3(beta_w, albedo)
+        if max3(beta_w) <= 0.0:
             break
         p = madd3(o, d, t)
-        L = add3(L, mul3(beta, sample_direct(prm, lights, med, p, d, rng, rng_s, counters)))
+        L = add3(L, mul3(beta_w, sample_direct(prm, lights, med, p, d, rng, rng_s, counters)))
         if depth >= prm.rr_depth:
-            q = min(max3(beta), RR_MAX_SURVIVAL)
+            q = min(max3(beta_w), RR_MAX_SURVIVAL)
             if rng_next(rng) >= q:
                 break
             beta = div3(beta, q)

@@ -67,6 +67,11 @@ segments and the tentative collisions are shared, and
   and null coefficients, and each channel's weight is corrected by its own coefficient over
   that probability; ``beta`` (the path throughput) makes the choice history-aware. A grey
   medium (SPECTRAL_GREY) takes delta tracking's decisions and weights 1.
+* hero-channel spectral MIS (SPECTRAL_HERO, ``hero`` >= 0; Miller et al. 2019) is the same
+  choice with the hero's one-hot weights: the hero's delta tracking decides, and the
+  factors are each channel's probability of the decision over the hero's. The integrator
+  accumulates them (``beta`` then carries those ratios R) and weighs channel c by the
+  balance heuristic R_c / mean(R) (``mis_weights``), as emission here is weighed.
 
 Emission (``m.emission_kind``): free flight adds W sigma_a(x) Le(x) / sigma_maj at every
 tentative collision (``emission_term``; the collision estimator of pbrt-v4 and Cycles),
@@ -166,11 +171,24 @@ def spectral_choice(W, k, mu, s_maj, u):
     return False, scale3(n, (a + b) / (s_maj * b))
 
 
+@njit(cache=True, inline="always")
+def mis_weights(R):
+    """Hero MIS: R (RGB) holds each channel's probability of the path's decisions relative
+    to any common factor; the balance heuristic over the three channels as hero (each chosen
+    with probability 1/3) weighs channel c by R_c / mean(R). 0 when every R is 0."""
+    s = (R[0] + R[1] + R[2]) / 3.0
+    if not s > 0.0:
+        return ZERO3
+    return (R[0] / s, R[1] / s, R[2] / s)
+
+
 @njit(cache=True)
-def track(med, o, d, t0, t1, technique, use_control, beta, rng, counters, max_steps):
+def track(med, o, d, t0, t1, technique, use_control, beta, hero, rng, counters, max_steps):
     """Walk ray o + t d over [t0, t1] through ``med`` with ``technique`` (TRACK_*).
-    Returns (event, t, T, E) (module docstring); ``beta`` (RGB) is the path throughput
-    spectral free flight weighs its choices by."""
+    Returns (event, t, T, E) (module docstring). Spectral free flight: with ``hero`` < 0,
+    ``beta`` (RGB) is the path throughput the choices are weighed by (spectral tracking);
+    with ``hero`` = c, channel c's delta tracking decides and ``beta`` holds the path's
+    decision-probability ratios so far (hero MIS, below)."""
     m = med.m
     spectral = m.spectral != SPECTRAL_GREY
     emissive = technique == TRACK_FREE_FLIGHT and m.emission_kind != EMISSION_NONE
@@ -229,9 +247,17 @@ def track(med, o, d, t0, t1, technique, use_control, beta, rng, counters, max_st
             if flight and spectral:
                 # Spectral tracking: the density of a homogeneous segment needs no lookup.
                 mu = s_maj if homogeneous else extinction(med, p, s_maj, counters)
-                W = mul3(T, beta) if technique == TRACK_FREE_FLIGHT else T
-                if emissive:
-                    E = add3(E, emission_term(med, p, mu, s_maj, T))
+                if hero >= 0:
+                    # The hero's one-hot weights make spectral_choice the hero's delta
+                    # tracking, its factors each channel's probability over the hero's.
+                    W = (1.0 if hero == 0 else 0.0, 1.0 if hero == 1 else 0.0,
+                         1.0 if hero == 2 else 0.0)
+                    if emissive:
+                        E = add3(E, emission_term(med, p, mu, s_maj, mis_weights(mul3(T, beta))))
+                else:
+                    W = mul3(T, beta) if technique == TRACK_FREE_FLIGHT else T
+                    if emissive:
+                        E = add3(E, emission_term(med, p, mu, s_maj, T))
                 real, f = spectral_choice(W, k, mu, s_maj, rng_next(rng))
                 if real:
                     if technique == TRACK_LENGTH:
@@ -306,7 +332,7 @@ def track_batch(technique, use_control, media, grid, maj, mnr, rays, n_per_ray, 
         med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool)
         ev, t, T, _ = track(med, (rays[r, 0], rays[r, 1], rays[r, 2]),
                             (rays[r, 3], rays[r, 4], rays[r, 5]), rays[r, 6], rays[r, 7],
-                            technique, use_control, ONE3, rng, counters, max_steps)
+                            technique, use_control, ONE3, -1, rng, counters, max_steps)
         t_out[i] = t if ev == EVENT_SCATTER else (-2.0 if ev == EVENT_CAPPED else -1.0)
         T_out[i, 0] = T[0]
         T_out[i, 1] = T[1]

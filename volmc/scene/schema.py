@@ -145,7 +145,7 @@ class Render:
     majorant: str = "grid"
     free_flight: str = "delta"
     majorant_resolution: tuple = ()
-    spectral: str = "tracking"
+    spectral: str = "hero"
     grid_storage: str = "auto"
 
 
@@ -168,7 +168,7 @@ PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
                "majorant_resolution", "free_flight", "spectral", "grid_storage")
 GRID_STORAGES = ("auto", "dense", "bricks")
-SPECTRAL_MODES = ("tracking", "channel")
+SPECTRAL_MODES = ("tracking", "hero", "channel")
 MAJORANTS = ("global", "grid")
 FREE_FLIGHTS = ("delta", "decomposition")
 #: Shadow-ray transmittance estimators for grids: every estimator of the registry
