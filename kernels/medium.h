@@ -48,7 +48,7 @@ inline float medium_density(const MediumData *med, float3 p) {
     if (kind == DENSITY_GRID)
         return grid_lookup(med->grid, (int3)(m->dims[0], m->dims[1], m->dims[2]), vec3(m->bmin),
                            vec3(m->inv_extent), p);
-    if (FEATURE_BRICKS && kind == DENSITY_BRICKS)
+    if (kind == DENSITY_BRICKS)
         return sparse_lookup(med->bricks, med->pool, (int3)(m->dims[0], m->dims[1], m->dims[2]),
                              vec3(m->bmin), vec3(m->inv_extent), p);
     if (!FEATURE_PROFILES || kind == DENSITY_CONSTANT) return m->density;

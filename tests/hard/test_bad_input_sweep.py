@@ -23,6 +23,7 @@ import json
 import math
 import os
 import re
+import shutil
 import signal
 import struct
 import subprocess
@@ -39,6 +40,7 @@ from hypothesis import strategies as st
 
 from volmc.cli import main as cli_main
 from volmc.pack import pack_scene
+from volmc.scene.bricks import BrickGrid
 from volmc.scene import SceneError, load_scene
 from volmc.scene.features import features
 from volmc.scene.grids import VOL_HEADER, load_grid
@@ -155,10 +157,18 @@ def assert_valid_scene(scene):
     w, h = scene.camera.resolution
     assert 1 <= w and 1 <= h and w * h <= 2**31 - 1
     assert 1 <= scene.render.spp <= 2**32 - 1
-    if scene.grid is not None:
+    if isinstance(scene.grid, BrickGrid):
+        g = scene.grid
+        assert g.pool.dtype == np.float32 and g.table.dtype == np.int32 and g.size > 0
+        assert np.all(np.isfinite(g.pool)) and g.pool.min() >= 0
+        assert 0 <= g.table.min() and g.table.max() < len(g.pool)
+    elif scene.grid is not None:
         g = scene.grid
         assert g.dtype == np.float32 and g.ndim == 3 and g.size > 0 and g.flags.c_contiguous
         assert np.all(np.isfinite(g)) and g.min() >= 0
+    if scene.emission_grid is not None:
+        e = scene.emission_grid
+        assert e.dtype == np.float32 and e.ndim == 3 and np.all(np.isfinite(e)) and e.min() >= 0
     for real in (np.float64, np.float32):
         with np.errstate(over="ignore", invalid="ignore"):
             params, lights, medium, grid, maj, mnr, *_ = pack_scene(scene, real)
@@ -287,14 +297,35 @@ def base_scenes():
         "lights": [{"type": "environment", "radiance": [0.1, 0.2, 0.3]}],
     }
     minimal = {"camera": {}, "medium": {"bounds": [[0, 0, 0], [1, 1, 1]], "density": 0}}
+    colour = {   # colour-dependent extinction, emission from a field grid, brick storage
+        "camera": {"eye": [0.0, 0.0, 3.0], "resolution": [2, 2]},
+        "medium": {"bounds": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]],
+                   "density": {"file": "grid.npz", "grid": "density"},
+                   "scale": [4.0, 2.0, 1.0], "albedo": 0.7,
+                   "emission": {"radiance": [1.0, 0.5, 0.2], "field": {"file": "grid.npy"}}},
+        "lights": [{"type": "environment", "radiance": 0.2}],
+        "render": {"spectral": "hero", "grid_storage": "bricks"},
+    }
+    vdb = {   # bounds from the file, temperature from the same file
+        "camera": {"eye": [0.2, 0.0, 1.4], "target": [0.2, 0.0, 0.3], "resolution": [2, 2]},
+        "medium": {"density": {"file": "blobs.vdb"}, "scale": 10.0,
+                   "emission": {"temperature": {"file": "blobs.vdb", "grid": "temperature"},
+                                "scale": 1e-4}},
+        "lights": [{"type": "environment", "radiance": 0.2}],
+    }
     return {"full": full, "grid": grid, "vol": vol, "generated": generated,
-            "minimal": minimal}
+            "minimal": minimal, "colour": colour, "vdb": vdb}
 
 
 BASES = base_scenes()
+#: Keys a grid file's own error may name.
+GRID_KEYS = ("medium.density", "medium.emission.field", "medium.emission.temperature")
 GRID_NAMES = ["grid.npy", "grid.vol", "grid.npz", "missing.npy", "grid.raw", "", ".", "sub",
               "sub.npy", "/nonexistent/abs.vol", "bad.npy", "bad.vol", "bad.npz", "grïd.npy",
-              "a\nb.npy", "../grid.npy", "grid.NPY", "grid.npy/", "empty.npy"]
+              "a\nb.npy", "../grid.npy", "grid.NPY", "grid.npy/", "empty.npy", "blobs.vdb",
+              "blobs_zip.nvdb", "rotated.vdb", "cut.vdb", "levelset.nvdb", "grid.vdb"]
+VDB_FIXTURES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                            "data", "vdb")
 
 
 def make_grid_dir(d):
@@ -316,6 +347,13 @@ def make_grid_dir(d):
     with open(os.path.join(d, "bad.vol"), "wb") as f:
         f.write(vol_bytes(2**20, 2**20, 1) + g.tobytes())
     open(os.path.join(d, "empty.npy"), "wb").close()
+    for name in ("blobs.vdb", "blobs_zip.nvdb", "rotated.vdb", "levelset.nvdb"):
+        shutil.copy(os.path.join(VDB_FIXTURES, name), os.path.join(d, name))
+    with open(os.path.join(VDB_FIXTURES, "blobs.vdb"), "rb") as f:
+        data = f.read()
+    with open(os.path.join(d, "cut.vdb"), "wb") as f:   # truncated
+        f.write(data[: len(data) * 2 // 3])
+    np.save(os.path.join(d, "grid.vdb"), g)              # an .npy under a .vdb name
 
 
 density_values = st.one_of(
@@ -477,6 +515,8 @@ def scene_cases(draw):
             mutations.append(m)
             current, _ = apply_mutations(current, [m])
             continue
+        if not paths:   # everything deleted: nothing left to mutate
+            continue
         path = draw(st.sampled_from(paths))
         parent = _parent(current, path)
         old = parent[path[-1]]
@@ -520,14 +560,15 @@ def check_scene_case(case):
         with open(path, "w", encoding="utf-8") as f:
             f.write(toml_doc(raw))
         files = {path}
-        dens = raw.get("medium", {}).get("density") if isinstance(raw.get("medium"), dict) \
-            else None
-        if isinstance(dens, dict) and isinstance(dens.get("file"), str) and dens["file"]:
-            files.add(os.path.abspath(os.path.join(d, dens["file"])))
-        for text in defines:   # a -D may point the density at another file
-            m = re.match(r"\s*medium\.density(\.file)?\s*=\s*(.*)", text, re.S)
+        med = raw.get("medium") if isinstance(raw.get("medium"), dict) else {}
+        emis = med.get("emission") if isinstance(med.get("emission"), dict) else {}
+        for src in (med.get("density"), emis.get("field"), emis.get("temperature")):
+            if isinstance(src, dict) and isinstance(src.get("file"), str) and src["file"]:
+                files.add(os.path.abspath(os.path.join(d, src["file"])))
+        for text in defines:   # a -D may point a grid source at another file
+            m = re.match(r"\s*medium\.(?:density|emission)[.\w]*\s*=\s*(.*)", text, re.S)
             if m:
-                for f_ in re.findall(r'"((?:[^"\\]|\\.)*)"', m.group(2)) + [m.group(2).strip()]:
+                for f_ in re.findall(r'"((?:[^"\\]|\\.)*)"', m.group(1)) + [m.group(1).strip()]:
                     files.add(os.path.abspath(os.path.join(d, f_)))
         with time_limit():
             try:
@@ -536,7 +577,7 @@ def check_scene_case(case):
                 assert_scene_error(e, files, mutation_sections(mutations), defines,
                                    file_only_ok=has_unparseable(raw))
                 if e.file != path:
-                    assert e.key == "medium.density", str(e)
+                    assert e.key in GRID_KEYS, str(e)
                 return
             assert_valid_scene(scene)
 
@@ -572,6 +613,12 @@ def check_scene_case(case):
 @example(case=("grid", (("set", ("medium", "density"), {"file": "bad.vol"}),)))  # MemoryError
 @example(case=("full", (("set", ("lights", 1, "direction"), [0.0, -1.0, -0.5]),)))
 # ^ the written-out scene read back had a direction 1 ulp off (re-normalised)
+@example(case=("colour", (("set", ("medium", "emission", "field"), {"file": "cut.vdb"}),)))
+@example(case=("vdb", (("set", ("medium", "density"), {"file": "rotated.vdb"}),)))
+@example(case=("vdb", (("set", ("medium", "density"), {"file": "levelset.nvdb"}),)))
+@example(case=("vdb", (("set", ("medium", "density"), {"file": "grid.vdb"}),)))
+@example(case=("vdb", (("set", ("medium", "emission", "temperature", "grid"), "velocity"),)))
+@example(case=("colour", (("set", ("render", "transmittance"), "power_series"),)))
 def test_scene_sweep(case):
     check_scene_case(case)
 

@@ -3,14 +3,16 @@ scene needs"). The reference decides the same things at run time from the record
 
 A switch stays only while `volmc bench specialise` shows it pays at least 3 % on some
 shipped scene (README, "Specialisation"): of the nine switches and six baked constants
-measured for issue 10, only MAJORANT_GRID did. CHROMATIC and EMISSION are whole features
-(RGB weights through every tracking loop, an emission lookup at every tentative
-collision) that grey and non-emitting scenes must not pay for. PROFILES is not a
+measured for issue 10, only MAJORANT_GRID did. CHROMATIC and EMISSION measured neutral
+(0.98-1.015 on the cloud, homogeneous, sunset and plume scenes,
+docs/bench_specialise_issue11.json) but stay for what they guarantee rather than for speed:
+a grey scene runs exactly the scalar arithmetic it ran before colour existed (the same
+image bit for bit), and a scene without emission compiles none of it. A BRICKS switch
+measured neutral too and was not kept: brick lookups are one more density kind. PROFILES is not a
 scene's: render builds always compile the 1-D test profiles out (3.5 % on the cloud with a
 global majorant), and the test and benchmark kernels keep them.
 """
 
-from .bricks import stores_bricks
 from .schema import ConstantDensity
 
 #: Every feature switch, with the condition that turns it on.
@@ -21,8 +23,6 @@ FEATURES = {
                  "channels): RGB transmittance and spectral tracking",
     "EMISSION": "an emitting medium (medium.emission): its source term at every tentative "
                 "collision",
-    "BRICKS": "a density grid stored as 8^3 bricks behind an index table "
-              "(render.grid_storage)",
 }
 
 
@@ -43,8 +43,6 @@ def features(scene) -> frozenset:
         out.add("CHROMATIC")
     if m.emission is not None:
         out.add("EMISSION")
-    if stores_bricks(scene):
-        out.add("BRICKS")
     return frozenset(out)
 
 
