@@ -85,6 +85,12 @@ inline float3 enter_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t0,
     return p;
 }
 
+/* x with the components where beta is 0 set to 0 (twin in integrator.py). */
+inline float3 keep_carried(float3 beta, float3 x) {
+    return (float3)(beta.x != 0.0f ? x.x : 0.0f, beta.y != 0.0f ? x.y : 0.0f,
+                    beta.z != 0.0f ? x.z : 0.0f);
+}
+
 inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, float3 *dir) {
     float sx = (2.0f * ((float)px + u1) / (float)prm->width - 1.0f) * prm->half_height * prm->aspect;
     float sy = (1.0f - 2.0f * ((float)py + u2) / (float)prm->height) * prm->half_height;
@@ -182,14 +188,20 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
             float3 E;
             event = free_flight(med, o, d, t0, t1, prm->decomposition, hero >= 0 ? R : beta,
                                 hero, rng, counters, prm->max_steps, &t, &w, &E);
-            if (FEATURE_EMISSION) L += beta * E;
-            if (FEATURE_CHROMATIC && hero >= 0) {
+#if FEATURE_CHROMATIC
+            if (hero >= 0) {
+                if (FEATURE_EMISSION) L += beta * E;
                 R *= w;
                 float r = fmax(R.x, fmax(R.y, R.z));
                 if (r > 0.0f) R *= 1.0f / r; /* ratios only */
-            } else if (FEATURE_CHROMATIC) {
-                beta *= w;
+            } else {
+                /* Channels no longer carried stay 0 (integrator.py). */
+                if (FEATURE_EMISSION) L += beta * keep_carried(beta, E);
+                beta *= keep_carried(beta, w);
             }
+#else
+            if (FEATURE_EMISSION) L += beta * E;
+#endif
         }
         /* The throughput contributions are weighed by (hero MIS: the balance heuristic). */
         float3 beta_w = FEATURE_CHROMATIC && hero >= 0 ? beta * mis_weights(R) : beta;

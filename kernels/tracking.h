@@ -174,6 +174,8 @@ inline __attribute__((always_inline)) int track(const MediumData *med, float3 o,
                     *E_out = E;
                     return EVENT_ESCAPE;
                 }
+                /* Only the ratios matter to hero MIS: keep them from overflowing. */
+                if (hero >= 0) T *= 1.0f / spec_max(T);
             } else
 #endif
             if (flight) {

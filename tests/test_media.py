@@ -240,6 +240,25 @@ def test_blackbody_chromaticity_on_planckian_locus(T, x, y):
     assert Y / (X + Y + Z) == pytest.approx(y, abs=3e-3)
 
 
+@pytest.mark.parametrize("t_max, bound", [(2000.0, 1e-4), (20000.0, 2e-3)])
+def test_blackbody_table_interpolation_error(t_max, bound):
+    """Linear interpolation in the table, as the renderer does, against the conversion."""
+    table, per_k = blackbody_table(t_max)
+    temps = np.linspace(1000.0, t_max, 997)
+    x = temps * per_k
+    i = np.minimum(x.astype(int), len(table) - 2)
+    w = (x - i)[:, None]
+    interp = table[i] * (1 - w) + table[i + 1] * w
+    exact = blackbody_rgb(temps)
+    rel = np.abs(interp - exact) / np.maximum(exact.max(axis=1, keepdims=True), 1e-300)
+    assert rel.max() < bound
+
+
+def test_cold_table_is_zero_and_finite():
+    table, per_k = blackbody_table(1e-36)
+    assert per_k == 0.0 and not table.any()
+
+
 def test_blackbody_table_interpolates_the_conversion():
     table, per_k = blackbody_table(2000.0)
     assert per_k == pytest.approx((len(table) - 1) / 2000.0)

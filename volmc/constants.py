@@ -100,8 +100,11 @@ EMISSION_NONE = 0
 EMISSION_RADIANCE = 1
 #: ... or blackbody radiance of temperature(x), through a table in kelvin (medium.py).
 EMISSION_TEMPERATURE = 2
-#: Entries of the blackbody table over [0, the hottest temperature of the scene] kelvin.
-BLACKBODY_TABLE_SIZE = 1024
+#: Entries of the blackbody table over [0, the hottest temperature of the scene] kelvin:
+#: linear interpolation between them is within 0.01 % of the conversion (relative to the
+#: brightest channel) from 1000 K up for a 2000 K table, 0.2 % for a 20000 K one
+#: (tests/test_media.py).
+BLACKBODY_TABLE_SIZE = 4096
 
 # --- Tracking (volmc/reference/tracking.py) ----------------------------------------------------
 

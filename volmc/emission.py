@@ -29,6 +29,9 @@ H = 6.62607015e-34       # Planck constant, J s
 C_LIGHT = 2.99792458e8   # speed of light, m/s
 K_B = 1.380649e-23       # Boltzmann constant, J/K
 K_M = 683.0              # luminous efficacy at 555 nm, lm/W
+#: Hottest temperatures below this (kelvin) emit nothing visible (under 1e-100 nits): the
+#: table is then all zero, and its entries-per-kelvin factor stays finite in float32.
+MIN_TABLE_KELVIN = 1.0
 
 #: XYZ to linear sRGB (Rec. 709 primaries, D65 white).
 XYZ_TO_SRGB = np.array([[3.2404542, -1.5371385, -0.4985314],
@@ -87,7 +90,7 @@ def blackbody_table(t_max):
     """(table [BLACKBODY_TABLE_SIZE, 3], entries per kelvin): linear-sRGB blackbody radiance
     at temperatures i t_max / (BLACKBODY_TABLE_SIZE - 1), i = 0 .. size - 1."""
     n = BLACKBODY_TABLE_SIZE
-    if not t_max > 0.0:
+    if not t_max >= MIN_TABLE_KELVIN:   # nothing visible; and (n - 1) / t_max stays finite
         return np.zeros((n, 3)), 0.0
     temps = np.linspace(0.0, t_max, n)
     return blackbody_rgb(temps), (n - 1) / t_max

@@ -113,6 +113,13 @@ def enter_box(o, d, bmin, bmax):
 
 
 @njit(cache=True, inline="always")
+def keep_carried(beta, x):
+    """x with the components where beta is 0 set to 0 (RGB)."""
+    return (x[0] if beta[0] != 0.0 else 0.0, x[1] if beta[1] != 0.0 else 0.0,
+            x[2] if beta[2] != 0.0 else 0.0)
+
+
+@njit(cache=True, inline="always")
 def camera_ray(prm, px, py, u1, u2):
     """Primary ray through film position (px + u1, py + u2) (pixels; py = 0 at the top).
 
@@ -225,8 +232,10 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
             else:
                 event, t, w, E = free_flight(med, o, d, t0, t1, prm.decomposition != 0, beta,
                                              -1, rng, counters, prm.max_steps)
-                L = add3(L, mul3(beta, E))
-                beta = mul3(beta, w)
+                # Channels the path no longer carries stay 0, whatever their weight grew to
+                # (one channel per path: 0 x inf would be NaN).
+                L = add3(L, mul3(beta, keep_carried(beta, E)))
+                beta = mul3(beta, keep_carried(beta, w))
         # The throughput every contribution is weighed by: with hero MIS, the balance
         # heuristic's weights on top of the common factors.
         beta_w = mul3(beta, mis_weights(R)) if hero >= 0 else beta

@@ -266,6 +266,9 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, rng, counters, 
                 T = mul3(T, f)
                 if max3(T) <= 0.0:
                     return EVENT_ESCAPE, t1, ZERO3, E
+                if hero >= 0:
+                    # Only the ratios matter to hero MIS: keep them from overflowing.
+                    T = scale3(T, 1.0 / max3(T))
             elif flight:
                 # Real for sure where the control covers the majorant (no draw, no lookup).
                 real = control >= s_maj
