@@ -142,7 +142,7 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
         float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
         float f = phase_eval(m->phase_kind, m->g, dot(d, wl));
         spec tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
-        L += vec3(prm->env) * (tr * (f * mis_balance(pdf_l, f) / pdf_l));
+        L += vec3(prm->env) * (tr * (f * mis_weight(prm->mis, pdf_l, f) / pdf_l));
     }
     return L;
 }
@@ -208,7 +208,8 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         if (event == EVENT_CAPPED) break;
         if (event == EVENT_ESCAPE) {
             if (prm->has_env) {
-                float w = depth > 0 ? mis_balance(pdf_phase, uniform_sphere_pdf()) : 1.0f;
+                float w = depth > 0 ? mis_weight(prm->mis, pdf_phase, uniform_sphere_pdf())
+                                    : 1.0f;
                 L += beta_w * (env * w);
             }
             break;

@@ -58,4 +58,14 @@ inline float3 from_frame(float3 n, float cos_theta, float sin_theta, float phi) 
 /* Balance-heuristic weight of strategy a against b, one sample each (Veach 1997). */
 inline float mis_balance(float pdf_a, float pdf_b) { return pdf_a / (pdf_a + pdf_b); }
 
+/* Power heuristic, exponent 2 (twin in sampling.py). */
+inline float mis_power(float pdf_a, float pdf_b) {
+    float a = pdf_a * pdf_a;
+    return a / (a + pdf_b * pdf_b);
+}
+
+inline float mis_weight(int kind, float pdf_a, float pdf_b) {
+    return kind == MIS_POWER ? mis_power(pdf_a, pdf_b) : mis_balance(pdf_a, pdf_b);
+}
+
 #endif

@@ -142,6 +142,13 @@ ESTIMATOR_UNBIASED_RAYMARCH = 7
 #: Biased ray marching's comb: points per majorant mean free path (ceil(this x sigma_maj L)).
 RAYMARCH_SAMPLES_PER_MFP = 1.0
 
+# --- Multiple importance sampling (volmc/reference/sampling.py) ------------------------------
+
+#: How two sampling strategies are combined (render.mis): the balance heuristic ...
+MIS_BALANCE = 0
+#: ... or the power heuristic with exponent 2 (Veach 1997).
+MIS_POWER = 1
+
 # --- Phase functions, cameras, lights ---------------------------------------------------------
 
 PHASE_ISOTROPIC = 0

@@ -9,6 +9,7 @@ import numpy as np
 from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_BRICKS,
                         DENSITY_CONSTANT, DENSITY_GRID, EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
                         LIGHT_DIRECTIONAL, LIGHT_POINT, MAJORANT_GLOBAL, MAJORANT_GRID,
+                        MIS_BALANCE, MIS_POWER,
                         PHASE_HG, PHASE_ISOTROPIC, SPECTRAL_CHANNEL, SPECTRAL_GREY,
                         SPECTRAL_HERO, SPECTRAL_TRACKING)
 from .params import light_dtype, medium_dtype, params_dtype
@@ -119,6 +120,7 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["max_depth"] = rnd.max_depth
     p["rr_depth"] = rnd.rr_depth
     p["max_steps"] = rnd.max_steps
+    p["mis"] = MIS_POWER if rnd.mis == "power" else MIS_BALANCE
     est = ESTIMATORS[rnd.transmittance]
     p["shadow_estimator"] = est.id
     p["decomposition"] = int(scene.grid is not None and rnd.majorant == "grid"

@@ -26,6 +26,7 @@ PARAM_FIELDS = (
     ("decomposition", "i4", 1, "1: free flight uses each segment's minorant as its control"),
     ("shadow_estimator", "i4", 1, "ESTIMATOR_* id of shadow rays (the kernels build it in)"),
     ("signed_samples", "i4", 1, "1 if samples may be negative (a signed shadow estimator)"),
+    ("mis", "i4", 1, "MIS_BALANCE or MIS_POWER: how light and phase sampling combine"),
     ("has_env", "i4", 1, "1 if an environment light is present"),
     ("env", "real", 3, "environment radiance (sum of all environment lights)"),
     ("n_lights", "i4", 1, "number of directional and point lights in the light array"),

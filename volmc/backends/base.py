@@ -68,6 +68,6 @@ def techniques(scene):
                      "radiance x field" if scene.medium.emission.radiance is not None else
                      "blackbody temperature") + (", at every tentative collision"
                                                   if scene.medium.emission is not None else ""),
-        "nee": "all lights; environment by uniform sphere + balance-heuristic MIS",
+        "nee": f"all lights; environment by uniform sphere + {r.mis}-heuristic MIS",
         "russian_roulette": f"from depth {r.rr_depth}, q = min(max(beta), {RR_MAX_SURVIVAL})",
     }

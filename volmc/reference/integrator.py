@@ -13,7 +13,7 @@ path:
    ends. The throughput is multiplied by the albedo (sigma_s / sigma_t).
 4. Direct lighting (``sample_direct``): one shadow ray to each directional and point light,
    and one environment direction sampled uniformly over the sphere and combined with phase
-   sampling by the balance heuristic (``mis_balance``). Shadow-ray transmittance is the
+   sampling by the balance or power heuristic (``mis_weight``, render.mis). Shadow-ray transmittance is the
    estimator render.transmittance chose (estimators.py; exact on homogeneous segments), on
    its own random stream.
    A medium that cannot scatter into the image (all albedos 0, or max_depth = 0) skips
@@ -48,7 +48,7 @@ from .medium import MediumData
 from .phase import phase_eval, phase_sample
 from .tracking import mis_weights
 from .rng import RNG_STATE_SIZE, rng_init, rng_next
-from .sampling import (dot, mis_balance, normalize, sample_uniform_sphere,
+from .sampling import (dot, mis_weight, normalize, sample_uniform_sphere,
                        uniform_sphere_pdf)
 from .vec import add3, div3, madd3, max3, mul3, scale3
 
@@ -182,7 +182,7 @@ def sample_direct(prm, lights, med, p, d, rng, rng_s, counters):
         f = phase_eval(m.phase_kind, m.g, dot(d, wl))
         tr = shadow_transmittance(prm, med, p, wl, math.inf, rng_s, counters)
         L = add3(L, mul3((prm.env[0], prm.env[1], prm.env[2]),
-                         scale3(tr, f * mis_balance(pdf_l, f) / pdf_l)))
+                         scale3(tr, f * mis_weight(prm.mis, pdf_l, f) / pdf_l)))
     return L
 
 
@@ -243,7 +243,7 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
             break
         if event == EVENT_ESCAPE:
             if prm.has_env != 0:
-                w = mis_balance(pdf_phase, uniform_sphere_pdf()) if depth > 0 else 1.0
+                w = mis_weight(prm.mis, pdf_phase, uniform_sphere_pdf()) if depth > 0 else 1.0
                 L = add3(L, mul3(beta_w, scale3(env, w)))
             break
         depth += 1

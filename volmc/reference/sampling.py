@@ -12,7 +12,7 @@ import math
 
 from numba import njit
 
-from ..constants import INV_4PI, TWO_PI
+from ..constants import INV_4PI, MIS_POWER, TWO_PI
 
 
 @njit(cache=True, inline="always")
@@ -111,3 +111,20 @@ def mis_balance(pdf_a, pdf_b):
     """Balance-heuristic weight of strategy a against strategy b, one sample each:
     pdf_a / (pdf_a + pdf_b) (Veach 1997). Both pdfs in the same measure (1/sr here)."""
     return pdf_a / (pdf_a + pdf_b)
+
+
+@njit(cache=True, inline="always")
+def mis_power(pdf_a, pdf_b):
+    """Power-heuristic weight (exponent 2) of strategy a against strategy b, one sample each:
+    pdf_a^2 / (pdf_a^2 + pdf_b^2) (Veach 1997). The two weights of a pair sum to 1, so the
+    combination stays unbiased; it leans harder on the strategy with the larger pdf."""
+    a = pdf_a * pdf_a
+    return a / (a + pdf_b * pdf_b)
+
+
+@njit(cache=True, inline="always")
+def mis_weight(kind, pdf_a, pdf_b):
+    """Weight of strategy a against b by the heuristic ``kind`` (MIS_BALANCE, MIS_POWER)."""
+    if kind == MIS_POWER:
+        return mis_power(pdf_a, pdf_b)
+    return mis_balance(pdf_a, pdf_b)

@@ -147,6 +147,7 @@ class Render:
     majorant_resolution: tuple = ()
     spectral: str = "hero"
     grid_storage: str = "auto"
+    mis: str = "balance"
 
 
 @dataclass(frozen=True)
@@ -166,7 +167,8 @@ MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase", "emission")
 EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
-               "majorant_resolution", "free_flight", "spectral", "grid_storage")
+               "majorant_resolution", "free_flight", "spectral", "grid_storage", "mis")
+MIS_HEURISTICS = ("balance", "power")
 GRID_STORAGES = ("auto", "dense", "bricks")
 SPECTRAL_MODES = ("tracking", "hero", "channel")
 MAJORANTS = ("global", "grid")
@@ -476,6 +478,7 @@ def _render(c, raw):
         spectral=c.choice(raw.get("spectral", d.spectral), p + "spectral", SPECTRAL_MODES),
         grid_storage=c.choice(raw.get("grid_storage", d.grid_storage), p + "grid_storage",
                               GRID_STORAGES),
+        mis=c.choice(raw.get("mis", d.mis), p + "mis", MIS_HEURISTICS),
     )
 
 
