@@ -13,7 +13,7 @@ from volmc.params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT, N_COUNTERS
 from volmc.constants import (DENSITY_CONSTANT, DENSITY_COSINE, DENSITY_GAUSS_BUMP,
                              DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP)
 from volmc.params import medium_dtype
-from volmc.reference.medium import (MediumData, make_grid_medium, make_profile,
+from volmc.reference.medium import (MediumData, no_field_arrays, make_grid_medium, make_profile,
                                     optical_depth_profile, profile_bounds)
 from volmc.reference.optical_depth import optical_depth_exact
 from volmc.reference.power_series import (URM_MEAN_ORDER, cmf_deterministic_terms,
@@ -39,8 +39,8 @@ def _run(kind, media, grid, o, d, t0, t1, mbar, mu_c, n, seed, max_steps, pixel)
     out = np.empty(n)
     lookups = np.empty(n, np.int64)
     counters = np.zeros(N_COUNTERS, np.int64)
-    med = MediumData(media[0], grid, grid, grid, grid, np.zeros((2, 3)),
-                     np.zeros((1, 1, 1), np.int32), np.zeros((1, 8, 8, 8)))
+    emis, table, bricks, pool = no_field_arrays()
+    med = MediumData(media[0], grid, grid, grid, emis, table, bricks, pool)
     for i in range(n):
         rng = rng_new(seed, pixel, i, STREAM_TEST)
         before = counters[C_LOOKUPS]

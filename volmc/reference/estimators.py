@@ -36,7 +36,7 @@ from ..constants import (ESTIMATOR_ANALYTIC, ESTIMATOR_BIASED_RAYMARCH, ESTIMATO
                          TRACK_LENGTH, TRACK_NEXT_FLIGHT, TRACK_RATIO, TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, N_COUNTERS
 from .medium import (ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next,
-                     optical_depth_comb)
+                     no_field_arrays, optical_depth_comb)
 from .power_series import power_series_segment, unbiased_raymarch_segment
 from .rng import rng_new, rng_next
 from .tracking import ONE3, track, transmittance_roulette
@@ -208,10 +208,7 @@ def estimate_batch(est, media, grid, maj, mnr, rays, n_per_ray, seed, sample_off
     n = rays.shape[0] * n_per_ray
     out = np.empty(n)
     counters = np.zeros((n, N_COUNTERS), np.int64)
-    emis = np.zeros((1, 1, 1))
-    table = np.zeros((2, 3))
-    bricks = np.zeros((1, 1, 1), np.int32)
-    pool = np.zeros((1, 8, 8, 8))
+    emis, table, bricks, pool = no_field_arrays()
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, sample_offset + i % n_per_ray, STREAM_TEST)

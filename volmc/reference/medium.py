@@ -189,18 +189,20 @@ def optical_depth_comb(med, o, d, t0, L, n, u, sigma_maj, counters):
 
 # --- Host-side constructors and closed forms (tests and the estimator benchmark) ------------
 
-def no_bricks():
-    """(index table, pool) placeholders of a medium whose density is not a brick grid."""
-    return np.zeros((1, 1, 1), np.int32), np.zeros((1, 8, 8, 8))
+@njit(cache=True)
+def no_field_arrays():
+    """(emis, table, bricks, pool): placeholders of the emission grid, blackbody table and
+    brick arrays for a medium that does not emit and has no brick grid (tests, benchmarks)."""
+    return (np.zeros((1, 1, 1)), np.zeros((2, 3)), np.zeros((1, 1, 1), np.int32),
+            np.zeros((1, 8, 8, 8)))
 
 
-def medium_data(m, grid, maj=None, mnr=None):
-    """A ``MediumData`` of record ``m`` and density grid ``grid`` (float64), with placeholder
-    majorant, emission and brick arrays where none are given."""
-    one = np.zeros((1, 1, 1))
-    bricks, pool = no_bricks()
-    return MediumData(m, grid, one if maj is None else maj, one if mnr is None else mnr, one,
-                      np.zeros((2, 3)), bricks, pool)
+def medium_data(m, grid, maj, mnr):
+    """A ``MediumData`` of record ``m``, density grid ``grid`` and majorant grid (maj, mnr),
+    float64, with ``no_field_arrays`` for the rest (host side; jitted code calls
+    ``no_field_arrays`` and builds the tuple itself)."""
+    emis, table, bricks, pool = no_field_arrays()
+    return MediumData(m, grid, maj, mnr, emis, table, bricks, pool)
 
 
 def new_medium():

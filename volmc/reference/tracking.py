@@ -94,7 +94,7 @@ from ..constants import (EMISSION_NONE, EVENT_CAPPED, EVENT_ESCAPE, EVENT_SCATTE
                          TRACK_LENGTH, TRACK_NEXT_FLIGHT, TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, C_LOOKUPS, N_COUNTERS
 from .medium import (ITER_STATE_SIZE, MediumData, emitted_radiance, extinction,
-                     majorant_iter_init, majorant_next, medium_chroma)
+                     majorant_iter_init, majorant_next, medium_chroma, no_field_arrays)
 from .rng import rng_new, rng_next
 from .sampling import sample_exponential
 from .vec import add3, exp_neg3, madd3, max3, mul3, one_minus3, scale3
@@ -324,10 +324,7 @@ def track_batch(technique, use_control, media, grid, maj, mnr, rays, n_per_ray, 
     t_out = np.empty(n)
     T_out = np.empty((n, 3))
     lookups = np.empty(n, np.int64)
-    emis = np.zeros((1, 1, 1))
-    table = np.zeros((2, 3))
-    bricks = np.zeros((1, 1, 1), np.int32)
-    pool = np.zeros((1, 8, 8, 8))
+    emis, table, bricks, pool = no_field_arrays()
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, i % n_per_ray, STREAM_TEST)
