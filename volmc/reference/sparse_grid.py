@@ -183,7 +183,10 @@ def bricks_from_dense(grid, dtype=np.float32):
 
 
 @njit(cache=True)
-def _mark_blocks(origins, values, nx, ny, nz, table):
+def _scatter_blocks(origins, values, nx, ny, nz, table, pool, fill):
+    """Visit every voxel of the blocks that lies inside the grid: without ``fill``, mark the
+    bricks holding a non-zero one in ``table``; with it, copy the voxels into the pool slots
+    ``table`` has numbered (empty bricks, slot 0, are skipped)."""
     for b in range(origins.shape[0]):
         ox, oy, oz = origins[b, 0], origins[b, 1], origins[b, 2]
         for z in range(8):
@@ -198,25 +201,9 @@ def _mark_blocks(origins, values, nx, ny, nz, table):
                     gx = ox + x
                     if gx < 0 or gx >= nx:
                         continue
-                    if values[b, z, y, x] != 0:
-                        table[gz >> 3, gy >> 3, gx >> 3] = 1
-
-
-@njit(cache=True)
-def _fill_blocks(origins, values, nx, ny, nz, table, pool):
-    for b in range(origins.shape[0]):
-        ox, oy, oz = origins[b, 0], origins[b, 1], origins[b, 2]
-        for z in range(8):
-            gz = oz + z
-            if gz < 0 or gz >= nz:
-                continue
-            for y in range(8):
-                gy = oy + y
-                if gy < 0 or gy >= ny:
-                    continue
-                for x in range(8):
-                    gx = ox + x
-                    if gx < 0 or gx >= nx:
+                    if not fill:
+                        if values[b, z, y, x] != 0:
+                            table[gz >> 3, gy >> 3, gx >> 3] = 1
                         continue
                     s = table[gz >> 3, gy >> 3, gx >> 3]
                     if s != 0:
@@ -240,10 +227,11 @@ def bricks_from_blocks(dims, origins, values, dtype=np.float32):
     if values.shape != (len(origins), BRICK, BRICK, BRICK):
         raise ValueError(f"values must be [{len(origins)}, 8, 8, 8], got {values.shape}")
     table = _new_table((nx, ny, nz))
-    _mark_blocks(origins, values, nx, ny, nz, table)
+    pool = np.zeros((1, BRICK, BRICK, BRICK), dtype)   # unused while marking
+    _scatter_blocks(origins, values, nx, ny, nz, table, pool, False)
     n_slots = _number_slots(table)
     pool = np.zeros((n_slots, BRICK, BRICK, BRICK), dtype)
-    _fill_blocks(origins, values, nx, ny, nz, table, pool)
+    _scatter_blocks(origins, values, nx, ny, nz, table, pool, True)
     return table, pool
 
 
