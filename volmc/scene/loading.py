@@ -137,9 +137,11 @@ def apply_overrides(raw, overrides, file):
 
 
 def _read_source(spec, src, key, vdb_density=None, cache=None):
-    """(float32 [z, y, x] array, VdbGrid or None) of a grid source: a file or a generator.
-    A VDB field grid is placed onto the VDB density's voxels (``vdb_density``) by index;
-    ``cache`` (a dict) keeps generator outputs for the other fields of one scene."""
+    """(float32 [z, y, x] array or None, VdbGrid or None) of a grid source: a file or a
+    generator. A VDB grid comes back as its VdbGrid alone (array None: the caller decides
+    whether it needs the dense array), unless it is a field placed onto the VDB density's
+    voxels (``vdb_density``) by index; ``cache`` (a dict) keeps generator outputs for the
+    other fields of one scene."""
     if isinstance(src, FileDensity):
         if not os.path.exists(src.resolved):
             raise SceneError(spec.file, key + ".file", f"grid file not found: {src.path}")
@@ -148,7 +150,7 @@ def _read_source(spec, src, key, vdb_density=None, cache=None):
             vg = read_vdb(src.resolved, src.grid, key)
             if vdb_density is not None:
                 return _align_vdb(vg, vdb_density, src.resolved, key), vg
-            return vg.to_dense(), vg
+            return None, vg
         return load_grid(src.resolved, key, src.grid), None
     if isinstance(src, GeneratedDensity):
         from . import generators
@@ -217,18 +219,12 @@ def load_density(spec: SceneSpec, cache=None):
     d = spec.medium.density
     if isinstance(d, ConstantDensity):
         return None, None
-    if isinstance(d, FileDensity) and d.resolved.lower().endswith((".vdb", ".nvdb")) and \
-            os.path.exists(d.resolved):
-        from .vdb import read_vdb
-        vg = read_vdb(d.resolved, d.grid, "medium.density")
-        if spec.render.grid_storage != "dense" and vg.background == 0.0:
-            grid = _vdb_bricks(vg, d.resolved, "medium.density")
-        else:
-            grid = validate_grid(vg.to_dense(), d.resolved, "medium.density")
+    raw, vg = _read_source(spec, d, "medium.density", cache=cache)
+    where = d.resolved if isinstance(d, FileDensity) else spec.file
+    if raw is None and spec.render.grid_storage != "dense" and vg.background == 0.0:
+        grid = _vdb_bricks(vg, where, "medium.density")
     else:
-        raw, vg = _read_source(spec, d, "medium.density", cache=cache)
-        grid = validate_grid(raw, spec.file if not isinstance(d, FileDensity)
-                             else d.resolved, "medium.density")
+        grid = validate_grid(vg.to_dense() if raw is None else raw, where, "medium.density")
     # The float32 kernels hold the global majorant scale * max(density).
     top = max(spec.medium.scale) * float(grid.max())
     if top > FLOAT32_MAX:
@@ -248,9 +244,9 @@ def load_emission(spec: SceneSpec, vdb_density=None, cache=None):
         (e.temperature, "medium.emission.temperature")
     if isinstance(src, ConstantDensity):
         return np.full((1, 1, 1), src.value, np.float32)
-    raw, _ = _read_source(spec, src, key, vdb_density, cache)
+    raw, vg = _read_source(spec, src, key, vdb_density, cache)
     where = src.resolved if isinstance(src, FileDensity) else spec.file
-    return validate_grid(raw, where, key)
+    return validate_grid(vg.to_dense() if raw is None else raw, where, key)
 
 
 def _complete(spec: SceneSpec):
