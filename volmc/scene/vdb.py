@@ -277,6 +277,26 @@ class _Blocks:
                                  "blocks and refuses this much")
         self.tiles.append((tuple(int(v) for v in origin), size, float(value)))
 
+    def to_grid(self, leaf_origins, values, active, voxel_size, translation, background):
+        """The VdbGrid of these tiles and the leaves at ``leaf_origins`` (n index triples),
+        whose ``values`` (float, (n, 512)) and ``active`` masks (bool, (n, 512)) come in the
+        files' leaf order, x-major ((x << 6) | (y << 3) | z). The active bbox covers the
+        leaves' active voxels and the tiles (all active)."""
+        n = len(leaf_origins)
+        leaf_origins = np.array(leaf_origins, np.int64).reshape(-1, 3)
+        self.leaf_origins.append(leaf_origins)
+        self.leaf_values.append(np.asarray(values, np.float32).reshape(n, 8, 8, 8)
+                                .transpose(0, 3, 2, 1))   # to [z][y][x]
+        act_blocks = [np.asarray(active).reshape(n, 8, 8, 8).transpose(0, 3, 2, 1)]
+        act_origins = [leaf_origins]
+        origins, vals = self.build()
+        for origin, size, _ in self.tiles:
+            act_origins.append(np.array([origin, np.add(origin, size - 8)], np.int64))
+            act_blocks.append(np.ones((2, 8, 8, 8), bool))
+        bbox = _bbox_of_active(np.concatenate(act_origins), np.concatenate(act_blocks),
+                               self.cur, self.grid)
+        return VdbGrid(self.grid, voxel_size, translation, bbox, background, origins, vals)
+
     def build(self):
         """(origins int32 (n, 3), values float32 (n, 8, 8, 8)) sorted by (x, y, z); each
         value is copied once, into its sorted place, and tiles are filled in place."""
@@ -426,19 +446,8 @@ class _VdbReader:
             mask = _bits(cur.take(64))
             active[i] = mask
             values[i] = self._read_values(512, mask)
-        # Leaf order is x-major ((x << 6) | (y << 3) | z): to [z][y][x].
-        blocks.leaf_origins.append(np.array(leaf_origins, np.int64).reshape(-1, 3))
-        blocks.leaf_values.append(values.reshape(n, 8, 8, 8).transpose(0, 3, 2, 1))
-        act_blocks = [active.reshape(n, 8, 8, 8).transpose(0, 3, 2, 1)]
-        act_origins = [np.array(leaf_origins, np.int64).reshape(-1, 3)]
-        origins, vals = blocks.build()
-        # Active bbox: leaves' active voxels, and tiles (all active).
-        for origin, size, _ in blocks.tiles:
-            act_origins.append(np.array([origin, np.add(origin, size - 8)], np.int64))
-            act_blocks.append(np.ones((2, 8, 8, 8), bool))
-        bbox = _bbox_of_active(np.concatenate(act_origins), np.concatenate(act_blocks), cur,
-                               name)
-        return VdbGrid(name, voxel_size, translation, bbox, self.background, origins, vals)
+        return blocks.to_grid(leaf_origins, values, active, voxel_size, translation,
+                              self.background)
 
     def _read_transform(self, name):
         cur = self.cur
@@ -664,19 +673,7 @@ class _NanoGrid:
         masks = np.ndarray((n_leaf, 64), np.uint8, self.buf, self.leaf_base + 16,
                            (self.LEAF_SIZE, 1)) if n_leaf else np.zeros((0, 64), np.uint8)
         active = np.unpackbits(masks[idx], axis=1, bitorder="little").astype(bool)
-        n = len(idx)
-        blocks.leaf_origins.append(np.array(leaf_origin, np.int64).reshape(-1, 3))
-        blocks.leaf_values.append(vals.astype(np.float32, copy=False).reshape(n, 8, 8, 8)
-                                  .transpose(0, 3, 2, 1))
-        act_blocks = [active.reshape(n, 8, 8, 8).transpose(0, 3, 2, 1)]
-        act_origins = [np.array(leaf_origin, np.int64).reshape(-1, 3)]
-        origins, values = blocks.build()
-        for origin, size, _ in blocks.tiles:
-            act_origins.append(np.array([origin, np.add(origin, size - 8)], np.int64))
-            act_blocks.append(np.ones((2, 8, 8, 8), bool))
-        bbox = _bbox_of_active(np.concatenate(act_origins), np.concatenate(act_blocks), cur,
-                               name)
-        return VdbGrid(name, voxel_size, translation, bbox, background, origins, values)
+        return blocks.to_grid(leaf_origin, vals, active, voxel_size, translation, background)
 
     def _internal(self, node, origin, log2, blocks, leaf_index, leaf_origin):
         cur = self.cur
