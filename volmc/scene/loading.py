@@ -16,8 +16,8 @@ import numpy as np
 from .errors import SceneError
 from .bricks import BrickGrid
 from .grids import load_grid, validate_grid
-from .schema import (FLOAT32_MAX, GENERATORS, ConstantDensity, FileDensity, GeneratedDensity, SceneSpec,
-                     check_box, validate)
+from .schema import (FLOAT32_MAX, GENERATORS, ConstantDensity, FileDensity, GeneratedDensity,
+                     SceneSpec, check_box, validate)
 
 
 @dataclass(frozen=True)
