@@ -113,38 +113,137 @@ inline spec shadow_transmittance(const Params *prm, const MediumData *med, float
     return SHADOW_ESTIMATOR(med, o, d, t0, t1, rng_s, counters, prm->max_steps);
 }
 
-/* Direct light at p towards -d per unit throughput (twin of sample_direct in integrator.py). */
+/* How a path treats point lights (render.equiangular; twin constants in integrator.py):
+ * next-event estimation only, equiangular sampling alone, or both combined by MIS. */
+#define EQUIANGULAR_OFF 0
+#define EQUIANGULAR_ALONE 1
+#define EQUIANGULAR_MIS 2
+
+inline int equiangular_mode(const Params *prm, const Medium *m) {
+    if (!prm->equiangular) return EQUIANGULAR_OFF;
+    return m->density_kind == DENSITY_CONSTANT && m->spectral == SPECTRAL_GREY
+               ? EQUIANGULAR_MIS
+               : EQUIANGULAR_ALONE;
+}
+
+/* Returns the unit direction from p to c, writes the distance (0 when p = c). */
+inline float3 direction_to(float3 p, float3 c, float *dist) {
+    float3 v = c - p;
+    *dist = sqrt(dot(v, v));
+    return *dist > 0.0f ? v / *dist : v;
+}
+
+/* Returns the ray parameter h of c's foot on the ray o + t d, writes c's distance D from the
+ * ray's line. */
+inline float foot_on_ray(float3 c, float3 o, float3 d, float *D) {
+    float3 v = c - o;
+    float h = dot(v, d);
+    float3 w = v - h * d;
+    *D = sqrt(dot(w, w));
+    return h;
+}
+
+/* sigma e^{-sigma (t - t0)}: free flight's collision density in a homogeneous grey medium. */
+inline float free_flight_pdf(const Medium *m, float t0, float t) {
+    float s = m->scale * m->density;
+    return s * exp(-s * (t - t0));
+}
+
+/* MIS weight of next-event estimation towards point light c (twin in integrator.py). */
+inline float point_light_nee_weight(const Params *prm, const Medium *m, int ea, float3 c,
+                                    float3 o, float3 d, float t0, float t1, float t) {
+    if (ea == EQUIANGULAR_OFF) return 1.0f;
+    float D;
+    float h = foot_on_ray(c, o, d, &D);
+    if (!(D > 0.0f)) return 1.0f;
+    if (ea == EQUIANGULAR_ALONE) return 0.0f;
+    return mis_weight(prm->mis, free_flight_pdf(m, t0, t), equiangular_pdf(t, h, D, t0, t1));
+}
+
+/* Direct light at o + t d towards -d per unit throughput, with render.light_samples shadow
+ * rays per light (twin of sample_direct in integrator.py). */
 inline float3 sample_direct(const Params *prm, global const Light *lights, const MediumData *med,
-                            float3 p, float3 d, Rng *rng, Rng *rng_s, ulong *counters) {
+                            int ea, float3 o, float3 d, float t0, float t1, float t, Rng *rng,
+                            Rng *rng_s, ulong *counters) {
     const Medium *m = &med->m;
+    float3 p = o + t * d;
+    int n = prm->light_samples;
+    float inv_n = 1.0f / (float)n;
     float3 L = (float3)(0.0f);
     for (int i = 0; i < prm->n_lights; ++i) {
         float3 wl;
+        float3 c = vec3g(lights[i].vec);
         float dist = NO_LIMIT, falloff = 1.0f;
         if (lights[i].type == LIGHT_DIRECTIONAL) {
-            wl = -vec3g(lights[i].vec);
+            wl = -c;
         } else {
-            float3 v = vec3g(lights[i].vec) - p;
-            float dist2 = dot(v, v);
-            if (dist2 <= 0.0f) continue;
-            dist = sqrt(dist2);
-            wl = v / dist;
-            falloff = 1.0f / dist2;
+            wl = direction_to(p, c, &dist);
+            if (!(dist > 0.0f)) continue;
+            falloff = point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t) / (dist * dist);
+            if (falloff <= 0.0f) continue;
         }
-        float f = phase_eval(m->phase_kind, m->g, dot(d, wl)) * falloff;
-        spec tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
-        L += vec3g(lights[i].color) * (tr * f);
+        float f = phase_eval(m->phase_kind, m->g, dot(d, wl)) * falloff * inv_n;
+        for (int j = 0; j < n; ++j) {
+            spec tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
+            L += vec3g(lights[i].color) * (tr * f);
+        }
     }
     if (prm->has_env) {
-        float ua = rng_next(rng);
-        float ub = rng_next(rng);
-        float pdf_l;
-        float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
-        float f = phase_eval(m->phase_kind, m->g, dot(d, wl));
-        spec tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
-        L += vec3(prm->env) * (tr * (f * mis_weight(prm->mis, pdf_l, f) / pdf_l));
+        for (int j = 0; j < n; ++j) {
+            float ua = rng_next(rng);
+            float ub = rng_next(rng);
+            float pdf_l;
+            float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
+            float f = phase_eval(m->phase_kind, m->g, dot(d, wl));
+            spec tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
+            float w = mis_weight(prm->mis, (float)n * pdf_l, f) * inv_n;
+            L += vec3(prm->env) * (tr * (f * w / pdf_l));
+        }
     }
     return L;
+}
+
+/* Light from every point light scattered once inside [t0, t1] of the ray o + t d, by
+ * equiangular sampling (twin of sample_equiangular_lights in integrator.py, which derives
+ * it). */
+inline float3 sample_equiangular_lights(const Params *prm, global const Light *lights,
+                                        const MediumData *med, int ea, float3 o, float3 d,
+                                        float t0, float t1, Rng *rng, Rng *rng_s,
+                                        ulong *counters) {
+    const Medium *m = &med->m;
+    float3 L = (float3)(0.0f);
+    for (int i = 0; i < prm->n_lights; ++i) {
+        if (lights[i].type != LIGHT_POINT) continue;
+        float u = rng_next(rng);
+        float3 c = vec3g(lights[i].vec);
+        float D;
+        float h = foot_on_ray(c, o, d, &D);
+        if (!(D > 0.0f)) continue;
+        float pdf;
+        float t = sample_equiangular(u, h, D, t0, t1, &pdf);
+        if (!(pdf > 0.0f)) continue;
+        float3 p = o + t * d;
+        float dist;
+        float3 wl = direction_to(p, c, &dist);
+        if (!(dist > 0.0f)) continue;
+        spec sig = medium_chroma(med) * extinction(med, p, INFINITY, counters);
+        float3 sig_s = vec3(m->albedo) * sig;
+        if (fmax(sig_s.x, fmax(sig_s.y, sig_s.z)) <= 0.0f) continue;
+        counters[C_SHADOW] += 1;
+        spec t_cam = SHADOW_ESTIMATOR(med, o, d, t0, t, rng_s, counters, prm->max_steps);
+        spec t_lt = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
+        float w = ea == EQUIANGULAR_MIS ? mis_weight(prm->mis, pdf, free_flight_pdf(m, t0, t))
+                                        : 1.0f;
+        float f = phase_eval(m->phase_kind, m->g, dot(d, wl)) * w / (dist * dist * pdf);
+        L += vec3g(lights[i].color) * (sig_s * (t_cam * t_lt) * f);
+    }
+    return L;
+}
+
+/* Russian roulette's survival probability (render.rr; twin in integrator.py). */
+inline float survival_probability(const Params *prm, float3 beta_w, float3 albedo) {
+    float3 x = prm->rr == RR_ALBEDO ? beta_w * albedo : beta_w;
+    return fmin(fmax(x.x, fmax(x.y, x.z)), RR_MAX_SURVIVAL);
 }
 
 inline float3 trace_path(const Params *prm, global const Light *lights, const MediumData *med,
@@ -178,12 +277,19 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
     }
     int depth = 0;
     float pdf_phase = 0.0f;
+    const int ea = equiangular_mode(prm, m);
+    const float n_env = (float)prm->light_samples * uniform_sphere_pdf();
     while (true) {
         float t0, t1, shift;
         o = enter_box(o, d, bmin, bmax, &t0, &t1, &shift);
         int event = EVENT_ESCAPE;
         float t = t1;
         if (t1 > t0) {
+            if (ea != EQUIANGULAR_OFF && (prm->max_depth < 0 || depth < prm->max_depth)) {
+                float3 bw = FEATURE_CHROMATIC && hero >= 0 ? beta * mis_weights(R) : beta;
+                L += bw * sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, rng,
+                                                    rng_s, counters);
+            }
             spec w;
             float3 E;
             event = free_flight(med, o, d, t0, t1, prm->decomposition, hero >= 0 ? R : beta,
@@ -208,8 +314,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         if (event == EVENT_CAPPED) break;
         if (event == EVENT_ESCAPE) {
             if (prm->has_env) {
-                float w = depth > 0 ? mis_weight(prm->mis, pdf_phase, uniform_sphere_pdf())
-                                    : 1.0f;
+                float w = depth > 0 ? mis_weight(prm->mis, pdf_phase, n_env) : 1.0f;
                 L += beta_w * (env * w);
             }
             break;
@@ -220,10 +325,11 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         beta *= albedo;
         beta_w *= albedo;
         if (fmax(beta_w.x, fmax(beta_w.y, beta_w.z)) <= 0.0f) break;
+        L += beta_w * sample_direct(prm, lights, med, ea, o, d, t0, t1, t, rng, rng_s,
+                                    counters);
         float3 p = o + t * d;
-        L += beta_w * sample_direct(prm, lights, med, p, d, rng, rng_s, counters);
         if (depth >= prm->rr_depth) {
-            float q = fmin(fmax(beta_w.x, fmax(beta_w.y, beta_w.z)), RR_MAX_SURVIVAL);
+            float q = survival_probability(prm, beta_w, albedo);
             if (rng_next(rng) >= q) break;
             beta /= q;
         }

@@ -68,4 +68,25 @@ inline float mis_weight(int kind, float pdf_a, float pdf_b) {
     return kind == MIS_POWER ? mis_power(pdf_a, pdf_b) : mis_balance(pdf_a, pdf_b);
 }
 
+/* Equiangular distance sampling towards a point (Kulla & Fajardo 2012; twin of
+ * sample_equiangular in sampling.py, where the arguments are described): t in [ta, tb]. */
+inline float equiangular_pdf(float t, float h, float D, float ta, float tb) {
+    if (t < ta || t > tb) return 0.0f;
+    float th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
+    float x = t - h;
+    return D / ((th_b - th_a) * (D * D + x * x));
+}
+
+inline float sample_equiangular(float u, float h, float D, float ta, float tb, float *pdf) {
+    float th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
+    float t = clamp(h + D * tan(th_a + u * (th_b - th_a)), ta, tb);
+    *pdf = equiangular_pdf(t, h, D, ta, tb);
+    return t;
+}
+
+inline float invert_equiangular_sample(float t, float h, float D, float ta, float tb) {
+    float th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
+    return (atan2(t - h, D) - th_a) / (th_b - th_a);
+}
+
 #endif

@@ -86,6 +86,16 @@ kernel void t_invert_exponential(global const float *t, float a, global float *o
     out[i] = invert_exponential_sample(t[i], a);
 }
 
+kernel void t_equiangular(global const float *u, float h, float D, float ta, float tb,
+                          global float *out) {
+    int i = get_global_id(0);
+    float pdf;
+    float t = sample_equiangular(u[i], h, D, ta, tb, &pdf);
+    out[3 * i] = t;
+    out[3 * i + 1] = pdf;
+    out[3 * i + 2] = invert_equiangular_sample(t, h, D, ta, tb);
+}
+
 kernel void t_grid_lookup(global const float *grid, int3 dims, float3 bmin, float3 inv_extent,
                           global const float *p, global float *out) {
     int i = get_global_id(0);

@@ -28,8 +28,11 @@ def test_weights_of_a_pair_sum_to_one():
     assert mis_power(3.0, 4.0) == pytest.approx(9.0 / 25.0)
 
 
-def test_power_heuristic_white_furnace(backend):
-    scene = load_scene(FURNACE, ["render.mis=power", "render.spp=256",
+@pytest.mark.parametrize("key", ["render.mis=power", "render.light_samples=3"])
+def test_white_furnace_stays_exact(backend, key):
+    """The power heuristic, and splitting with the sample counts in the balance heuristic's
+    weights (N p_light against p_phase), keep the white furnace exact."""
+    scene = load_scene(FURNACE, [key, "render.spp=256",
                                  "camera.resolution=[8, 8]", "medium.phase.g=0.9",
                                  "render.rr_depth=1000000"])
     res = render(scene, progress=False, backend=backend)

@@ -149,6 +149,15 @@ MIS_BALANCE = 0
 #: ... or the power heuristic with exponent 2 (Veach 1997).
 MIS_POWER = 1
 
+# --- Samplers (render.sampler; volmc/reference/sampler.py) -----------------------------------
+
+#: Every uniform from the counter RNG (rng.py) ...
+SAMPLER_INDEPENDENT = 0
+#: ... the leading 2-D samples of each bounce stratified per pixel (multi-jittered) ...
+SAMPLER_STRATIFIED = 1
+#: ... or from an Owen-scrambled Sobol sequence.
+SAMPLER_SOBOL = 2
+
 # --- Phase functions, cameras, lights ---------------------------------------------------------
 
 PHASE_ISOTROPIC = 0
@@ -165,6 +174,10 @@ LIGHT_POINT = 1
 #: A path survives roulette with probability min(max(throughput), RR_MAX_SURVIVAL): the cap
 #: ends every path, even at albedo 1 in an unbounded medium (Mitsuba 3's policy).
 RR_MAX_SURVIVAL = 0.95
+#: Russian-roulette survival rules (render.rr): the throughput's largest channel ...
+RR_THROUGHPUT = 0
+#: ... or the expected throughput after the next scattering (throughput x albedo).
+RR_ALBEDO = 1
 #: Guard "transmittance roulette" (docs/robustness.md): below this running |T| a
 #: transmittance walk goes on with probability |T| / TR_RR_THRESHOLD.
 TR_RR_THRESHOLD = 1e-3

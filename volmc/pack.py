@@ -6,12 +6,12 @@ from collections import namedtuple
 
 import numpy as np
 
-from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_BRICKS,
-                        DENSITY_CONSTANT, DENSITY_GRID, EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
+from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_BRICKS, DENSITY_CONSTANT,
+                        DENSITY_GRID, EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
                         LIGHT_DIRECTIONAL, LIGHT_POINT, MAJORANT_GLOBAL, MAJORANT_GRID,
-                        MIS_BALANCE, MIS_POWER,
-                        PHASE_HG, PHASE_ISOTROPIC, SPECTRAL_CHANNEL, SPECTRAL_GREY,
-                        SPECTRAL_HERO, SPECTRAL_TRACKING)
+                        MIS_BALANCE, MIS_POWER, PHASE_HG, PHASE_ISOTROPIC, RR_ALBEDO,
+                        RR_THROUGHPUT, SAMPLER_INDEPENDENT, SAMPLER_SOBOL, SAMPLER_STRATIFIED,
+                        SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO, SPECTRAL_TRACKING)
 from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
 from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
@@ -121,6 +121,12 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["rr_depth"] = rnd.rr_depth
     p["max_steps"] = rnd.max_steps
     p["mis"] = MIS_POWER if rnd.mis == "power" else MIS_BALANCE
+    p["sampler"] = {"independent": SAMPLER_INDEPENDENT, "stratified": SAMPLER_STRATIFIED,
+                    "sobol": SAMPLER_SOBOL}[rnd.sampler]
+    p["spp"] = rnd.spp
+    p["light_samples"] = rnd.light_samples
+    p["equiangular"] = int(rnd.equiangular)
+    p["rr"] = RR_ALBEDO if rnd.rr == "albedo" else RR_THROUGHPUT
     est = ESTIMATORS[rnd.transmittance]
     p["shadow_estimator"] = est.id
     p["decomposition"] = int(scene.grid is not None and rnd.majorant == "grid"

@@ -4,22 +4,26 @@ Twin of ``kernels/integrator.cl``. One sample of pixel (x, y) (y = 0 is the top 
 path:
 
 1. Camera ray through the pixel, jittered uniformly inside it (two uniforms).
-2. Free flight inside the medium box (free_flight.py): the one tracking loop over the
+2. With render.equiangular, before the flight: every point light's single scattering along
+   the segment by equiangular sampling (``sample_equiangular_lights``).
+   Free flight inside the medium box (free_flight.py): the one tracking loop over the
    medium's majorant segments -- analytic for a homogeneous medium, delta or decomposition
    tracking over the global majorant or the majorant grid (empty cells cost nothing).
    Escaping the box ends the path and adds the environment radiance, weighted by MIS when
    the direction came from phase sampling.
 3. At a real collision: the scattering event count rises; past ``max_depth`` the path
    ends. The throughput is multiplied by the albedo (sigma_s / sigma_t).
-4. Direct lighting (``sample_direct``): one shadow ray to each directional and point light,
-   and one environment direction sampled uniformly over the sphere and combined with phase
-   sampling by the balance or power heuristic (``mis_weight``, render.mis). Shadow-ray transmittance is the
-   estimator render.transmittance chose (estimators.py; exact on homogeneous segments), on
-   its own random stream.
+4. Direct lighting (``sample_direct``): render.light_samples shadow rays to each
+   directional and point light (a point light's weighted against equiangular sampling when
+   that is on), and as many environment directions sampled uniformly over the sphere,
+   combined with phase sampling by the balance or power heuristic (``mis_weight``,
+   render.mis). Shadow-ray transmittance is the estimator render.transmittance chose
+   (estimators.py; exact on homogeneous segments), on its own random stream.
    A medium that cannot scatter into the image (all albedos 0, or max_depth = 0) skips
    steps 2-6: the pixel is the environment times the transmittance along the camera ray.
 5. Russian roulette from ``rr_depth`` scattering events on: the path survives with
-   probability q = min(max_rgb(throughput), RR_MAX_SURVIVAL) and is divided by q
+   probability q = min(max_rgb(throughput), RR_MAX_SURVIVAL) (render.rr = "albedo": of
+   throughput x albedo; ``survival_probability``) and is divided by q
    (unbiased); the cap makes every path end even with albedo 1 in an infinitely dense
    medium.
 6. A new direction is importance-sampled from the phase function; go to 2.
@@ -37,19 +41,20 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import (CAMERA_ORTHOGRAPHIC, EMISSION_NONE, EVENT_CAPPED, EVENT_ESCAPE,
-                         LIGHT_DIRECTIONAL, RR_MAX_SURVIVAL, SPECTRAL_CHANNEL, SPECTRAL_HERO,
+from ..constants import (CAMERA_ORTHOGRAPHIC, DENSITY_CONSTANT, EMISSION_NONE, EVENT_CAPPED,
+                         EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, RR_ALBEDO,
+                         RR_MAX_SURVIVAL, SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO,
                          STREAM_PATH, STREAM_SHADOW)
 from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
 from .estimators import transmittance
 from .free_flight import free_flight
 from .guards import sample_ok
-from .medium import MediumData
+from .medium import MediumData, extinction, medium_chroma
 from .phase import phase_eval, phase_sample
 from .tracking import mis_weights
 from .rng import RNG_STATE_SIZE, rng_init, rng_next
-from .sampling import (dot, mis_weight, normalize, sample_uniform_sphere,
-                       uniform_sphere_pdf)
+from .sampling import (dot, equiangular_pdf, mis_weight, normalize, sample_equiangular,
+                       sample_uniform_sphere, uniform_sphere_pdf)
 from .vec import add3, div3, madd3, max3, mul3, scale3
 
 
@@ -152,38 +157,171 @@ def shadow_transmittance(prm, med, o, d, t_max, rng_s, counters):
                          prm.max_steps)
 
 
+#: How a path treats point lights (render.equiangular): next-event estimation only ...
+EQUIANGULAR_OFF = 0
+#: ... equiangular sampling alone (its pdf cannot be weighed against free flight's in a
+#: varying medium: free flight's density there involves the unknown transmittance) ...
+EQUIANGULAR_ALONE = 1
+#: ... or both, combined by MIS (homogeneous grey media, where free flight's density
+#: sigma e^{-sigma t} is known).
+EQUIANGULAR_MIS = 2
+
+
 @njit(cache=True, inline="always")
-def sample_direct(prm, lights, med, p, d, rng, rng_s, counters):
-    """Direct light scattered at p towards -d (d: the direction the path arrived in), per
-    unit throughput: every directional and point light by one shadow ray, and the
-    environment by one uniformly sampled direction weighted by the balance heuristic against
-    phase sampling (whose half is added when a phase-sampled path escapes). Returns RGB."""
+def equiangular_mode(prm, m):
+    """EQUIANGULAR_OFF, _ALONE or _MIS for the scene (see the constants)."""
+    if prm.equiangular == 0:
+        return EQUIANGULAR_OFF
+    if m.density_kind == DENSITY_CONSTANT and m.spectral == SPECTRAL_GREY:
+        return EQUIANGULAR_MIS
+    return EQUIANGULAR_ALONE
+
+
+@njit(cache=True, inline="always")
+def direction_to(p, c):
+    """(unit direction from p to c, distance |c - p|); the distance is 0 when p = c."""
+    v = (c[0] - p[0], c[1] - p[1], c[2] - p[2])
+    dist = math.sqrt(dot(v, v))
+    if not dist > 0.0:
+        return v, 0.0
+    return (v[0] / dist, v[1] / dist, v[2] / dist), dist
+
+
+@njit(cache=True, inline="always")
+def foot_on_ray(c, o, d):
+    """(h, D): ray parameter of point c's foot on the ray o + t d (unit d), and c's distance
+    from the ray's line (world units)."""
+    v = (c[0] - o[0], c[1] - o[1], c[2] - o[2])
+    h = dot(v, d)
+    w = (v[0] - h * d[0], v[1] - h * d[1], v[2] - h * d[2])
+    return h, math.sqrt(dot(w, w))
+
+
+@njit(cache=True, inline="always")
+def free_flight_pdf(m, t0, t):
+    """Density of free flight's first real collision at t in a homogeneous grey medium
+    entered at t0: sigma e^{-sigma (t - t0)} per world unit."""
+    s = m.scale * m.density
+    return s * math.exp(-s * (t - t0))
+
+
+@njit(cache=True, inline="always")
+def point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t):
+    """MIS weight of next-event estimation towards point light c at the free-flight vertex
+    o + t d of segment [t0, t1]: 1 without equiangular sampling, and also when c lies on the
+    segment's line (equiangular sampling samples nothing there); 0 when equiangular
+    sampling alone covers the light; else the heuristic against the equiangular pdf."""
+    if ea == EQUIANGULAR_OFF:
+        return 1.0
+    h, D = foot_on_ray(c, o, d)
+    if not D > 0.0:
+        return 1.0
+    if ea == EQUIANGULAR_ALONE:
+        return 0.0
+    return mis_weight(prm.mis, free_flight_pdf(m, t0, t), equiangular_pdf(t, h, D, t0, t1))
+
+
+@njit(cache=True, inline="always")
+def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, rng, rng_s, counters):
+    """Direct light scattered at p = o + t d towards -d, per unit throughput (RGB). The
+    vertex was reached by free flight along segment [t0, t1] of the ray o + t d (unit d: the
+    direction the path arrived in); ``ea`` is equiangular_mode.
+
+    render.light_samples = N: every directional and point light gets N shadow rays, each
+    with its own transmittance estimate, averaged (splitting); the environment N directions
+    sampled uniformly over the sphere, each weighted by the heuristic render.mis against
+    phase sampling with the sample counts in it (w = N p_l / (N p_l + p_phase) for the
+    balance heuristic; the phase-sampled path that escapes gets the complement). A point
+    light's estimate is weighted against equiangular sampling (point_light_nee_weight)."""
+    m = med.m
+    p = madd3(o, d, t)
+    n = prm.light_samples
+    inv_n = 1.0 / n
+    L = (0.0, 0.0, 0.0)
+    for i in range(prm.n_lights):
+        lt = lights[i]
+        c = (lt.vec[0], lt.vec[1], lt.vec[2])
+        if lt.type == LIGHT_DIRECTIONAL:
+            wl = (-c[0], -c[1], -c[2])
+            dist = math.inf
+            falloff = 1.0
+        else:
+            wl, dist = direction_to(p, c)
+            if not dist > 0.0:
+                continue
+            falloff = point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t) / (dist * dist)
+            if falloff <= 0.0:
+                continue
+        f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * falloff * inv_n
+        for _ in range(n):
+            tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters)
+            L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]), scale3(tr, f)))
+    if prm.has_env != 0:
+        for _ in range(n):
+            wl, pdf_l = sample_uniform_sphere(rng_next(rng), rng_next(rng))
+            f = phase_eval(m.phase_kind, m.g, dot(d, wl))
+            tr = shadow_transmittance(prm, med, p, wl, math.inf, rng_s, counters)
+            w = mis_weight(prm.mis, n * pdf_l, f) * inv_n
+            L = add3(L, mul3((prm.env[0], prm.env[1], prm.env[2]), scale3(tr, f * w / pdf_l)))
+    return L
+
+
+@njit(cache=True, inline="always")
+def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, rng, rng_s, counters):
+    """Light from every point light scattered once inside segment [t0, t1] of the ray
+    o + t d towards -d, per unit throughput at o (RGB), by equiangular sampling: one distance
+    t per light from the equiangular pdf (one uniform of the path stream each), and
+
+        sigma_s(t) T(t0, t) phase f I T_light(t) / r(t)^2 / pdf(t),
+
+    with T(t0, t) and T_light unbiased estimates of render.transmittance (exact in a
+    homogeneous medium), so the estimate stays unbiased in any medium. Weighted against
+    free flight's next-event estimate by MIS when ``ea`` is EQUIANGULAR_MIS."""
     m = med.m
     L = (0.0, 0.0, 0.0)
     for i in range(prm.n_lights):
         lt = lights[i]
-        if lt.type == LIGHT_DIRECTIONAL:
-            wl = (-lt.vec[0], -lt.vec[1], -lt.vec[2])
-            dist = math.inf
-            falloff = 1.0
-        else:
-            v = (lt.vec[0] - p[0], lt.vec[1] - p[1], lt.vec[2] - p[2])
-            dist2 = dot(v, v)
-            if dist2 <= 0.0:
-                continue
-            dist = math.sqrt(dist2)
-            wl = (v[0] / dist, v[1] / dist, v[2] / dist)
-            falloff = 1.0 / dist2
-        f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * falloff
-        tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters)
-        L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]), scale3(tr, f)))
-    if prm.has_env != 0:
-        wl, pdf_l = sample_uniform_sphere(rng_next(rng), rng_next(rng))
-        f = phase_eval(m.phase_kind, m.g, dot(d, wl))
-        tr = shadow_transmittance(prm, med, p, wl, math.inf, rng_s, counters)
-        L = add3(L, mul3((prm.env[0], prm.env[1], prm.env[2]),
-                         scale3(tr, f * mis_weight(prm.mis, pdf_l, f) / pdf_l)))
+        if lt.type != LIGHT_POINT:
+            continue
+        u = rng_next(rng)
+        c = (lt.vec[0], lt.vec[1], lt.vec[2])
+        h, D = foot_on_ray(c, o, d)
+        if not D > 0.0:
+            continue   # the light is on the line: next-event estimation covers it
+        t, pdf = sample_equiangular(u, h, D, t0, t1)
+        if not pdf > 0.0:
+            continue
+        p = madd3(o, d, t)
+        wl, dist = direction_to(p, c)
+        if not dist > 0.0:
+            continue
+        sig = scale3(medium_chroma(med), extinction(med, p, math.inf, counters))
+        sig_s = mul3(sig, (m.albedo[0], m.albedo[1], m.albedo[2]))
+        if max3(sig_s) <= 0.0:
+            continue
+        counters[C_SHADOW] += 1
+        t_cam = transmittance(prm.shadow_estimator, med, o, d, t0, t, rng_s, counters,
+                              prm.max_steps)
+        t_lt = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters)
+        w = 1.0
+        if ea == EQUIANGULAR_MIS:
+            w = mis_weight(prm.mis, pdf, free_flight_pdf(m, t0, t))
+        f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * w / (dist * dist * pdf)
+        L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]),
+                         scale3(mul3(sig_s, mul3(t_cam, t_lt)), f)))
     return L
+
+
+@njit(cache=True, inline="always")
+def survival_probability(prm, beta_w, albedo):
+    """Russian roulette's survival probability q (render.rr), capped at RR_MAX_SURVIVAL:
+    the largest channel of the throughput ("throughput"), or of the throughput the path
+    will carry after its next scattering, throughput x albedo ("albedo": the expected
+    contribution of going on). Survivors are divided by q; in the general form
+    F' = (F - (1 - q) c) / q for survivors and c for the rest, volmc uses c = 0."""
+    if prm.rr == RR_ALBEDO:
+        return min(max3(mul3(beta_w, albedo)), RR_MAX_SURVIVAL)
+    return min(max3(beta_w), RR_MAX_SURVIVAL)
 
 
 @njit(cache=True)
@@ -218,11 +356,17 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
             beta = (3.0 if c == 0 else 0.0, 3.0 if c == 1 else 0.0, 3.0 if c == 2 else 0.0)
     depth = 0
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
+    ea = equiangular_mode(prm, m)
+    n_env = prm.light_samples * uniform_sphere_pdf()   # light sampling's n p for MIS
     while True:
         o, t0, t1, _ = enter_box(o, d, bmin, bmax)
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:
+            if ea != EQUIANGULAR_OFF and (prm.max_depth < 0 or depth < prm.max_depth):
+                beta_w = mul3(beta, mis_weights(R)) if hero >= 0 else beta
+                L = add3(L, mul3(beta_w, sample_equiangular_lights(
+                    prm, lights, med, ea, o, d, t0, t1, rng, rng_s, counters)))
             if hero >= 0:
                 event, t, w, E = free_flight(med, o, d, t0, t1, prm.decomposition != 0, R,
                                              hero, rng, counters, prm.max_steps)
@@ -243,7 +387,7 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
             break
         if event == EVENT_ESCAPE:
             if prm.has_env != 0:
-                w = mis_weight(prm.mis, pdf_phase, uniform_sphere_pdf()) if depth > 0 else 1.0
+                w = mis_weight(prm.mis, pdf_phase, n_env) if depth > 0 else 1.0
                 L = add3(L, mul3(beta_w, scale3(env, w)))
             break
         depth += 1
@@ -254,10 +398,11 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
         beta_w = mul3(beta_w, albedo)
         if max3(beta_w) <= 0.0:
             break
+        L = add3(L, mul3(beta_w, sample_direct(prm, lights, med, ea, o, d, t0, t1, t, rng,
+                                               rng_s, counters)))
         p = madd3(o, d, t)
-        L = add3(L, mul3(beta_w, sample_direct(prm, lights, med, p, d, rng, rng_s, counters)))
         if depth >= prm.rr_depth:
-            q = min(max3(beta_w), RR_MAX_SURVIVAL)
+            q = survival_probability(prm, beta_w, albedo)
             if rng_next(rng) >= q:
                 break
             beta = div3(beta, q)

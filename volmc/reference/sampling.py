@@ -128,3 +128,40 @@ def mis_weight(kind, pdf_a, pdf_b):
     if kind == MIS_POWER:
         return mis_power(pdf_a, pdf_b)
     return mis_balance(pdf_a, pdf_b)
+
+
+@njit(cache=True, inline="always")
+def sample_equiangular(u, h, D, ta, tb):
+    """Distance t in [ta, tb] along a ray, from the equiangular density towards a point
+    (Kulla & Fajardo 2012): t = h + D tan(theta), theta uniform between the angles under
+    which the point sees ta and tb.
+
+    h: ray parameter of the point's foot on the ray (world units); D > 0: the point's
+    distance from the ray's line; ta < tb: the interval (world units). The density is
+    D / ((theta_b - theta_a) (D^2 + (t - h)^2)) per world unit, proportional to 1 / r^2,
+    the falloff of a point light. Returns (t, pdf); t is clamped into [ta, tb] (rounding
+    in tan can overshoot by an ulp)."""
+    th_a = math.atan2(ta - h, D)
+    th_b = math.atan2(tb - h, D)
+    t = h + D * math.tan(th_a + u * (th_b - th_a))
+    t = min(max(t, ta), tb)
+    return t, equiangular_pdf(t, h, D, ta, tb)
+
+
+@njit(cache=True, inline="always")
+def equiangular_pdf(t, h, D, ta, tb):
+    """Density of ``sample_equiangular`` at t (per world unit); 0 outside [ta, tb]."""
+    if t < ta or t > tb:
+        return 0.0
+    th_a = math.atan2(ta - h, D)
+    th_b = math.atan2(tb - h, D)
+    x = t - h
+    return D / ((th_b - th_a) * (D * D + x * x))
+
+
+@njit(cache=True, inline="always")
+def invert_equiangular_sample(t, h, D, ta, tb):
+    """The uniform u that ``sample_equiangular(u, h, D, ta, tb)`` maps to t."""
+    th_a = math.atan2(ta - h, D)
+    th_b = math.atan2(tb - h, D)
+    return (math.atan2(t - h, D) - th_a) / (th_b - th_a)

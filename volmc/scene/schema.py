@@ -148,6 +148,10 @@ class Render:
     spectral: str = "hero"
     grid_storage: str = "auto"
     mis: str = "balance"
+    sampler: str = "independent"
+    light_samples: int = 1
+    equiangular: bool = False
+    rr: str = "throughput"
 
 
 @dataclass(frozen=True)
@@ -167,8 +171,13 @@ MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase", "emission")
 EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
-               "majorant_resolution", "free_flight", "spectral", "grid_storage", "mis")
+               "majorant_resolution", "free_flight", "spectral", "grid_storage", "mis",
+               "light_samples", "equiangular", "rr")
 MIS_HEURISTICS = ("balance", "power")
+SAMPLERS = ("independent", "stratified", "sobol")
+RR_RULES = ("throughput", "albedo")
+#: Most light samples per light and scattering vertex (render.light_samples).
+MAX_LIGHT_SAMPLES = 1024
 GRID_STORAGES = ("auto", "dense", "bricks")
 SPECTRAL_MODES = ("tracking", "hero", "channel")
 MAJORANTS = ("global", "grid")
@@ -238,6 +247,11 @@ class _Checker:
             self.fail(key, f"must be >= {lo}, got {v}")
         if hi is not None and v > hi:
             self.fail(key, f"must be <= {hi}, got {v}")
+        return v
+
+    def boolean(self, v, key):
+        if not isinstance(v, bool):
+            self.fail(key, f"expected true or false, got {_show(v)}")
         return v
 
     def choice(self, v, key, options):
@@ -479,6 +493,10 @@ def _render(c, raw):
         grid_storage=c.choice(raw.get("grid_storage", d.grid_storage), p + "grid_storage",
                               GRID_STORAGES),
         mis=c.choice(raw.get("mis", d.mis), p + "mis", MIS_HEURISTICS),
+        light_samples=c.integer(raw.get("light_samples", d.light_samples),
+                                p + "light_samples", lo=1, hi=MAX_LIGHT_SAMPLES),
+        equiangular=c.boolean(raw.get("equiangular", d.equiangular), p + "equiangular"),
+        rr=c.choice(raw.get("rr", d.rr), p + "rr", RR_RULES),
     )
 
 

@@ -46,7 +46,9 @@ def to_dict(spec: SceneSpec) -> dict:
                    "seed": r.seed, "max_steps": r.max_steps, "transmittance": r.transmittance,
                    "majorant": r.majorant, "majorant_resolution": list(r.majorant_resolution),
                    "free_flight": r.free_flight, "spectral": r.spectral,
-                   "grid_storage": r.grid_storage, "mis": r.mis},
+                   "grid_storage": r.grid_storage, "mis": r.mis,
+                   "light_samples": r.light_samples,
+                   "equiangular": r.equiangular, "rr": r.rr},
     }
 
 
