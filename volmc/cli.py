@@ -407,6 +407,17 @@ def _list(text, flag, allowed):
     return items
 
 
+def _spp_levels(text):
+    """The ``--spp-levels`` list: positive integers separated by commas."""
+    levels = []
+    for x in text.split(","):
+        if not (x.strip().isascii() and x.strip().isdigit()) or int(x) < 1:
+            raise SceneError("command line", "--spp-levels",
+                             f"expected positive integers separated by commas, got {text!r}")
+        levels.append(int(x))
+    return levels
+
+
 def cmd_bench_render(args):
     from .bench import convergence as cv
     from .bench.render import write_json
@@ -417,13 +428,7 @@ def cmd_bench_render(args):
     backends = _list(args.backends, "--backends", BACKENDS)
     majorants = _list(args.majorants, "--majorants", ("grid", "global"))
     flights = _list(args.free_flights, "--free-flights", ("delta", "decomposition"))
-    levels = []
-    for x in args.spp_levels.split(","):
-        if not (x.strip().isascii() and x.strip().isdigit()) or int(x) < 1:
-            raise SceneError("command line", "--spp-levels",
-                             f"expected positive integers separated by commas, got "
-                             f"{args.spp_levels!r}")
-        levels.append(int(x))
+    levels = _spp_levels(args.spp_levels)
     for path, flag in ((args.json, "--json"), (args.plot, "--plot")):
         if path:
             _check_writable(path, flag)
