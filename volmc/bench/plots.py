@@ -152,6 +152,10 @@ def variance_sampler_plot(full, path):
             xs = np.array(sorted({p["spp"] for p in plain}), float)
             ax.loglog(xs, e0 * (xs / n0) ** -0.5, "k:", lw=1, label="N^-1/2")
         w, h = rep["resolution"]
+        # Ticks at the spp levels themselves: log-axis minor labels overlap on a short ladder.
+        from matplotlib.ticker import NullLocator
+        ax.xaxis.set_minor_locator(NullLocator())
+        ax.set_xticks(rep["spp_levels"], [str(n) for n in rep["spp_levels"]])
         ax.set_title(f"{name}, {w}x{h}", fontsize=9)
         ax.set_xlabel("samples per pixel")
         ax.set_ylabel("RMSE against the reference")
