@@ -61,6 +61,16 @@ def _exposure(text):
     return v
 
 
+def _ladder_arguments(p, repeats):
+    """--spp-levels, --reference-spp and --repeats of the speed-against-error benchmarks."""
+    p.add_argument("--spp-levels", default="4,16,64",
+                   help="comma-separated samples per pixel of the timed renders")
+    p.add_argument("--reference-spp", type=_positive_int, default=1024,
+                   help="samples per pixel of the reference (default 1024)")
+    p.add_argument("--repeats", type=_positive_int, default=repeats,
+                   help=f"passes over the spp ladder (default {repeats})")
+
+
 def build_parser():
     from .backends import BACKENDS
     p = _Parser(prog="volmc", description="Monte Carlo volume path tracer")
@@ -153,12 +163,7 @@ def build_parser():
                          "'scene' = the scene's own)")
     br.add_argument("--peer", choices=["mitsuba", "none", "auto"], default="auto",
                     help="include Mitsuba 3 (auto: when it can run; mitsuba: required)")
-    br.add_argument("--spp-levels", default="4,16,64",
-                    help="comma-separated samples per pixel of the timed renders")
-    br.add_argument("--reference-spp", type=_positive_int, default=1024,
-                    help="samples per pixel of the reference (default 1024)")
-    br.add_argument("--repeats", type=_positive_int, default=1,
-                    help="passes over the spp ladder (default 1)")
+    _ladder_arguments(br, repeats=1)
     br.add_argument("--device", help="OpenCL device (as for render)")
     br.add_argument("-D", dest="defines", action="append", default=[],
                     metavar="SECTION.KEY=VALUE", help="override a scene key (repeatable)")
@@ -169,6 +174,24 @@ def build_parser():
     br.add_argument("--baseline", action="append", default=[], metavar="DIR",
                     help="also render with the volmc checkout in DIR (an earlier version, "
                          "OpenCL, the scene's own techniques); repeatable")
+    bv = bsub.add_parser("variance", help="relative efficiency of each variance-reduction "
+                                          "switch (sampler, light samples, MIS, equiangular, "
+                                          "roulette) against the plain renderer")
+    bv.add_argument("scenes", nargs="*", help="scene files (default: the cloud, "
+                                              "scenes/bench/thin.toml and the lamp in fog)")
+    bv.add_argument("--switches", default=None,
+                    help="comma-separated subset of the switches (default: all)")
+    _ladder_arguments(bv, repeats=3)
+    bv.add_argument("--backend", choices=BACKENDS, default=BACKENDS[0],
+                    help="backend of the timed renders (default opencl; the reference is "
+                         "always OpenCL)")
+    bv.add_argument("--device", help="OpenCL device (as for render)")
+    bv.add_argument("-D", dest="defines", action="append", default=[],
+                    metavar="SECTION.KEY=VALUE", help="override a key of every scene "
+                                                      "(repeatable)")
+    bv.add_argument("--json", help="also write the report (every point too) to this JSON file")
+    bv.add_argument("--plot", help="write the RMSE-against-spp figure of the samplers (PNG) "
+                                   "here")
     for name, helptext in (
             ("specialise", "samples/s of the scene's build against each feature switch on"),
             ("workgroup", "samples/s of the OpenCL kernel per work-group size")):
@@ -407,6 +430,17 @@ def _list(text, flag, allowed):
     return items
 
 
+def _spp_levels(text):
+    """The ``--spp-levels`` list: positive integers separated by commas."""
+    levels = []
+    for x in text.split(","):
+        if not (x.strip().isascii() and x.strip().isdigit()) or int(x) < 1:
+            raise SceneError("command line", "--spp-levels",
+                             f"expected positive integers separated by commas, got {text!r}")
+        levels.append(int(x))
+    return levels
+
+
 def cmd_bench_render(args):
     from .bench import convergence as cv
     from .bench.render import write_json
@@ -417,13 +451,7 @@ def cmd_bench_render(args):
     backends = _list(args.backends, "--backends", BACKENDS)
     majorants = _list(args.majorants, "--majorants", ("grid", "global"))
     flights = _list(args.free_flights, "--free-flights", ("delta", "decomposition"))
-    levels = []
-    for x in args.spp_levels.split(","):
-        if not (x.strip().isascii() and x.strip().isdigit()) or int(x) < 1:
-            raise SceneError("command line", "--spp-levels",
-                             f"expected positive integers separated by commas, got "
-                             f"{args.spp_levels!r}")
-        levels.append(int(x))
+    levels = _spp_levels(args.spp_levels)
     for path, flag in ((args.json, "--json"), (args.plot, "--plot")):
         if path:
             _check_writable(path, flag)
@@ -473,8 +501,43 @@ def cmd_bench_render(args):
     return 0
 
 
+def cmd_bench_variance(args):
+    from .bench import variance
+    from .bench.render import write_json
+    from .scene import load_scene
+    allowed = variance.switch_labels()
+    labels = allowed if args.switches is None else _list(args.switches, "--switches", allowed)
+    levels = _spp_levels(args.spp_levels)
+    for path, flag in ((args.json, "--json"), (args.plot, "--plot")):
+        if path:
+            _check_writable(path, flag)
+    from .cl.device import select_device
+    # The reference is an OpenCL render whatever --backend says: a bad --device fails now,
+    # before anything is rendered.
+    select_device(args.device)
+    paths = args.scenes or [str(p) for p in variance.default_scene_paths()]
+    scenes = [load_scene(p, args.defines) for p in paths]
+    t = time.perf_counter()
+    report = variance.run(scenes, labels, levels, args.reference_spp, args.repeats,
+                          args.backend, args.device)
+    report["seconds"] = time.perf_counter() - t
+    for rep in report["scenes"]:
+        variance.print_scene(rep)
+    variance.print_combined(report)
+    if args.json:
+        write_json(args.json, report)
+    if args.plot:
+        from .bench.plots import variance_sampler_plot
+        variance_sampler_plot(report, args.plot)
+    print(f"\nvolmc bench variance: {report['seconds']:.0f} s", file=sys.stderr)
+    return 0
+
+
 def cmd_bench(args):
     if args.bench == "transmittance":
+        return cmd_bench_transmittance(args)
+    if args.bench == "variance":
+        return cmd_bench_variance(args)
         return cmd_bench_transmittance(args)
     if args.bench == "render":
         return cmd_bench_render(args)

@@ -80,16 +80,56 @@ class _VolmcRunner:
         self.render(1)  # first launch (driver-side compilation) is not measured
 
     def render(self, spp):
-        film = Film(self.w, self.h)
-        before = np.array(self.be.counter_totals(), np.int64)
-        t = time.perf_counter()
-        for n in batch_schedule(self.w * self.h, spp):
-            self.be.render(self.next_sample + film.spp, n, film)
-            film.spp += n
-        sec = time.perf_counter() - t
+        out = timed_render(self.be, self.w, self.h, self.next_sample, spp)
         self.next_sample += spp  # later renders use fresh, independent samples
-        delta = np.array(self.be.counter_totals(), np.int64) - before
-        return film.mean(), sec, {k: int(delta[i]) for i, k in enumerate(COUNTER_NAMES)}
+        return out
+
+
+def timed_render(backend, width, height, start, spp):
+    """Render samples [start, start + spp) of every pixel in the batches ``volmc render``
+    uses. Returns (mean image [h, w, 3], wall seconds of the launches alone, {counter: count
+    during this render}). The backend must be built and warmed up already."""
+    film = Film(width, height)
+    before = np.array(backend.counter_totals(), np.int64)
+    t = time.perf_counter()
+    for n in batch_schedule(width * height, spp):
+        backend.render(start + film.spp, n, film)
+        film.spp += n
+    sec = time.perf_counter() - t
+    delta = np.array(backend.counter_totals(), np.int64) - before
+    return film.mean(), sec, {k: int(delta[i]) for i, k in enumerate(COUNTER_NAMES)}
+
+
+#: Offset of the reference's seed from the scene's: its noise is independent of every timed
+#: render (those use the scene's seed, or small offsets from it).
+REFERENCE_SEED_OFFSET = 0x5EED
+
+
+def reference_image(scene, reference_spp, device=None, log=print):
+    """(mean, variance of the mean) images of the scene rendered by OpenCL at
+    ``reference_spp`` samples per pixel with an independent seed, for rmse_to_reference."""
+    log(f"reference: volmc opencl, {reference_spp} spp (independent seed)")
+    t = time.perf_counter()
+    sref = scene.with_render(seed=(scene.render.seed + REFERENCE_SEED_OFFSET) % 2**64)
+    from ..render import render
+    ref = render(sref, backend=make_backend("opencl", sref, device), spp=reference_spp,
+                 progress=False)
+    ref_mean, ref_var = ref.film.mean(), ref.film.variance_of_mean()
+    log(f"  {time.perf_counter() - t:.1f} s; reference noise (RMS standard error) "
+        f"{math.sqrt(float(np.mean(ref_var))):.2e}")
+    return ref_mean, ref_var
+
+
+def mse_seconds(points, spp_levels):
+    """MSE x wall seconds (unit: radiance^2 s), the time to reach unit MSE: the geometric
+    mean over the points in the upper half of the spp ladder, where fixed per-launch costs
+    no longer matter. Points of RMSE 0 (below the reference's noise) are left out; None
+    when no point is left."""
+    upper = sorted(spp_levels)[len(spp_levels) // 2:]
+    fit = [p for p in points if p["spp"] in upper and p["rmse"] > 0]
+    if not fit:
+        return None
+    return math.exp(float(np.mean([math.log(p["rmse"] ** 2 * p["seconds"]) for p in fit])))
 
 
 class _MitsubaRunner:
@@ -105,21 +145,20 @@ class _MitsubaRunner:
         return mean, sec, None
 
 
+def guard_totals(points):
+    """{guard counter: total over the points}: paths cut by the step cap, dropped samples,
+    lookups above the majorant (each nonzero one is a bias to report)."""
+    return {k: sum(p["counters"][k] for p in points) for k in ("capped", "dropped",
+                                                                "over_majorant")}
+
+
 def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceiling=None,
         log=print, defines=()):
     """Render every configuration at every spp level; returns the report dict. ``defines``:
     the -D overrides the scene was loaded with (a baseline worker loads it the same way)."""
     w, h = scene.camera.resolution
     pixels = w * h
-    log(f"reference: volmc opencl, {reference_spp} spp (independent seed)")
-    t = time.perf_counter()
-    sref = scene.with_render(seed=(scene.render.seed + 0x5EED) % 2**64)
-    from ..render import render
-    ref = render(sref, backend=make_backend("opencl", sref, device), spp=reference_spp,
-                 progress=False)
-    ref_mean, ref_var = ref.film.mean(), ref.film.variance_of_mean()
-    log(f"  {time.perf_counter() - t:.1f} s; reference noise (RMS standard error) "
-        f"{math.sqrt(float(np.mean(ref_var))):.2e}")
+    ref_mean, ref_var = reference_image(scene, reference_spp, device, log)
 
     runners = {}
     for cfg in configs:
@@ -146,12 +185,11 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
             order = order[1:] + order[:1]
         log(f"  repetition {rep + 1}/{repeats} done")
 
-    upper = sorted(spp_levels)[len(spp_levels) // 2:]
     results = []
     for cfg in configs:
         pts = points[cfg]
-        fit = [p for p in pts if p["spp"] in upper and p["rmse"] > 0]
-        c = math.exp(float(np.mean([math.log(p["rmse"] ** 2 * p["seconds"]) for p in fit])))
+        c = mse_seconds(pts, spp_levels)
+        c = math.nan if c is None else c
         secs = sum(p["seconds"] for p in pts)
         spp_total = sum(p["spp"] for p in pts)
         row = {"name": cfg.name, "backend": cfg.backend, "majorant": cfg.majorant,
@@ -159,8 +197,7 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
                "points": pts, "mse_seconds": c,
                "samples_per_second": pixels * spp_total / secs}
         if pts[0]["lookups"] is not None:
-            row["guards"] = {k: sum(p["counters"][k] for p in pts)
-                             for k in ("capped", "dropped", "over_majorant")}
+            row["guards"] = guard_totals(pts)
             lk = sum(p["lookups"] for p in pts)
             row["lookups_per_sample"] = lk / (pixels * spp_total)
             row["lookups_per_second"] = lk / secs

@@ -1,4 +1,4 @@
-"""Figures of `volmc bench transmittance` (matplotlib, written as PNG)."""
+"""Figures of the benchmarks (matplotlib, written as PNG)."""
 
 import math
 import os
@@ -113,6 +113,53 @@ def render_convergence_plot(report, path, max_lines=12):
     ax.set_xlabel("wall time (s)")
     ax.set_ylabel("RMSE against the reference")
     ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def variance_sampler_plot(full, path):
+    """`volmc bench variance`: RMSE against spp (log-log) of the samplers (independent =
+    the plain configuration, stratified, sobol: variance.SAMPLER_CURVES) per scene, every
+    point with its least-squares line (slope in the legend) and an N^-1/2 guide through the
+    plain configuration's first level."""
+    from .variance import PLAIN, SAMPLER_CURVES, loglog_slope, scene_names
+    plt = _plt()
+    reports = full["scenes"]
+    fig, axs = plt.subplots(1, len(reports), figsize=(5 * len(reports), 4.2), squeeze=False)
+    for ax, rep, name in zip(axs[0], reports, scene_names(reports)):
+        rows = {r["label"]: r for r in rep["results"]}
+        for legend, label in SAMPLER_CURVES:
+            if label not in rows:
+                continue
+            pts = [p for p in rows[label]["points"] if p["rmse"] > 0]
+            n = np.array([p["spp"] for p in pts], float)
+            e = np.array([p["rmse"] for p in pts])
+            slope = loglog_slope(n, e)
+            line = ax.loglog(n, e, "o", ms=3, alpha=0.6)[0]
+            if slope is not None:
+                a = float(np.mean(np.log(e) - slope * np.log(n)))
+                xs = np.array([n.min(), n.max()])
+                ax.loglog(xs, np.exp(a) * xs ** slope, "-", color=line.get_color(),
+                          label=f"{legend} (slope {slope:.2f})")
+            else:
+                line.set_label(legend)
+        plain = [p for p in rows[PLAIN]["points"] if p["rmse"] > 0]
+        if plain:
+            n0 = min(p["spp"] for p in plain)
+            e0 = math.exp(float(np.mean([math.log(p["rmse"]) for p in plain
+                                         if p["spp"] == n0])))
+            xs = np.array(sorted({p["spp"] for p in plain}), float)
+            ax.loglog(xs, e0 * (xs / n0) ** -0.5, "k:", lw=1, label="N^-1/2")
+        w, h = rep["resolution"]
+        # Ticks at the spp levels themselves: log-axis minor labels overlap on a short ladder.
+        from matplotlib.ticker import NullLocator
+        ax.xaxis.set_minor_locator(NullLocator())
+        ax.set_xticks(rep["spp_levels"], [str(n) for n in rep["spp_levels"]])
+        ax.set_title(f"{name}, {w}x{h}", fontsize=9)
+        ax.set_xlabel("samples per pixel")
+        ax.set_ylabel("RMSE against the reference")
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
