@@ -80,7 +80,8 @@ inline float equiangular_pdf(float t, float h, float D, float ta, float tb) {
 inline float sample_equiangular(float u, float h, float D, float ta, float tb, float *pdf) {
     float th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
     float t = clamp(h + D * tan(th_a + u * (th_b - th_a)), ta, tb);
-    *pdf = equiangular_pdf(t, h, D, ta, tb);
+    float x = t - h;
+    *pdf = D / ((th_b - th_a) * (D * D + x * x));
     return t;
 }
 

@@ -7,7 +7,8 @@ volmc's ``Render`` does not have are left out of the plain configuration, and a 
 needs one is skipped with a note: the table can name switches before the renderer has them.
 
 Per scene: one plain OpenCL reference at ``reference_spp`` with an independent seed (its
-noise subtracted, volmc.peers.compare.rmse_to_reference). Then, for each repetition r and
+noise subtracted, volmc.peers.compare.rmse_to_reference; with equiangular sampling when the
+scene has a point light, which is unbiased and far quieter there). Then, for each repetition r and
 each spp level N, every configuration renders samples [0, N) of the scene with render.spp =
 N and seed = scene seed + 1 + r: quasi-Monte Carlo samplers need each render to start at
 index 0 and stratification needs render.spp to be the render's total, so independence
@@ -139,7 +140,12 @@ def _measure(scene, configs, spp_levels, reference_spp, repeats, backend, device
     repetition, RMSE against the plain reference. A point: spp, seed, seconds, rmse,
     counters."""
     w, h = scene.camera.resolution
-    ref = scene.with_render(**configs[0][1])
+    keys = dict(configs[0][1])
+    if "equiangular" in keys and has_point_light(scene):
+        # The same image with far less noise near point lights, where plain next-event
+        # estimation has unbounded variance: a quieter reference, same expectation.
+        keys["equiangular"] = True
+    ref = scene.with_render(**keys)
     ref_mean, ref_var = reference_image(ref, reference_spp, device, log)
     base = scene.render.seed
     points = {label: [] for label, _ in configs}

@@ -145,7 +145,8 @@ def sample_equiangular(u, h, D, ta, tb):
     th_b = math.atan2(tb - h, D)
     t = h + D * math.tan(th_a + u * (th_b - th_a))
     t = min(max(t, ta), tb)
-    return t, equiangular_pdf(t, h, D, ta, tb)
+    x = t - h
+    return t, D / ((th_b - th_a) * (D * D + x * x))
 
 
 @njit(cache=True, inline="always")
