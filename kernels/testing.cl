@@ -9,6 +9,7 @@
 #include "medium.h"
 #include "tracking.h"
 #include "dda.h"
+#include "sampler.h"
 
 kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out) {
     int i = get_global_id(0);
@@ -157,4 +158,28 @@ kernel void t_sparse_lookup(global const int *table, global const float *pool, i
                             global float *out) {
     int i = get_global_id(0);
     out[i] = sparse_lookup(table, pool, dims, bmin, inv_extent, vload3(i, p));
+}
+
+/* The sampler's parts on in[i] = (a, b, c, d): out[i] = (sobol_u32(a, 0), sobol_u32(a, 1),
+ * owen_scramble(a, b), hash_u32(a, b), permute_index(a % (c % 4096 + 1), c % 4096 + 1, b),
+ * sobol_pair(a, b, c, d), stratified_pair(a, c, b, d, a ^ b)). */
+kernel void t_sampler_parts(global const uint *in, global uint *out) {
+    int i = get_global_id(0);
+    uint4 v = vload4(i, in);
+    uint np = v.z % 4096u + 1u;
+    global uint *o = out + (size_t)i * 9;
+    o[0] = sobol_u32(v.x, 0);
+    o[1] = sobol_u32(v.x, 1);
+    o[2] = owen_scramble(v.x, v.y);
+    o[3] = hash_u32(v.x, v.y);
+    o[4] = permute_index(v.x % np, np, v.y);
+    vstore2(sobol_pair(v.x, v.y, v.z, v.w), 0, o + 5);
+    vstore2(stratified_pair(v.x, v.z, v.y, v.w, v.x ^ v.y), 0, o + 7);
+}
+
+/* sampler_pair on rows of 7 words (kind, key0, key1, pixel, index, pair, n): out[i] = (ux, uy). */
+kernel void t_sampler_pairs(global const uint *in, global uint *out) {
+    int i = get_global_id(0);
+    global const uint *a = in + (size_t)i * 7;
+    vstore2(sampler_pair((int)a[0], a[1], a[2], a[3], a[4], a[5], a[6]), i, out);
 }

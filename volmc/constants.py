@@ -223,3 +223,44 @@ def kernel_constants():
     """{name: value} of every constant the kernels' header defines, in definition order."""
     return {k: v for k, v in globals().items()
             if k.isupper() and not k.startswith("_") and type(v) in (int, float, U32)}
+
+
+# --- Low-discrepancy sampler (volmc/reference/sampler.py) ------------------------------------
+
+#: Sampler kinds: independent uniforms (the integrator's counter RNG; sampler_pair returns the
+#: top 24 bits of two Philox words for it) ...
+SAMPLER_INDEPENDENT = 0
+#: ... correlated multi-jittered stratification of n samples per pixel (any n >= 1) ...
+SAMPLER_STRATIFIED = 1
+#: ... or Owen-scrambled Sobol points with Burley's shuffled padding (every power-of-two
+#: prefix of the samples of a pixel is a (0, m, 2)-net).
+SAMPLER_SOBOL = 2
+#: The Philox stream of the sampler's per-(pixel, pair, epoch) seeds: counter (pair, pixel,
+#: epoch, STREAM_SAMPLER), disjoint from the path's draws (streams 0 to 2 above).
+STREAM_SAMPLER = 3
+
+
+def _frac_u32(x, even=False, odd=False):
+    """The first 32 bits of the fractional part of x (a nothing-up-my-sleeve constant), with
+    bit 0 cleared (even) or set (odd)."""
+    v = int((x % 1.0) * 2**32)
+    return U32(v & ~1 if even else v | 1 if odd else v)
+
+
+#: Largest n of SAMPLER_STRATIFIED (a larger n acts as this one): its m x rows grid then has
+#: at most 2^24 cells, so every 1-D stratum still holds a 24-bit uniform.
+SAMPLER_MAX_N = 1 << 24
+#: Hash-based Owen scrambling (sampler.owen_scramble): the even multipliers of its
+#: x ^= x * C steps, the fractional parts of sqrt(23), sqrt(29) and sqrt(31) (bit 0 cleared) ...
+OWEN_E0 = _frac_u32(math.sqrt(23.0), even=True)
+OWEN_E1 = _frac_u32(math.sqrt(29.0), even=True)
+OWEN_E2 = _frac_u32(math.sqrt(31.0), even=True)
+#: ... and the odd multiplier that derives its second seed word, from sqrt(37).
+OWEN_SEED_MUL = _frac_u32(math.sqrt(37.0), odd=True)
+#: Hashes of the stratified sampler (sampler.hash_u32 for the jitter, sampler.permute_index
+#: for the permutations): odd multipliers from the fractional parts of sqrt(41) to sqrt(59).
+HASH_M0 = _frac_u32(math.sqrt(41.0), odd=True)
+HASH_M1 = _frac_u32(math.sqrt(43.0), odd=True)
+PERM_M0 = _frac_u32(math.sqrt(47.0), odd=True)
+PERM_M1 = _frac_u32(math.sqrt(53.0), odd=True)
+PERM_M2 = _frac_u32(math.sqrt(59.0), odd=True)
