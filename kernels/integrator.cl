@@ -13,6 +13,7 @@
 #include "features.h"
 #include "guards.h"
 #include "rng.h"
+#include "sampler.h"
 #include "sampling.h"
 #include "phase.h"
 #include "medium.h"
@@ -113,6 +114,33 @@ inline spec shadow_transmittance(const Params *prm, const MediumData *med, float
     return SHADOW_ESTIMATOR(med, o, d, t0, t1, rng_s, counters, prm->max_steps);
 }
 
+/* Where a path's uniforms come from (render.sampler): twins of bounce_pair, path_pair_u24,
+ * path_u2 and path_u1 in integrator.py, which describe them. */
+inline int bounce_pair(int b, int offset) {
+    return b >= SAMPLER_BOUNCES ? -1 : SAMPLER_FIRST_BOUNCE + b * SAMPLER_PAIRS_PER_BOUNCE + offset;
+}
+
+inline uint2 path_pair_u24(const Params *prm, uint pix, uint s, int pair, uint j, uint count) {
+    return sampler_pair(prm->sampler, prm->seed_lo, prm->seed_hi, pix, s * count + j,
+                        (uint)pair, prm->spp * count);
+}
+
+inline float2 path_u2(const Params *prm, uint pix, uint s, int pair, uint j, uint count,
+                      Rng *rng) {
+    if (prm->sampler == SAMPLER_INDEPENDENT || pair < 0) {
+        float u1 = rng_next(rng);
+        return (float2)(u1, rng_next(rng));
+    }
+    return convert_float2(path_pair_u24(prm, pix, s, pair, j, count)) * UNIFORM_SCALE;
+}
+
+inline float path_u1(const Params *prm, uint pix, uint s, int pair, int axis, uint j,
+                     uint count, Rng *rng) {
+    if (prm->sampler == SAMPLER_INDEPENDENT || pair < 0) return rng_next(rng);
+    uint2 a = path_pair_u24(prm, pix, s, pair, j, count);
+    return (float)(axis == 1 ? a.y : a.x) * UNIFORM_SCALE;
+}
+
 /* How a path treats point lights (render.equiangular; twin constants in integrator.py):
  * next-event estimation only, equiangular sampling alone, or both combined by MIS. */
 #define EQUIANGULAR_OFF 0
@@ -163,8 +191,8 @@ inline float point_light_nee_weight(const Params *prm, const Medium *m, int ea, 
 /* Direct light at o + t d towards -d per unit throughput, with render.light_samples shadow
  * rays per light (twin of sample_direct in integrator.py). */
 inline float3 sample_direct(const Params *prm, global const Light *lights, const MediumData *med,
-                            int ea, float3 o, float3 d, float t0, float t1, float t, Rng *rng,
-                            Rng *rng_s, ulong *counters) {
+                            int ea, float3 o, float3 d, float t0, float t1, float t, uint pix,
+                            uint s, int b, Rng *rng, Rng *rng_s, ulong *counters) {
     const Medium *m = &med->m;
     float3 p = o + t * d;
     int n = prm->light_samples;
@@ -189,11 +217,11 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
         }
     }
     if (prm->has_env) {
+        int pair = bounce_pair(b, SAMPLER_LIGHT);
         for (int j = 0; j < n; ++j) {
-            float ua = rng_next(rng);
-            float ub = rng_next(rng);
+            float2 u = path_u2(prm, pix, s, pair, (uint)j, (uint)n, rng);
             float pdf_l;
-            float3 wl = sample_uniform_sphere(ua, ub, &pdf_l);
+            float3 wl = sample_uniform_sphere(u.x, u.y, &pdf_l);
             float f = phase_eval(m->phase_kind, m->g, dot(d, wl));
             spec tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
             float w = mis_weight(prm->mis, (float)n * pdf_l, f) * inv_n;
@@ -208,13 +236,14 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
  * it). */
 inline float3 sample_equiangular_lights(const Params *prm, global const Light *lights,
                                         const MediumData *med, int ea, float3 o, float3 d,
-                                        float t0, float t1, Rng *rng, Rng *rng_s,
-                                        ulong *counters) {
+                                        float t0, float t1, uint pix, uint s, int b,
+                                        Rng *rng, Rng *rng_s, ulong *counters) {
     const Medium *m = &med->m;
     float3 L = (float3)(0.0f);
     for (int i = 0; i < prm->n_lights; ++i) {
         if (lights[i].type != LIGHT_POINT) continue;
-        float u = rng_next(rng);
+        float u = path_u1(prm, pix, s, bounce_pair(b, SAMPLER_EQUIANGULAR), 0, (uint)i,
+                          (uint)prm->n_lights, rng);
         float3 c = vec3g(lights[i].vec);
         float D;
         float h = foot_on_ray(c, o, d, &D);
@@ -247,17 +276,17 @@ inline float survival_probability(const Params *prm, float3 beta_w, float3 albed
 }
 
 inline float3 trace_path(const Params *prm, global const Light *lights, const MediumData *med,
-                         int px, int py, Rng *rng, Rng *rng_s, ulong *counters) {
+                         int px, int py, uint s, Rng *rng, Rng *rng_s, ulong *counters) {
     const Medium *m = &med->m;
     float3 bmin = vec3(m->bmin), bmax = vec3(m->bmax);
     float3 albedo = vec3(m->albedo);
     float3 env = vec3(prm->env);
     float3 L = (float3)(0.0f);
     float3 beta = (float3)(1.0f);
-    float u1 = rng_next(rng);
-    float u2 = rng_next(rng);
+    uint pix = (uint)(py * prm->width + px);
+    float2 uc = path_u2(prm, pix, s, SAMPLER_PAIR_PIXEL, 0u, 1u, rng);
     float3 d;
-    float3 o = camera_ray(prm, px, py, u1, u2, &d);
+    float3 o = camera_ray(prm, px, py, uc.x, uc.y, &d);
     const int emissive = FEATURE_EMISSION ? m->emission_kind != EMISSION_NONE : 0;
     if (!emissive && (prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f)) {
         /* No scattering can contribute: environment times transmittance (see integrator.py). */
@@ -269,7 +298,9 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
     if (FEATURE_CHROMATIC ? m->spectral == SPECTRAL_CHANNEL || m->spectral == SPECTRAL_HERO
                           : 0) {
         /* A channel per path: alone ("channel") or as the hero of spectral MIS ("hero"). */
-        int c = min(convert_int_rtz(rng_next(rng) * 3.0f), 2);
+        int c = min(convert_int_rtz(path_u1(prm, pix, s, SAMPLER_PAIR_CHANNEL, 0, 0u, 1u, rng) *
+                                    3.0f),
+                    2);
         if (m->spectral == SPECTRAL_HERO)
             hero = c;
         else
@@ -287,9 +318,12 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         if (t1 > t0) {
             if (ea != EQUIANGULAR_OFF && (prm->max_depth < 0 || depth < prm->max_depth)) {
                 float3 bw = FEATURE_CHROMATIC && hero >= 0 ? beta * mis_weights(R) : beta;
-                L += bw * sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, rng,
-                                                    rng_s, counters);
+                L += bw * sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s,
+                                                    depth, rng, rng_s, counters);
             }
+            int pair = bounce_pair(depth, SAMPLER_FLIGHT);
+            if (prm->sampler != SAMPLER_INDEPENDENT && pair >= 0)
+                rng_preset(rng, path_pair_u24(prm, pix, s, pair, 0u, 1u).x);
             spec w;
             float3 E;
             event = free_flight(med, o, d, t0, t1, prm->decomposition, hero >= 0 ? R : beta,
@@ -308,6 +342,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
 #else
             if (FEATURE_EMISSION) L += beta * E;
 #endif
+            rng_drop_preset(rng);
         }
         /* The throughput contributions are weighed by (hero MIS: the balance heuristic). */
         float3 beta_w = FEATURE_CHROMATIC && hero >= 0 ? beta * mis_weights(R) : beta;
@@ -325,17 +360,17 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         beta *= albedo;
         beta_w *= albedo;
         if (fmax(beta_w.x, fmax(beta_w.y, beta_w.z)) <= 0.0f) break;
-        L += beta_w * sample_direct(prm, lights, med, ea, o, d, t0, t1, t, rng, rng_s,
-                                    counters);
+        L += beta_w * sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, depth - 1, rng,
+                                    rng_s, counters);
         float3 p = o + t * d;
         if (depth >= prm->rr_depth) {
             float q = survival_probability(prm, beta_w, albedo);
-            if (rng_next(rng) >= q) break;
+            if (path_u1(prm, pix, s, bounce_pair(depth - 1, SAMPLER_FLIGHT), 1, 0u, 1u, rng) >= q)
+                break;
             beta /= q;
         }
-        u1 = rng_next(rng);
-        u2 = rng_next(rng);
-        d = phase_sample(m->phase_kind, m->g, u1, u2, d, &pdf_phase);
+        float2 up = path_u2(prm, pix, s, bounce_pair(depth - 1, SAMPLER_PHASE), 0u, 1u, rng);
+        d = phase_sample(m->phase_kind, m->g, up.x, up.y, d, &pdf_phase);
         o = p;
     }
     return L;
@@ -366,7 +401,7 @@ kernel void render_batch(const Params prm, const Medium medium, global const Lig
     for (uint i = 0; i < n_samples; ++i) {
         rng_init(&rng, seed, (uint)pix, sample_start + i, STREAM_PATH);
         rng_init(&rng_s, seed, (uint)pix, sample_start + i, STREAM_SHADOW);
-        float3 c = trace_path(&prm, lights, &med, px, py, &rng, &rng_s, cnt);
+        float3 c = trace_path(&prm, lights, &med, px, py, sample_start + i, &rng, &rng_s, cnt);
         if (!sample_ok(c, prm.signed_samples)) {
             cnt[C_DROPPED] += 1;
             c = (float3)(0.0f);

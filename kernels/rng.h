@@ -14,6 +14,8 @@ typedef struct {
     uint ctr[3]; /* pixel, sample, stream */
     uint n;      /* index of the next draw */
     uint4 buf;   /* current block */
+    uint preset; /* 1: the next draw is `word` (rng_preset) */
+    uint word;
 } Rng;
 
 /* One Philox round on scalar words: a 32x32->64 multiplication gives hi and lo at once. */
@@ -48,9 +50,22 @@ inline void rng_init(Rng *rng, ulong seed, uint pixel, uint sample, uint stream)
     rng->ctr[1] = sample;
     rng->ctr[2] = stream;
     rng->n = 0u;
+    rng->preset = 0u;
 }
 
+/* The next draw returns u24 * 2^-24 (twin in rng.py, which says why). */
+inline void rng_preset(Rng *rng, uint u24) {
+    rng->preset = 1u;
+    rng->word = u24 << 8;
+}
+
+inline void rng_drop_preset(Rng *rng) { rng->preset = 0u; }
+
 inline uint rng_next_u32(Rng *rng) {
+    if (rng->preset) {
+        rng->preset = 0u;
+        return rng->word;
+    }
     uint lane = rng->n & 3u;
     if (lane == 0u) {
         rng->buf = philox4x32_10((uint4)(rng->n >> 2, rng->ctr[0], rng->ctr[1], rng->ctr[2]),

@@ -149,14 +149,26 @@ MIS_BALANCE = 0
 #: ... or the power heuristic with exponent 2 (Veach 1997).
 MIS_POWER = 1
 
-# --- Samplers (render.sampler; volmc/reference/sampler.py) -----------------------------------
+# --- Where a path's samples come from (render.sampler; integrator.py "Samplers") -------------
 
-#: Every uniform from the counter RNG (rng.py) ...
-SAMPLER_INDEPENDENT = 0
-#: ... the leading 2-D samples of each bounce stratified per pixel (multi-jittered) ...
-SAMPLER_STRATIFIED = 1
-#: ... or from an Owen-scrambled Sobol sequence.
-SAMPLER_SOBOL = 2
+#: Sample pairs of a path: pair 0 jitters the pixel position, pair 1's x picks the hero
+#: channel; then every bounce b < SAMPLER_BOUNCES (b = 0: the camera segment; b: the segment
+#: leaving scattering vertex b) owns SAMPLER_PAIRS_PER_BOUNCE pairs from
+#: SAMPLER_FIRST_BOUNCE + b * SAMPLER_PAIRS_PER_BOUNCE on, at these offsets:
+SAMPLER_PAIR_PIXEL = 0
+SAMPLER_PAIR_CHANNEL = 1
+SAMPLER_FIRST_BOUNCE = 2
+SAMPLER_PAIRS_PER_BOUNCE = 4
+#: x: the first uniform of the segment's free flight; y: Russian roulette at its end vertex.
+SAMPLER_FLIGHT = 0
+#: x: equiangular sampling's distance, one point of the pattern per point light.
+SAMPLER_EQUIANGULAR = 1
+#: The environment direction of next-event estimation, one point per light sample.
+SAMPLER_LIGHT = 2
+#: The phase-sampled direction leaving the end vertex.
+SAMPLER_PHASE = 3
+#: Bounces that take low-discrepancy samples; deeper ones use the counter RNG.
+SAMPLER_BOUNCES = 16
 
 # --- Phase functions, cameras, lights ---------------------------------------------------------
 

@@ -30,6 +30,18 @@ path:
 
 Random numbers: stream STREAM_PATH for all decisions of the path (in the order above),
 stream STREAM_SHADOW for all shadow-ray transmittance estimates of the sample.
+
+Samplers (render.sampler): with "stratified" or "sobol" the decisions a path makes a fixed
+number of times per bounce take their uniforms from the sampler (sampler.py) instead, each
+from its own pair of dimensions (the SAMPLER_* layout in constants.py): the pixel position,
+the hero channel, and for each of the first SAMPLER_BOUNCES bounces the first uniform of the
+free flight (handed to the tracking loop by rng_preset), the equiangular distances (one
+point per light), the environment directions (one point per light sample: index
+s N + j, so a sample's N directions are consecutive points of the pattern), Russian
+roulette and the phase direction. Everything else -- the later tentative collisions of a
+flight, every transmittance estimate, bounces past SAMPLER_BOUNCES -- comes from the
+counter RNG, whose count of draws varies from path to path, so no fixed dimension could
+be assigned to it.
 A sample whose contribution is NaN, infinite or negative is dropped (it counts as a sample
 of value 0) and counted. Negative samples are legitimate only with a signed shadow estimator
 (unbiased ray marching, params.signed_samples = 1): they are kept, since dropping them would
@@ -43,8 +55,12 @@ from numba import njit, prange
 
 from ..constants import (CAMERA_ORTHOGRAPHIC, DENSITY_CONSTANT, EMISSION_NONE, EVENT_CAPPED,
                          EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, RR_ALBEDO,
-                         RR_MAX_SURVIVAL, SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO,
-                         STREAM_PATH, STREAM_SHADOW)
+                         RR_MAX_SURVIVAL, SAMPLER_BOUNCES, SAMPLER_EQUIANGULAR,
+                         SAMPLER_FIRST_BOUNCE, SAMPLER_FLIGHT, SAMPLER_INDEPENDENT,
+                         SAMPLER_LIGHT, SAMPLER_PAIR_CHANNEL, SAMPLER_PAIR_PIXEL,
+                         SAMPLER_PAIRS_PER_BOUNCE, SAMPLER_PHASE, SPECTRAL_CHANNEL,
+                         SPECTRAL_GREY, SPECTRAL_HERO, STREAM_PATH, STREAM_SHADOW,
+                         UNIFORM_SCALE)
 from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
 from .estimators import transmittance
 from .free_flight import free_flight
@@ -52,7 +68,8 @@ from .guards import sample_ok
 from .medium import MediumData, extinction, medium_chroma
 from .phase import phase_eval, phase_sample
 from .tracking import mis_weights
-from .rng import RNG_STATE_SIZE, rng_init, rng_next
+from .rng import RNG_STATE_SIZE, rng_drop_preset, rng_init, rng_next, rng_preset
+from .sampler import sampler_pair
 from .sampling import (dot, equiangular_pdf, mis_weight, normalize, sample_equiangular,
                        sample_uniform_sphere, uniform_sphere_pdf)
 from .vec import add3, div3, madd3, max3, mul3, scale3
@@ -157,6 +174,45 @@ def shadow_transmittance(prm, med, o, d, t_max, rng_s, counters):
                          prm.max_steps)
 
 
+@njit(cache=True, inline="always")
+def bounce_pair(b, offset):
+    """The sample pair ``offset`` (SAMPLER_FLIGHT, ...) of bounce b, or -1 past
+    SAMPLER_BOUNCES (those bounces use the counter RNG)."""
+    if b >= SAMPLER_BOUNCES:
+        return -1
+    return SAMPLER_FIRST_BOUNCE + b * SAMPLER_PAIRS_PER_BOUNCE + offset
+
+
+@njit(cache=True, inline="always")
+def path_pair_u24(prm, pix, s, pair, j, count):
+    """The render.sampler's pair ``pair`` of sample s of pixel pix as two 24-bit integers;
+    the j-th of ``count`` points the sample takes from it (index s count + j, stratified over
+    spp count points)."""
+    return sampler_pair(prm.sampler, prm.seed_lo, prm.seed_hi, pix,
+                        (s * count + j) & 0xFFFFFFFF, pair, (prm.spp * count) & 0xFFFFFFFF)
+
+
+@njit(cache=True, inline="always")
+def path_u2(prm, pix, s, pair, j, count, rng):
+    """Two uniforms of pair ``pair`` (see path_pair_u24): from the counter RNG when the
+    sampler is independent or pair < 0."""
+    if prm.sampler == SAMPLER_INDEPENDENT or pair < 0:
+        u1 = rng_next(rng)
+        return u1, rng_next(rng)
+    a, b = path_pair_u24(prm, pix, s, pair, j, count)
+    return float(a) * UNIFORM_SCALE, float(b) * UNIFORM_SCALE
+
+
+@njit(cache=True, inline="always")
+def path_u1(prm, pix, s, pair, axis, j, count, rng):
+    """One uniform: coordinate ``axis`` (0: x, 1: y) of pair ``pair``, or one draw of the
+    counter RNG."""
+    if prm.sampler == SAMPLER_INDEPENDENT or pair < 0:
+        return rng_next(rng)
+    a, b = path_pair_u24(prm, pix, s, pair, j, count)
+    return float(b if axis == 1 else a) * UNIFORM_SCALE
+
+
 #: How a path treats point lights (render.equiangular): next-event estimation only ...
 EQUIANGULAR_OFF = 0
 #: ... equiangular sampling alone (its pdf cannot be weighed against free flight's in a
@@ -222,10 +278,11 @@ def point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t):
 
 
 @njit(cache=True, inline="always")
-def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, rng, rng_s, counters):
+def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, counters):
     """Direct light scattered at p = o + t d towards -d, per unit throughput (RGB). The
     vertex was reached by free flight along segment [t0, t1] of the ray o + t d (unit d: the
-    direction the path arrived in); ``ea`` is equiangular_mode.
+    direction the path arrived in); ``ea`` is equiangular_mode; (pix, s, b): pixel, sample and
+    bounce of the segment, for render.sampler.
 
     render.light_samples = N: every directional and point light gets N shadow rays, each
     with its own transmittance estimate, averaged (splitting); the environment N directions
@@ -257,8 +314,10 @@ def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, rng, rng_s, counters):
             tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters)
             L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]), scale3(tr, f)))
     if prm.has_env != 0:
-        for _ in range(n):
-            wl, pdf_l = sample_uniform_sphere(rng_next(rng), rng_next(rng))
+        pair = bounce_pair(b, SAMPLER_LIGHT)
+        for j in range(n):
+            ua, ub = path_u2(prm, pix, s, pair, j, n, rng)
+            wl, pdf_l = sample_uniform_sphere(ua, ub)
             f = phase_eval(m.phase_kind, m.g, dot(d, wl))
             tr = shadow_transmittance(prm, med, p, wl, math.inf, rng_s, counters)
             w = mis_weight(prm.mis, n * pdf_l, f) * inv_n
@@ -267,7 +326,8 @@ def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, rng, rng_s, counters):
 
 
 @njit(cache=True, inline="always")
-def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, rng, rng_s, counters):
+def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng, rng_s,
+                              counters):
     """Light from every point light scattered once inside segment [t0, t1] of the ray
     o + t d towards -d, per unit throughput at o (RGB), by equiangular sampling: one distance
     t per light from the equiangular pdf (one uniform of the path stream each), and
@@ -283,7 +343,7 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, rng, rng_s, co
         lt = lights[i]
         if lt.type != LIGHT_POINT:
             continue
-        u = rng_next(rng)
+        u = path_u1(prm, pix, s, bounce_pair(b, SAMPLER_EQUIANGULAR), 0, i, prm.n_lights, rng)
         c = (lt.vec[0], lt.vec[1], lt.vec[2])
         h, D = foot_on_ray(c, o, d)
         if not D > 0.0:
@@ -325,8 +385,8 @@ def survival_probability(prm, beta_w, albedo):
 
 
 @njit(cache=True)
-def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
-    """Radiance (r, g, b) carried by one path through pixel (px, py)."""
+def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
+    """Radiance (r, g, b) carried by sample s of pixel (px, py)."""
     m = med.m
     bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
     bmax = (m.bmax[0], m.bmax[1], m.bmax[2])
@@ -334,8 +394,8 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
     env = (prm.env[0], prm.env[1], prm.env[2])
     L = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
-    u1 = rng_next(rng)
-    u2 = rng_next(rng)
+    pix = py * prm.width + px
+    u1, u2 = path_u2(prm, pix, s, SAMPLER_PAIR_PIXEL, 0, 1, rng)
     o, d = camera_ray(prm, px, py, u1, u2)
     if (prm.max_depth == 0 or max3(albedo) <= 0.0) and m.emission_kind == EMISSION_NONE:
         # No scattering can contribute: the pixel is the environment seen through the
@@ -349,7 +409,7 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
     if m.spectral == SPECTRAL_CHANNEL or m.spectral == SPECTRAL_HERO:
         # A channel per path, chosen uniformly: alone (render.spectral = "channel", the
         # baseline) or as the hero of spectral MIS ("hero").
-        c = min(int(rng_next(rng) * 3.0), 2)
+        c = min(int(path_u1(prm, pix, s, SAMPLER_PAIR_CHANNEL, 0, 0, 1, rng) * 3.0), 2)
         if m.spectral == SPECTRAL_HERO:
             hero = c
         else:
@@ -366,7 +426,10 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
             if ea != EQUIANGULAR_OFF and (prm.max_depth < 0 or depth < prm.max_depth):
                 beta_w = mul3(beta, mis_weights(R)) if hero >= 0 else beta
                 L = add3(L, mul3(beta_w, sample_equiangular_lights(
-                    prm, lights, med, ea, o, d, t0, t1, rng, rng_s, counters)))
+                    prm, lights, med, ea, o, d, t0, t1, pix, s, depth, rng, rng_s, counters)))
+            pair = bounce_pair(depth, SAMPLER_FLIGHT)
+            if prm.sampler != SAMPLER_INDEPENDENT and pair >= 0:
+                rng_preset(rng, path_pair_u24(prm, pix, s, pair, 0, 1)[0])
             if hero >= 0:
                 event, t, w, E = free_flight(med, o, d, t0, t1, prm.decomposition != 0, R,
                                              hero, rng, counters, prm.max_steps)
@@ -380,6 +443,7 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
                 # (one channel per path: 0 x inf would be NaN).
                 L = add3(L, mul3(beta, keep_carried(beta, E)))
                 beta = mul3(beta, keep_carried(beta, w))
+            rng_drop_preset(rng)
         # The throughput every contribution is weighed by: with hero MIS, the balance
         # heuristic's weights on top of the common factors.
         beta_w = mul3(beta, mis_weights(R)) if hero >= 0 else beta
@@ -398,16 +462,15 @@ def trace_path(prm, lights, med, px, py, rng, rng_s, counters):
         beta_w = mul3(beta_w, albedo)
         if max3(beta_w) <= 0.0:
             break
-        L = add3(L, mul3(beta_w, sample_direct(prm, lights, med, ea, o, d, t0, t1, t, rng,
-                                               rng_s, counters)))
+        L = add3(L, mul3(beta_w, sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s,
+                                               depth - 1, rng, rng_s, counters)))
         p = madd3(o, d, t)
         if depth >= prm.rr_depth:
             q = survival_probability(prm, beta_w, albedo)
-            if rng_next(rng) >= q:
+            if path_u1(prm, pix, s, bounce_pair(depth - 1, SAMPLER_FLIGHT), 1, 0, 1, rng) >= q:
                 break
             beta = div3(beta, q)
-        u1 = rng_next(rng)
-        u2 = rng_next(rng)
+        u1, u2 = path_u2(prm, pix, s, bounce_pair(depth - 1, SAMPLER_PHASE), 0, 1, rng)
         d, pdf_phase = phase_sample(m.phase_kind, m.g, u1, u2, d)
         o = p
     return L
@@ -434,7 +497,7 @@ def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     for s in range(sample_start, sample_start + n_samples):
         rng_init(rng, seed, pix, s, STREAM_PATH)
         rng_init(rng_s, seed, pix, s, STREAM_SHADOW)
-        r, g, b = trace_path(prm, lights, med, px, py, rng, rng_s, cnt)
+        r, g, b = trace_path(prm, lights, med, px, py, s, rng, rng_s, cnt)
         if not sample_ok(r, g, b, prm.signed_samples):
             cnt[C_DROPPED] += 1  # the sample counts as 0 (guard "sample filter", guards.py)
             continue

@@ -20,7 +20,10 @@ Convention (shared with ``kernels/rng.h``; tests depend on it):
 The Philox constants, UNIFORM_SCALE and the STREAM_* ids are defined in volmc/constants.py.
 
 The state of one stream lives in a small uint32 array (RNG_STATE_SIZE words):
-``[key0, key1, pixel, sample, stream, n, w0, w1, w2, w3]`` where w* caches the current block.
+``[key0, key1, pixel, sample, stream, n, w0, w1, w2, w3, preset, word]`` where w* caches the
+current block. ``rng_preset`` makes the next draw return a given 24-bit uniform instead of
+the stream's (without advancing n): that is how a low-discrepancy sampler hands the first
+uniform of a free flight to the one tracking loop, which draws everything else itself.
 """
 
 import numpy as np
@@ -37,7 +40,7 @@ MASK32 = np.uint64(0xFFFFFFFF)
 SHIFT32 = np.uint64(32)
 
 #: Words of a stream's state array (layout in the module docstring).
-RNG_STATE_SIZE = 10
+RNG_STATE_SIZE = 12
 
 
 @njit(cache=True, inline="always")
@@ -77,11 +80,28 @@ def rng_init(rng, seed, pixel, sample, stream):
     rng[3] = np.uint32(sample)
     rng[4] = np.uint32(stream)
     rng[5] = np.uint32(0)
+    rng[10] = np.uint32(0)
+
+
+@njit(cache=True, inline="always")
+def rng_preset(rng, u24):
+    """Make the next draw of the stream the uniform u24 * 2^-24 (u24 < 2^24)."""
+    rng[10] = np.uint32(1)
+    rng[11] = np.uint32((np.uint64(u24) << np.uint64(8)) & MASK32)
+
+
+@njit(cache=True, inline="always")
+def rng_drop_preset(rng):
+    """Forget a preset draw nobody took (a flight that drew nothing)."""
+    rng[10] = np.uint32(0)
 
 
 @njit(cache=True)
 def rng_next_u32(rng):
-    """Next 32-bit word of the stream (advances the draw index by one)."""
+    """Next 32-bit word of the stream (advances the draw index by one), or the preset word."""
+    if rng[10] != 0:
+        rng[10] = np.uint32(0)
+        return rng[11]
     n = np.uint64(rng[5])
     lane = n & np.uint64(3)
     if lane == 0:

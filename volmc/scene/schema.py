@@ -172,7 +172,7 @@ EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
                "majorant_resolution", "free_flight", "spectral", "grid_storage", "mis",
-               "light_samples", "equiangular", "rr")
+               "sampler", "light_samples", "equiangular", "rr")
 MIS_HEURISTICS = ("balance", "power")
 SAMPLERS = ("independent", "stratified", "sobol")
 RR_RULES = ("throughput", "albedo")
@@ -493,6 +493,7 @@ def _render(c, raw):
         grid_storage=c.choice(raw.get("grid_storage", d.grid_storage), p + "grid_storage",
                               GRID_STORAGES),
         mis=c.choice(raw.get("mis", d.mis), p + "mis", MIS_HEURISTICS),
+        sampler=c.choice(raw.get("sampler", d.sampler), p + "sampler", SAMPLERS),
         light_samples=c.integer(raw.get("light_samples", d.light_samples),
                                 p + "light_samples", lo=1, hi=MAX_LIGHT_SAMPLES),
         equiangular=c.boolean(raw.get("equiangular", d.equiangular), p + "equiangular"),

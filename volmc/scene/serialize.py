@@ -47,7 +47,7 @@ def to_dict(spec: SceneSpec) -> dict:
                    "majorant": r.majorant, "majorant_resolution": list(r.majorant_resolution),
                    "free_flight": r.free_flight, "spectral": r.spectral,
                    "grid_storage": r.grid_storage, "mis": r.mis,
-                   "light_samples": r.light_samples,
+                   "sampler": r.sampler, "light_samples": r.light_samples,
                    "equiangular": r.equiangular, "rr": r.rr},
     }
 
