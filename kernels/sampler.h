@@ -16,16 +16,17 @@ inline uint reverse_bits32(uint x) {
     return (x >> 16) | (x << 16);
 }
 
-/* dim 0: van der Corput; any other dim: dimension 1 (polynomial x + 1: v_1 = 2^31,
- * v_{k+1} = v_k ^ (v_k >> 1)). */
+/* dim 0: van der Corput; any other dim: dimension 1 (polynomial x + 1: the Pascal matrix
+ * mod 2, applied as a superset sum over the bit positions; sampler.py derives it). */
 inline uint sobol_u32(uint index, int dim) {
     if (dim == 0) return reverse_bits32(index);
-    uint r = 0u, v = 0x80000000u;
-    for (uint i = index; i != 0u; i >>= 1) {
-        if (i & 1u) r ^= v;
-        v ^= v >> 1;
-    }
-    return r;
+    uint i = index;
+    i ^= (i >> 1) & 0x55555555u;
+    i ^= (i >> 2) & 0x33333333u;
+    i ^= (i >> 4) & 0x0F0F0F0Fu;
+    i ^= (i >> 8) & 0x00FF00FFu;
+    i ^= (i >> 16) & 0x0000FFFFu;
+    return reverse_bits32(i);
 }
 
 /* Nested uniform scramble: in the bit-reversed word every step flips a bit only as a function of

@@ -71,14 +71,19 @@ inline float mis_weight(int kind, float pdf_a, float pdf_b) {
 /* Equiangular distance sampling towards a point (Kulla & Fajardo 2012; twin of
  * sample_equiangular in sampling.py, where the arguments are described): t in [ta, tb]. */
 inline float equiangular_pdf(float t, float h, float D, float ta, float tb) {
-    if (t < ta || t > tb) return 0.0f;
+    if (t < ta || t > tb || !(tb > ta)) return 0.0f;
     float th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
+    if (!(th_b > th_a)) return 1.0f / (tb - ta); /* angles equal to rounding: uniform */
     float x = t - h;
     return D / ((th_b - th_a) * (D * D + x * x));
 }
 
 inline float sample_equiangular(float u, float h, float D, float ta, float tb, float *pdf) {
     float th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
+    if (!(th_b > th_a)) {
+        *pdf = tb > ta ? 1.0f / (tb - ta) : 0.0f;
+        return ta + u * (tb - ta);
+    }
     float t = clamp(h + D * tan(th_a + u * (th_b - th_a)), ta, tb);
     float x = t - h;
     *pdf = D / ((th_b - th_a) * (D * D + x * x));
@@ -87,6 +92,7 @@ inline float sample_equiangular(float u, float h, float D, float ta, float tb, f
 
 inline float invert_equiangular_sample(float t, float h, float D, float ta, float tb) {
     float th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
+    if (!(th_b > th_a)) return (t - ta) / (tb - ta);
     return (atan2(t - h, D) - th_a) / (th_b - th_a);
 }
 

@@ -93,12 +93,17 @@ def _plain(scene):
 
 def test_default_scenes_ship_and_thin_scene_is_single_scattering():
     paths = variance.default_scene_paths()
-    assert [p.name for p in paths] == ["cloud.toml", "thin.toml", "fog.toml"]
+    assert [p.name for p in paths] == ["cloud.toml", "thin.toml", "haze.toml", "fog.toml"]
     assert all(p.is_file() for p in paths)
     thin = load_scene(paths[1])
     assert thin.render.max_depth == 1 and thin.grid is not None
     assert {lt.type for lt in thin.lights} == {"directional", "point"}
     assert thin.camera.resolution == (96, 96)
+    # the samplers' best case: homogeneous, single scattering, one directional light (its
+    # next-event estimate draws no random number)
+    haze = load_scene(paths[2])
+    assert haze.render.max_depth == 1 and haze.grid is None
+    assert {lt.type for lt in haze.lights} == {"directional"}
 
 
 def test_cli_end_to_end(tmp_path, monkeypatch, capsys):

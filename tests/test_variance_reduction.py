@@ -33,6 +33,8 @@ SMALL = ["camera.resolution=[8, 8]"]
 #: (h, D, ta, tb): the point's foot and distance, the interval; foot inside, before, after.
 EQ_CASES = ((0.3, 0.2, -1.0, 2.0), (-2.0, 0.05, 0.0, 1.5), (5.0, 3.0, 0.0, 1.0),
             (0.0, 1e-3, -1.0, 1.0))
+#: A path segment of 5e-7 units seen from 1.4 units: in float32 its two angles are equal.
+TINY = (-1.37842, 0.153539, 0.0, 5.02335e-07)
 
 
 def _agree(a, b):
@@ -203,3 +205,29 @@ def test_equiangular_modes():
     pk = pack(load_scene(GRID, []))
     assert equiangular_mode(pk.params[0], pk.medium[0]) == EQUIANGULAR_OFF
     assert math.isfinite(equiangular_pdf(0.5, 0.5, 1e-30, 0.0, 1.0))
+
+
+def test_equiangular_on_a_segment_too_short_for_its_angles():
+    """Found by `volmc bench variance` (3 dropped samples in the lamp in fog): a free flight
+    that ends 5e-7 units before the box face leaves a segment whose two angles are equal in
+    float32, and the equiangular pdf was D / (0 x ...) = inf, its MIS weight NaN. Such a
+    segment is sampled uniformly, in both backends and in the pdf the MIS weight reads."""
+    h, D, ta, tb = TINY
+    u = np.array([0.0, 0.25, 0.784123, 1 - 2.0**-24], np.float32)
+    out, ob = out_buf((u.size, 3))
+    run("t_equiangular", u.size, to_dev(u), *[np.float32(x) for x in TINY], ob,
+        outs=[(out, ob)])
+    assert np.all(np.isfinite(out)) and np.all(out[:, 1] > 0)
+    assert np.allclose(out[:, 1], 1.0 / np.float32(tb), rtol=1e-5)
+    assert np.all((out[:, 0] >= ta) & (out[:, 0] <= tb))
+    assert np.allclose(out[:, 2], u, atol=1e-6)
+    # the reference switches the same way when float64 angles are equal too
+    # (seen from 1e8 units, a unit segment's angles differ by 1e-16: equal in float64)
+    t, pdf = sample_equiangular(0.5, 0.0, 1.0, 1e8, 1e8 + 1.0)
+    assert t == 1e8 + 0.5 and pdf == 1.0 == equiangular_pdf(t, 0.0, 1.0, 1e8, 1e8 + 1.0)
+    assert invert_equiangular_sample(t, 0.0, 1.0, 1e8, 1e8 + 1.0) == 0.5
+    assert sample_equiangular(0.5, 0.0, 1.0, 0.3, 0.3)[1] == 0.0
+    scene = load_scene(scenes_dir() / "gallery" / "fog.toml",
+                       ["camera.resolution=[128,128]", "render.spp=256", "render.seed=1",
+                        "render.equiangular=true"])
+    assert render(scene, progress=False, backend="opencl").counters["dropped"] == 0

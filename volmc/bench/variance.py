@@ -84,11 +84,12 @@ SAMPLER_CURVES = (("independent", PLAIN), ("stratified", "stratified"), ("sobol"
 
 def default_scene_paths():
     """The scenes benchmarked when none is given: the default cloud (multiple scattering,
-    sky and sun), scenes/bench/thin.toml (thin, single scattering, sun and a point light)
+    sky and sun), scenes/bench/thin.toml (thin, single scattering, sun and a point light),
+    scenes/bench/haze.toml (homogeneous, single scattering, sun: the samplers' best case)
     and the lamp in fog (scenes/gallery/fog.toml: point lights in a homogeneous medium)."""
     from ..resources import default_scene, scenes_dir
     return [default_scene(), scenes_dir() / "bench" / "thin.toml",
-            scenes_dir() / "gallery" / "fog.toml"]
+            scenes_dir() / "bench" / "haze.toml", scenes_dir() / "gallery" / "fog.toml"]
 
 
 def switch_labels(table=None):

@@ -58,7 +58,7 @@ _U = np.uint64
 _E0, _E1, _E2, _SEED_MUL = _U(OWEN_E0), _U(OWEN_E1), _U(OWEN_E2), _U(OWEN_SEED_MUL)
 _H0, _H1 = _U(HASH_M0), _U(HASH_M1)
 _P0, _P1, _P2 = _U(PERM_M0), _U(PERM_M1), _U(PERM_M2)
-_ONE, _TOP = _U(1), _U(0x80000000)
+_ONE = _U(1)
 _S1, _S2, _S3, _S4, _S6, _S8 = _U(1), _U(2), _U(3), _U(4), _U(6), _U(8)
 _S15, _S16, _S24, _S32 = _U(15), _U(16), _U(24), _U(32)
 _MAX_N, _2P24 = _U(SAMPLER_MAX_N), _U(1 << 24)
@@ -88,20 +88,22 @@ def sobol_u32(index, dim):
     dim 0 is the van der Corput sequence (the bit-reversed index); any other dim gives
     dimension 1, whose generator matrix comes from the primitive polynomial x + 1: direction
     numbers m_1 = 1, m_k = 2 m_{k-1} xor m_{k-1}, i.e. v_1 = 2^31 and v_{k+1} = v_k xor
-    (v_k >> 1) as 32-bit fractions (the Pascal matrix mod 2), computed here, not tabled.
-    Points are in natural index order (scipy's ``qmc.Sobol`` enumerates them in Gray-code
+    (v_k >> 1) as 32-bit fractions: the Pascal matrix mod 2, whose entry (j, k) is
+    C(k, j) mod 2, which by Lucas's theorem is 1 exactly when the bits of j are a subset of
+    those of k. So digit j + 1 of the point is the parity of the index bits k that contain
+    j, a superset sum over the 5-bit positions, which five masked shift-xors compute (one
+    per bit of the position) before the digits are reversed into the fraction: no loop over
+    the index bits. Points are in natural index order (scipy's ``qmc.Sobol`` enumerates them in Gray-code
     order: its point i is index i ^ (i >> 1) here)."""
     i = _U(index) & MASK32
     if dim == 0:
         return reverse_bits32(i)
-    r = _U(0)
-    v = _TOP
-    while i != _U(0):
-        if i & _ONE:
-            r ^= v
-        i >>= _S1
-        v ^= v >> _S1
-    return r
+    i ^= (i >> _S1) & _U(0x55555555)
+    i ^= (i >> _S2) & _U(0x33333333)
+    i ^= (i >> _S4) & _U(0x0F0F0F0F)
+    i ^= (i >> _S8) & _U(0x00FF00FF)
+    i ^= (i >> _S16) & _U(0x0000FFFF)
+    return reverse_bits32(i)
 
 
 @njit(cache=True, inline="always")

@@ -140,9 +140,19 @@ def sample_equiangular(u, h, D, ta, tb):
     distance from the ray's line; ta < tb: the interval (world units). The density is
     D / ((theta_b - theta_a) (D^2 + (t - h)^2)) per world unit, proportional to 1 / r^2,
     the falloff of a point light. Returns (t, pdf); t is clamped into [ta, tb] (rounding
-    in tan can overshoot by an ulp)."""
+    in tan can overshoot by an ulp).
+
+    An interval so short that its two angles round to the same value (a path segment of
+    1e-7 units seen from the light, in float32) is sampled uniformly instead, pdf
+    1 / (tb - ta): the equiangular density is that to rounding there, and the pdf stays
+    finite. ``equiangular_pdf`` and the inverse make the same switch. An empty interval
+    gives pdf 0."""
     th_a = math.atan2(ta - h, D)
     th_b = math.atan2(tb - h, D)
+    if not th_b > th_a:
+        if not tb > ta:
+            return ta, 0.0
+        return ta + u * (tb - ta), 1.0 / (tb - ta)
     t = h + D * math.tan(th_a + u * (th_b - th_a))
     t = min(max(t, ta), tb)
     x = t - h
@@ -152,10 +162,12 @@ def sample_equiangular(u, h, D, ta, tb):
 @njit(cache=True, inline="always")
 def equiangular_pdf(t, h, D, ta, tb):
     """Density of ``sample_equiangular`` at t (per world unit); 0 outside [ta, tb]."""
-    if t < ta or t > tb:
+    if t < ta or t > tb or not tb > ta:
         return 0.0
     th_a = math.atan2(ta - h, D)
     th_b = math.atan2(tb - h, D)
+    if not th_b > th_a:
+        return 1.0 / (tb - ta)
     x = t - h
     return D / ((th_b - th_a) * (D * D + x * x))
 
@@ -165,4 +177,6 @@ def invert_equiangular_sample(t, h, D, ta, tb):
     """The uniform u that ``sample_equiangular(u, h, D, ta, tb)`` maps to t."""
     th_a = math.atan2(ta - h, D)
     th_b = math.atan2(tb - h, D)
+    if not th_b > th_a:
+        return (t - ta) / (tb - ta)
     return (math.atan2(t - h, D) - th_a) / (th_b - th_a)
