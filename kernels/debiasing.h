@@ -14,17 +14,12 @@
 
 inline int telescoping_levels(float v, int n, int max_steps, bool *capped) {
     int k = 0;
-    float q = 1.0f;
-    *capped = false;
-    for (;;) {
-        q *= TELESCOPE_CONTINUE;
-        if (!(v <= q)) break;
-        if (k == TELESCOPE_MAX_LEVEL) {
-            *capped = true;
-            break;
-        }
+    float q = TELESCOPE_CONTINUE; /* P(K >= k + 1) */
+    while (v <= q && k < TELESCOPE_MAX_LEVEL) {
         k += 1;
+        q *= TELESCOPE_CONTINUE;
     }
+    *capped = v <= q; /* the draw asks for a level past the cap */
     while (k > 0 && ((long)n << k) > (long)max_steps) { /* long: n 2^16 overflows int */
         k -= 1;
         *capped = true;
@@ -36,11 +31,7 @@ inline float telescoping_segment(const MediumData *med, float3 o, float3 d, floa
                                  float mbar, float mu_c, Rng *rng, ulong *counters,
                                  int max_steps) {
     float L = t1 - t0;
-    if (!(L > 0.0f) || !(mbar > 0.0f)) return 1.0f;
-    if (max_steps < 1) {
-        counters[C_CAPPED] += 1;
-        return 1.0f;
-    }
+    if (segment_degenerate(L, mbar, counters, max_steps, 1)) return 1.0f;
     int n = max(1, (int)ceil(TELESCOPE_SAMPLES_PER_MFP * mbar * L));
     float v = 1.0f - rng_next(rng);
     bool capped = n > max_steps;
@@ -80,12 +71,8 @@ inline float jackknife_segment(const MediumData *med, float3 o, float3 d, float 
                                float mbar, float mu_c, Rng *rng, ulong *counters,
                                int max_steps) {
     float L = t1 - t0;
-    if (!(L > 0.0f) || !(mbar > 0.0f)) return 1.0f;
     int g = JACKKNIFE_GROUPS;
-    if (max_steps < g) {
-        counters[C_CAPPED] += 1;
-        return 1.0f;
-    }
+    if (segment_degenerate(L, mbar, counters, max_steps, g)) return 1.0f;
     int m = max(1, (int)ceil(JACKKNIFE_SAMPLES_PER_MFP * mbar * L / (float)g));
     if (g * m > max_steps) {
         counters[C_CAPPED] += 1;

@@ -25,7 +25,7 @@ from ..constants import (JACKKNIFE_GROUPS, JACKKNIFE_SAMPLES_PER_MFP, TELESCOPE_
                          TELESCOPE_MAX_LEVEL, TELESCOPE_SAMPLES_PER_MFP)
 from ..params import C_CAPPED
 from .guards import finite_bits
-from .medium import extinction, optical_depth_comb
+from .medium import extinction, optical_depth_comb, segment_degenerate
 from .rng import rng_next
 from .vec import madd3
 
@@ -36,16 +36,11 @@ def telescoping_levels(v, n, max_steps):
     v <= TELESCOPE_CONTINUE^k (at most TELESCOPE_MAX_LEVEL), lowered until the n 2^K points
     of level K fit in max_steps."""
     k = 0
-    q = 1.0
-    capped = False
-    while True:
-        q *= TELESCOPE_CONTINUE
-        if not (v <= q):
-            break
-        if k == TELESCOPE_MAX_LEVEL:
-            capped = True
-            break
+    q = TELESCOPE_CONTINUE          # P(K >= k + 1)
+    while v <= q and k < TELESCOPE_MAX_LEVEL:
         k += 1
+        q *= TELESCOPE_CONTINUE
+    capped = v <= q                 # the draw asks for a level past the cap
     while k > 0 and n * (1 << k) > max_steps:
         k -= 1
         capped = True
@@ -85,10 +80,7 @@ def telescoping_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps)
     the mean is unbiased. A non-finite estimate (absurd optical depths) returns 0.
     """
     L = t1 - t0
-    if not (L > 0.0) or not (mbar > 0.0):
-        return 1.0
-    if max_steps < 1:
-        counters[C_CAPPED] += 1
+    if segment_degenerate(L, mbar, counters, max_steps, 1):
         return 1.0
     n = max(1, int(math.ceil(TELESCOPE_SAMPLES_PER_MFP * mbar * L)))
     v = 1.0 - rng_next(rng)
@@ -161,11 +153,8 @@ def jackknife_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
     (max_steps < G M) shrinks M; max_steps < G returns 1. Both count C_CAPPED.
     """
     L = t1 - t0
-    if not (L > 0.0) or not (mbar > 0.0):
-        return 1.0
     g = JACKKNIFE_GROUPS
-    if max_steps < g:
-        counters[C_CAPPED] += 1
+    if segment_degenerate(L, mbar, counters, max_steps, g):
         return 1.0
     m = max(1, int(math.ceil(JACKKNIFE_SAMPLES_PER_MFP * mbar * L / g)))
     if g * m > max_steps:
