@@ -4,7 +4,8 @@
  * Twin of volmc/reference/estimators.py (the two families, the per-segment driver and the
  * exact treatment of homogeneous segments are described there); the registry of names is
  * volmc/techniques.py. The power series (power_series.h) are compiled in only with
- * -DVOLMC_POWER_SERIES, the build option their registry records carry. */
+ * -DVOLMC_POWER_SERIES, the telescoping and jackknife estimators (debiasing.h) only with
+ * -DVOLMC_DEBIASING: the build options their registry records carry. */
 #ifndef VOLMC_ESTIMATORS_H
 #define VOLMC_ESTIMATORS_H
 
@@ -12,8 +13,14 @@
 #include "rng.h"
 #include "medium.h"
 #include "tracking.h"
+/* Outside the #ifdefs: the source assembler expands each header once, where it first appears,
+ * so a header both optional families include must come before either. */
+#include "guards.h"
 #ifdef VOLMC_POWER_SERIES
 #include "power_series.h"
+#endif
+#ifdef VOLMC_DEBIASING
+#include "debiasing.h"
 #endif
 
 inline float biased_raymarch_segment(const MediumData *med, float3 o, float3 d, float t0,
@@ -41,6 +48,12 @@ inline float segment_estimate(int kind, const MediumData *med, float3 o, float3 
     if (kind == SEGMENT_UNBIASED_RAYMARCH)
         return unbiased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
                                          max_steps);
+#endif
+#ifdef VOLMC_DEBIASING
+    if (kind == SEGMENT_TELESCOPING)
+        return telescoping_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps);
+    if (kind == SEGMENT_JACKKNIFE)
+        return jackknife_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps);
 #endif
     return exp(-s_maj * (t1 - t0)); /* SEGMENT_ANALYTIC */
 }
@@ -115,6 +128,18 @@ inline float transmittance_power_series(TRANSMITTANCE_ARGS) {
 inline float transmittance_unbiased_raymarch(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_UNBIASED_RAYMARCH, rng,
                                      counters, max_steps);
+}
+#endif
+
+#ifdef VOLMC_DEBIASING
+inline float transmittance_telescoping(TRANSMITTANCE_ARGS) {
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_TELESCOPING, rng, counters,
+                                     max_steps);
+}
+
+inline float transmittance_jackknife(TRANSMITTANCE_ARGS) {
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_JACKKNIFE, rng, counters,
+                                     max_steps);
 }
 #endif
 

@@ -95,6 +95,16 @@ inline float optical_depth_comb(const MediumData *med, float3 o, float3 d, float
     return s * h;
 }
 
+inline bool segment_degenerate(float L, float mbar, ulong *counters, int max_steps,
+                               int min_steps) {
+    if (!(L > 0.0f) || !(mbar > 0.0f)) return true;
+    if (max_steps < min_steps) {
+        counters[C_CAPPED] += 1;
+        return true;
+    }
+    return false;
+}
+
 typedef struct {
     float t_min, t_max, sigma_maj, sigma_min;
 } Segment;

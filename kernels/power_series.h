@@ -66,11 +66,7 @@ inline float unbiased_raymarch_segment(const MediumData *med, float3 o, float3 d
                                        float t1, float mbar, float mu_c, Rng *rng,
                                        ulong *counters, int max_steps) {
     float L = t1 - t0;
-    if (!(L > 0.0f) || !(mbar > 0.0f)) return 1.0f;
-    if (max_steps < 1) {
-        counters[C_CAPPED] += 1;
-        return 1.0f;
-    }
+    if (segment_degenerate(L, mbar, counters, max_steps, 1)) return 1.0f;
     int m = urm_comb_size(mbar * L); /* mu_c unused: the control is the online comb x0 */
     /* Order before any lookup: independent of the combs, and the cost is known up front. */
     float v = 1.0f - rng_next(rng);
@@ -108,11 +104,7 @@ inline float power_series_segment(const MediumData *med, float3 o, float3 d, flo
                                   float t1, float mbar, float mu_c, Rng *rng, ulong *counters,
                                   int max_steps) {
     float L = t1 - t0;
-    if (!(L > 0.0f) || !(mbar > 0.0f)) return 1.0f;
-    if (max_steps < 1) {
-        counters[C_CAPPED] += 1;
-        return 1.0f;
-    }
+    if (segment_degenerate(L, mbar, counters, max_steps, 1)) return 1.0f;
     float tau_bar = mbar * L;
     float lam = fmax(mbar - fmax(mu_c, 0.0f), 0.0f) * L;
     int n_det = cmf_deterministic_terms(lam, max_steps);

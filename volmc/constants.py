@@ -127,8 +127,12 @@ SEGMENT_ANALYTIC = 0
 SEGMENT_BIASED_RAYMARCH = 1
 #: ... the p-series CMF power series ...
 SEGMENT_POWER_SERIES = 2
-#: ... and unbiased ray marching.
+#: ... unbiased ray marching ...
 SEGMENT_UNBIASED_RAYMARCH = 3
+#: ... the telescoping (debiased) ray-marching estimator ...
+SEGMENT_TELESCOPING = 4
+#: ... and jackknife ray marching.
+SEGMENT_JACKKNIFE = 5
 #: Transmittance-estimator ids: the reference dispatches on them (estimators.transmittance);
 #: volmc/techniques.py gives each its name and properties.
 ESTIMATOR_ANALYTIC = 0
@@ -139,6 +143,8 @@ ESTIMATOR_NEXT_FLIGHT = 4
 ESTIMATOR_BIASED_RAYMARCH = 5
 ESTIMATOR_POWER_SERIES = 6
 ESTIMATOR_UNBIASED_RAYMARCH = 7
+ESTIMATOR_TELESCOPING = 8
+ESTIMATOR_JACKKNIFE = 9
 #: Biased ray marching's comb: points per majorant mean free path (ceil(this x sigma_maj L)).
 RAYMARCH_SAMPLES_PER_MFP = 1.0
 
@@ -229,6 +235,24 @@ def _urm_mean_order(p_zero, k_det, c):
 #: Expected expansion order of unbiased ray marching (0.31945... for the constants above); each
 #: order costs one comb, so an estimate makes M (1 + URM_MEAN_ORDER) lookups on average.
 URM_MEAN_ORDER = _urm_mean_order(URM_P_ZERO, URM_K, URM_C)
+
+# --- Bias-corrected ray marching (volmc/reference/debiasing.py) ------------------------------
+
+#: Telescoping estimator: level 0 is a jittered comb of ceil(this x sigma_maj L) points ...
+TELESCOPE_SAMPLES_PER_MFP = 1.0
+#: ... level k halves the step (n 2^k points, nested), and P(K >= k) = TELESCOPE_CONTINUE^k:
+#: between 1/4 (the decay of a level difference's second moment, O(h^2)) and 1/2 (the growth
+#: of its cost), so both the variance and the expected cost are finite. 3/8 is exact in
+#: binary, so the float32 and float64 roulette thresholds agree up to 3^15 / 8^15.
+TELESCOPE_CONTINUE = 0.375
+#: Level cap. 0.375^17 < 2^-24, so a 24-bit uniform never passes level 16 and the cap (it
+#: would be counted in C_CAPPED) is never reached.
+TELESCOPE_MAX_LEVEL = 16
+#: Jackknife ray marching: lookups per majorant mean free path over all its combs (so its
+#: cost equals biased ray marching's at RAYMARCH_SAMPLES_PER_MFP = 1) ...
+JACKKNIFE_SAMPLES_PER_MFP = 1.0
+#: ... split into this many independent jittered combs (the jackknife's groups).
+JACKKNIFE_GROUPS = 2
 
 
 def kernel_constants():

@@ -77,6 +77,12 @@ _RECORDS = (
               "transmittance_unbiased_raymarch", True, signed=True,
               build_options=("-DVOLMC_POWER_SERIES",),
               summary="unbiased ray marching (Kettunen et al. 2021)"),
+    Estimator("telescoping", C.ESTIMATOR_TELESCOPING, "transmittance_telescoping", True,
+              signed=True, build_options=("-DVOLMC_DEBIASING",),
+              summary="telescoping sum over nested jittered ray marching (Misso et al. 2022)"),
+    Estimator("jackknife", C.ESTIMATOR_JACKKNIFE, "transmittance_jackknife", False,
+              signed=True, build_options=("-DVOLMC_DEBIASING",),
+              summary="jackknife-corrected ray marching over two combs: biased, second order"),
 )
 
 #: name -> Estimator, in registry order.

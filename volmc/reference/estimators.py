@@ -13,7 +13,8 @@ Two families, each run by one loop over the majorant segments:
 * **Tracking estimators** -- track length, ratio, residual ratio and next-flight tracking --
   are techniques of the one tracking loop (tracking.py).
 * **Per-segment estimators** -- ``transmittance_analytic`` (exp(-sigma_maj L), exact only on
-  homogeneous segments), biased ray marching and the power series (power_series.py) -- run
+  homogeneous segments), biased ray marching, the power series (power_series.py) and the
+  telescoping and jackknife ray marching (debiasing.py) -- run
   on each segment in turn with its bounds (``transmittance_by_segments``); the product of
   independent unbiased per-segment estimates is unbiased. Between segments the running
   product plays transmittance roulette (tracking.transmittance_roulette).
@@ -28,15 +29,18 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import (ESTIMATOR_ANALYTIC, ESTIMATOR_BIASED_RAYMARCH, ESTIMATOR_NEXT_FLIGHT,
-                         ESTIMATOR_POWER_SERIES, ESTIMATOR_RATIO, ESTIMATOR_RESIDUAL_RATIO,
+from ..constants import (ESTIMATOR_ANALYTIC, ESTIMATOR_BIASED_RAYMARCH, ESTIMATOR_JACKKNIFE,
+                         ESTIMATOR_NEXT_FLIGHT, ESTIMATOR_POWER_SERIES, ESTIMATOR_RATIO,
+                         ESTIMATOR_RESIDUAL_RATIO, ESTIMATOR_TELESCOPING,
                          ESTIMATOR_TRACK_LENGTH, ESTIMATOR_UNBIASED_RAYMARCH,
                          RAYMARCH_SAMPLES_PER_MFP, SEGMENT_ANALYTIC, SEGMENT_BIASED_RAYMARCH,
-                         SEGMENT_POWER_SERIES, SEGMENT_UNBIASED_RAYMARCH, STREAM_TEST,
-                         TRACK_LENGTH, TRACK_NEXT_FLIGHT, TRACK_RATIO, TRACK_RESIDUAL_RATIO)
+                         SEGMENT_JACKKNIFE, SEGMENT_POWER_SERIES, SEGMENT_TELESCOPING,
+                         SEGMENT_UNBIASED_RAYMARCH, STREAM_TEST, TRACK_LENGTH,
+                         TRACK_NEXT_FLIGHT, TRACK_RATIO, TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, N_COUNTERS
 from .medium import (ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next,
                      no_field_arrays, optical_depth_comb)
+from .debiasing import jackknife_segment, telescoping_segment
 from .power_series import power_series_segment, unbiased_raymarch_segment
 from .rng import rng_new, rng_next
 from .tracking import ONE3, track, transmittance_roulette
@@ -71,6 +75,10 @@ def segment_estimate(kind, med, o, d, t0, t1, s_maj, s_min, rng, counters, max_s
     if kind == SEGMENT_UNBIASED_RAYMARCH:
         return unbiased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
                                          max_steps)
+    if kind == SEGMENT_TELESCOPING:
+        return telescoping_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps)
+    if kind == SEGMENT_JACKKNIFE:
+        return jackknife_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps)
     return math.exp(-s_maj * (t1 - t0))   # SEGMENT_ANALYTIC
 
 
@@ -170,6 +178,22 @@ def transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
 
 
 @njit(cache=True)
+def transmittance_telescoping(med, o, d, t0, t1, rng, counters, max_steps):
+    """The telescoping estimator over nested jittered ray marching (Misso et al. 2022) on
+    every segment (debiasing.telescoping_segment). Unbiased; single estimates can be < 0."""
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_TELESCOPING, rng, counters,
+                                     max_steps)
+
+
+@njit(cache=True)
+def transmittance_jackknife(med, o, d, t0, t1, rng, counters, max_steps):
+    """Jackknife-corrected ray marching on every segment (debiasing.jackknife_segment).
+    Biased (second order in the step); single estimates can be < 0."""
+    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_JACKKNIFE, rng, counters,
+                                     max_steps)
+
+
+@njit(cache=True)
 def transmittance(est, med, o, d, t0, t1, rng, counters, max_steps):
     """Run the estimator with id ``est`` (ESTIMATOR_*; techniques.ESTIMATORS[name].id): the
     reference's run-time counterpart of the kernels' build-time choice. Returns RGB: the
@@ -190,6 +214,10 @@ def transmittance(est, med, o, d, t0, t1, rng, counters, max_steps):
         T = transmittance_power_series(med, o, d, t0, t1, rng, counters, max_steps)
     elif est == ESTIMATOR_UNBIASED_RAYMARCH:
         T = transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
+    elif est == ESTIMATOR_TELESCOPING:
+        T = transmittance_telescoping(med, o, d, t0, t1, rng, counters, max_steps)
+    elif est == ESTIMATOR_JACKKNIFE:
+        T = transmittance_jackknife(med, o, d, t0, t1, rng, counters, max_steps)
     elif est == ESTIMATOR_ANALYTIC:
         T = transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps)
     else:

@@ -53,7 +53,7 @@ from numba import njit
 from ..constants import (BLACKBODY_TABLE_SIZE, DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_COSINE,
                          DENSITY_GAUSS_BUMP, DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP,
                          EMISSION_RADIANCE, MAJORANT_GLOBAL, MAJORANT_GRID, TWO_PI)
-from ..params import C_LOOKUPS, C_OVER_MAJORANT, medium_dtype
+from ..params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT, medium_dtype
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .grid import grid_lookup
 from .sparse_grid import sparse_lookup
@@ -185,6 +185,18 @@ def optical_depth_comb(med, o, d, t0, L, n, u, sigma_maj, counters):
         t = t0 + (j + u) * h
         s += extinction(med, madd3(o, d, t), sigma_maj, counters)
     return s * h
+
+
+@njit(cache=True, inline="always")
+def segment_degenerate(L, mbar, counters, max_steps, min_steps):
+    """True if a per-segment estimator returns 1 without a lookup: an empty segment (L or
+    mbar not > 0), or max_steps below the min_steps it needs (counted in C_CAPPED)."""
+    if not (L > 0.0) or not (mbar > 0.0):
+        return True
+    if max_steps < min_steps:
+        counters[C_CAPPED] += 1
+        return True
+    return False
 
 
 # --- Host-side constructors and closed forms (tests and the estimator benchmark) ------------

@@ -37,7 +37,7 @@ from numba import njit
 from ..constants import (CMF_FIT_0, CMF_FIT_1, CMF_FIT_2, CMF_GOAL, URM_C, URM_K,  # noqa: F401
                          URM_MAX_ORDER, URM_MEAN_ORDER, URM_P_ZERO)
 from ..params import C_CAPPED
-from .medium import extinction, optical_depth_comb
+from .medium import extinction, optical_depth_comb, segment_degenerate
 from .guards import finite_bits
 from .rng import rng_next
 from .vec import madd3
@@ -167,10 +167,7 @@ def unbiased_raymarch_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_
     Returns the estimate of T.
     """
     L = t1 - t0
-    if not (L > 0.0) or not (mbar > 0.0):
-        return 1.0
-    if max_steps < 1:
-        counters[C_CAPPED] += 1
+    if segment_degenerate(L, mbar, counters, max_steps, 1):
         return 1.0
     m = urm_comb_size(mbar * L)
     # The order is drawn before any lookup, so it is independent of the combs (and the
@@ -257,10 +254,7 @@ def power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps
     estimates. Returns the estimate of T.
     """
     L = t1 - t0
-    if not (L > 0.0) or not (mbar > 0.0):
-        return 1.0
-    if max_steps < 1:
-        counters[C_CAPPED] += 1
+    if segment_degenerate(L, mbar, counters, max_steps, 1):
         return 1.0
     tau_bar = mbar * L
     lam = max(mbar - max(mu_c, 0.0), 0.0) * L
