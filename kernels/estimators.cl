@@ -19,7 +19,7 @@ kernel void estimate_batch(global const Medium *media, global const float *grid,
     int i = get_global_id(0);
     int r = i / n_per_ray;
     Medium m = media[r];
-    MediumData med = {m, grid, maj, mnr, grid, grid, 0, grid};
+    MediumData med = {m, grid, maj, mnr, grid, grid, 0, grid, 0};
     float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
     float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
     Rng rng;

@@ -385,14 +385,15 @@ kernel void render_batch(const Params prm, const Medium medium, global const Lig
                          global const float *grid, global const float *maj,
                          global const float *mnr, global const float *emis,
                          global const float *table, global const int *bricks,
-                         global const float *pool, uint sample_start, uint n_samples,
+                         global const float *pool, global const int *nodes,
+                         uint sample_start, uint n_samples,
                          global float *out_mean, global float *out_m2,
                          global ulong *counters_out) {
     int pix = get_global_id(0);
     if (pix >= prm.width * prm.height) return;
     int py = pix / prm.width;
     int px = pix - py * prm.width;
-    MediumData med = {medium, grid, maj, mnr, emis, table, bricks, pool};
+    MediumData med = {medium, grid, maj, mnr, emis, table, bricks, pool, nodes};
     ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;

@@ -9,12 +9,14 @@
 #include "features.h"
 #include "grid.h"
 #include "dda.h"
+#include "octree.h"
 #include "spectrum.h"
 
 /* A medium record with the arrays it points to: the density grid [nz][ny][nx], the
- * majorant grid's per-cell density maxima and minima [cz][cy][cx], the emission field grid
- * [nz][ny][nx], the blackbody table [BLACKBODY_TABLE_SIZE][3], and a brick grid's index
- * table [bz][by][bx] and pool [n_slots][8][8][8] (grid.h). */
+ * majorant grid's per-cell density maxima and minima [cz][cy][cx] (an octree's: per node),
+ * the emission field grid [nz][ny][nx], the blackbody table [BLACKBODY_TABLE_SIZE][3], a
+ * brick grid's index table [bz][by][bx] and pool [n_slots][8][8][8] (grid.h), and an
+ * octree's first-child indices [n_nodes] (octree.h). */
 typedef struct {
     Medium m; /* a copy: the compiler keeps its fields in registers */
     global const float *grid;
@@ -24,6 +26,7 @@ typedef struct {
     global const float *table;
     global const int *bricks;
     global const float *pool;
+    global const int *nodes;
 } MediumData;
 
 inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
@@ -111,6 +114,7 @@ typedef struct {
 
 typedef struct {
     Dda dda;
+    OctreeWalk oct;
     float t0, t1;
     int done;
 } MajorantIter;
@@ -124,17 +128,25 @@ inline void majorant_iter_init(MajorantIter *it, const MediumData *med, float3 o
     if (FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID)
         dda_init(&it->dda, o, d, t0, t1, vec3(m->bmin), vec3(m->bmax),
                  (int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]));
+    else if (FEATURE_MAJORANT_OCTREE && m->majorant_kind == MAJORANT_OCTREE)
+        octree_init(&it->oct, o, d, t0, t1, vec3(m->bmin), vec3(m->bmax), m->octree_depth);
 }
 
-/* Returns 0 at the end; else writes the next non-empty segment. */
+/* Returns 0 at the end; else writes the next non-empty segment. The grid's cells and the
+ * octree's leaves run one loop: each walk yields a piece and its index into maj and mnr. */
 inline int majorant_next(MajorantIter *it, const MediumData *med, Segment *seg) {
     const Medium *m = &med->m;
-    if (FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID) {
+    int grid = FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID;
+    int octree = FEATURE_MAJORANT_OCTREE && m->majorant_kind == MAJORANT_OCTREE;
+    if (grid || octree) {
         int3 res = (int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]);
         float ta, tb;
         int3 cell;
-        while (dda_next(&it->dda, &ta, &tb, &cell)) {
-            int k = dda_cell_index(cell, res);
+        int k = 0;
+        while (grid ? dda_next(&it->dda, &ta, &tb, &cell)
+                    : octree_next(&it->oct, med->nodes, vec3(m->bmin), vec3(m->bmax),
+                                  m->octree_depth, &ta, &tb, &k)) {
+            if (grid) k = dda_cell_index(cell, res);
             float s_maj = m->scale * med->maj[k];
             if (s_maj > 0.0f && tb > ta) {
                 seg->t_min = ta;

@@ -114,7 +114,7 @@ kernel void t_track(int technique, int use_control, global const Medium *media,
     int i = get_global_id(0);
     int r = i / n_per_ray;
     Medium m = media[r];
-    MediumData med = {m, grid, maj, mnr, grid, grid, 0, grid};
+    MediumData med = {m, grid, maj, mnr, grid, grid, 0, grid, 0};
     float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
     float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
     Rng rng;
@@ -150,6 +150,20 @@ kernel void t_dda(global const float *rays, float3 bmin, float3 bmax, int3 res_z
         row[4] = (float)cell.x;
         ++k;
     }
+    count[r] = k;
+}
+
+/* Octree walks of rays (9 floats each, as t_track) into out[r][k] = (ta, tb, node). */
+kernel void t_octree(global const float *rays, float3 bmin, float3 bmax,
+                     global const int *children, int depth, int max_segments,
+                     global float *out, global int *count) {
+    int r = get_global_id(0), node, k = 0;
+    OctreeWalk s;
+    octree_init(&s, vload3(3 * r, rays), vload3(3 * r + 1, rays), rays[9 * r + 6],
+                rays[9 * r + 7], bmin, bmax, depth);
+    float ta, tb;
+    while (k < max_segments && octree_next(&s, children, bmin, bmax, depth, &ta, &tb, &node))
+        vstore3((float3)(ta, tb, (float)node), (size_t)r * max_segments + k++, out);
     count[r] = k;
 }
 

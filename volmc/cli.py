@@ -152,7 +152,8 @@ def build_parser():
     br.add_argument("scene", nargs="?", help="scene .toml (default: the bundled cloud scene)")
     br.add_argument("--backends", default="opencl,numba",
                     help="comma-separated volmc backends (default opencl,numba)")
-    br.add_argument("--majorants", default="grid,global", help="default grid,global")
+    br.add_argument("--majorants", default="grid,global",
+                    help="comma list of grid, global, octree (default grid,global)")
     br.add_argument("--spectral", default=None,
                     help="comma-separated render.spectral modes to compare (tracking, "
                          "channel; default: the scene's own)")
@@ -447,9 +448,9 @@ def cmd_bench_render(args):
     from .backends import BACKENDS
     from .resources import default_scene
     from .scene import load_scene
-    from .scene.schema import SPECTRAL_MODES, ConstantDensity
+    from .scene.schema import MAJORANTS, SPECTRAL_MODES, ConstantDensity
     backends = _list(args.backends, "--backends", BACKENDS)
-    majorants = _list(args.majorants, "--majorants", ("grid", "global"))
+    majorants = _list(args.majorants, "--majorants", MAJORANTS)
     flights = _list(args.free_flights, "--free-flights", ("delta", "decomposition"))
     levels = _spp_levels(args.spp_levels)
     for path, flag in ((args.json, "--json"), (args.plot, "--plot")):

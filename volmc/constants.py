@@ -77,8 +77,13 @@ DENSITY_BRICKS = 6
 
 #: The majorant structure: one segment with the medium's global bounds ...
 MAJORANT_GLOBAL = 0
-#: ... or a coarse grid of per-cell bounds, walked cell by cell with a 3-D DDA.
+#: ... or a coarse grid of per-cell bounds, walked cell by cell with a 3-D DDA ...
 MAJORANT_GRID = 1
+#: ... or an octree of per-node bounds, split where the bounds are loose (octree.py), whose
+#: leaves are walked in order along the ray.
+MAJORANT_OCTREE = 2
+#: Octree depth at most: the finest leaves are 2^OCTREE_MAX_DEPTH cells per axis.
+OCTREE_MAX_DEPTH = 7
 
 #: How extinction depends on colour: grey (one extinction for all three channels) ...
 SPECTRAL_GREY = 0

@@ -9,6 +9,7 @@ import numpy as np
 from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_BRICKS, DENSITY_CONSTANT,
                         DENSITY_GRID, EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
                         LIGHT_DIRECTIONAL, LIGHT_POINT, MAJORANT_GLOBAL, MAJORANT_GRID,
+                        MAJORANT_OCTREE,
                         MIS_BALANCE, MIS_POWER, PHASE_HG, PHASE_ISOTROPIC, RR_ALBEDO,
                         RR_THROUGHPUT, SAMPLER_INDEPENDENT, SAMPLER_SOBOL, SAMPLER_STRATIFIED,
                         SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO, SPECTRAL_TRACKING)
@@ -34,6 +35,31 @@ def pack_majorant(scene, real=np.float64, grid=None):
     else:
         mx, mn = build_majorant_grid(grid, res)
     return np.ascontiguousarray(mx, real), np.ascontiguousarray(mn, real)
+
+
+def pack_octree(scene, real=np.float64, grid=None):
+    """(maxima, minima, children, depth) of the octree of majorants (reference/octree.py)
+    when the scene has a density grid and render.majorant = "octree": per-node density
+    bounds [1, 1, n_nodes], int32 first-child indices [n_nodes] and the depth; else
+    placeholders and depth 0. ``grid``: the scene's grid as stored (default: looked up)."""
+    from .reference.majorant import build_majorant_grid
+    from .reference.octree import build_octree, octree_depth
+    from .reference.sparse_grid import majorant_from_bricks
+    from .scene.bricks import BrickGrid, density_storage
+    if scene.grid is None or scene.render.majorant != "octree":
+        return np.zeros((1, 1, 1), real), np.zeros((1, 1, 1), real), np.zeros(1, np.int32), 0
+    grid = density_storage(scene) if grid is None else grid
+    depth = octree_depth(grid.shape)
+    res = (2 ** depth,) * 3
+    if isinstance(grid, BrickGrid):
+        fmx, fmn = majorant_from_bricks(grid.table, grid.pool, grid.dims, res)
+    else:
+        fmx, fmn = build_majorant_grid(grid, res)
+    lo, hi = scene.medium.bounds
+    mx, mn, children = build_octree(fmx, fmn, [hi[i] - lo[i] for i in range(3)],
+                                    max(scene.medium.scale))
+    return (np.ascontiguousarray(mx.reshape(1, 1, -1), real),
+            np.ascontiguousarray(mn.reshape(1, 1, -1), real), children, depth)
 
 
 def _normalize(v):
@@ -70,10 +96,11 @@ def scene_frame(scene):
 
 #: A scene packed for a backend: the parameter record [1], the light array, the medium record
 #: [1], the density grid [nz, ny, nx], the majorant grid's per-cell maxima and minima, the
-#: emission field grid, the blackbody table, and a brick grid's index table and pool
-#: (placeholders when unused).
+#: emission field grid, the blackbody table, a brick grid's index table and pool, and an
+#: octree's first-child indices (placeholders when unused; with an octree, maj and mnr are its
+#: per-node bounds).
 Packed = namedtuple("Packed", ["params", "lights", "medium", "grid", "maj", "mnr", "emis",
-                               "table", "bricks", "pool"])
+                               "table", "bricks", "pool", "nodes"])
 
 
 def pack_scene(scene, real=np.float64, spp_seed=None):
@@ -129,7 +156,7 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["rr"] = RR_ALBEDO if rnd.rr == "albedo" else RR_THROUGHPUT
     est = ESTIMATORS[rnd.transmittance]
     p["shadow_estimator"] = est.id
-    p["decomposition"] = int(scene.grid is not None and rnd.majorant == "grid"
+    p["decomposition"] = int(scene.grid is not None and rnd.majorant in ("grid", "octree")
                              and rnd.free_flight == "decomposition")
     p["signed_samples"] = int(est.signed and scene.grid is not None)
     seed = rnd.seed if spp_seed is None else spp_seed
@@ -139,10 +166,14 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     params[0] = p
     from .scene.bricks import density_storage
     stored = density_storage(scene)
-    maj, mnr = pack_majorant(scene, real, stored)
+    if rnd.majorant == "octree":
+        maj, mnr, nodes, depth = pack_octree(scene, real, stored)
+    else:
+        (maj, mnr), nodes, depth = pack_majorant(scene, real, stored), np.zeros(1, np.int32), 0
     medium, grid, bricks, pool = pack_medium(scene, real, local, unit, maj.shape, stored)
+    medium[0]["octree_depth"] = depth
     emis, table = pack_emission(scene, medium, real)
-    return Packed(params, larr, medium, grid, maj, mnr, emis, table, bricks, pool)
+    return Packed(params, larr, medium, grid, maj, mnr, emis, table, bricks, pool, nodes)
 
 
 def pack_emission(scene, medium, real):
@@ -219,6 +250,8 @@ def pack_medium(scene, real, local, unit, maj_res, stored=None):
         if rnd.majorant == "grid":
             m["majorant_kind"] = MAJORANT_GRID
             m["maj_res"] = maj_res
+        elif rnd.majorant == "octree":
+            m["majorant_kind"] = MAJORANT_OCTREE
     m["albedo"] = med.albedo
     m["phase_kind"] = PHASE_HG if med.phase.type == "hg" else PHASE_ISOTROPIC
     m["g"] = med.phase.g

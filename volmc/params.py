@@ -46,7 +46,8 @@ PARAM_FIELDS = (
 #: bounds it. Arrays travel beside it: the density grid and the per-cell majorant grid.
 MEDIUM_FIELDS = (
     ("density_kind", "i4", 1, "DENSITY_CONSTANT, DENSITY_GRID, DENSITY_BRICKS or a profile"),
-    ("majorant_kind", "i4", 1, "MAJORANT_GLOBAL (one segment) or MAJORANT_GRID (DDA cells)"),
+    ("majorant_kind", "i4", 1, "MAJORANT_GLOBAL (one segment), MAJORANT_GRID (DDA cells) or "
+                               "MAJORANT_OCTREE (octree leaves)"),
     ("bmin", "real", 3, "medium box minimum corner"),
     ("bmax", "real", 3, "medium box maximum corner"),
     ("inv_extent", "real", 3, "1 / (bmax - bmin) per axis"),
@@ -57,6 +58,7 @@ MEDIUM_FIELDS = (
     ("sigma_maj", "real", 1, "MAJORANT_GLOBAL: extinction majorant of the whole medium"),
     ("sigma_min", "real", 1, "MAJORANT_GLOBAL: extinction minorant (the control)"),
     ("maj_res", "i4", 3, "MAJORANT_GRID: cells (cz, cy, cx)"),
+    ("octree_depth", "i4", 1, "MAJORANT_OCTREE: depth D; leaves are whole cells of 2^D per axis"),
     ("spectral", "i4", 1, "SPECTRAL_GREY, SPECTRAL_TRACKING or SPECTRAL_CHANNEL"),
     ("chroma", "real", 3, "extinction per channel / the largest one (1, 1, 1 when grey)"),
     ("emission_kind", "i4", 1, "EMISSION_NONE, EMISSION_RADIANCE or EMISSION_TEMPERATURE"),

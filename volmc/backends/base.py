@@ -53,7 +53,7 @@ def techniques(scene):
     """The technique choices a scene implies, for metadata and --stats."""
     homogeneous = scene.grid is None
     r = scene.render
-    flight = "delta tracking" if r.free_flight == "delta" or r.majorant != "grid" else \
+    flight = "delta tracking" if r.free_flight == "delta" or r.majorant == "global" else \
         "decomposition tracking"
     return {
         "free_flight": "analytic" if homogeneous else f"{flight} ({r.majorant} majorant)",

@@ -23,7 +23,7 @@ class NumbaBackend(RenderBackend):
     def _launch(self, sample_start, n_samples, film_sum, film_sq, counters):
         pk = self.packed
         render_batch(pk.params, pk.lights, pk.medium, pk.grid, pk.maj, pk.mnr, pk.emis,
-                     pk.table, pk.bricks, pk.pool, sample_start, n_samples, film_sum, film_sq,
+                     pk.table, pk.bricks, pk.pool, pk.nodes, sample_start, n_samples, film_sum, film_sq,
                      counters)
 
     def warm_up(self):

@@ -53,6 +53,7 @@ class OpenCLBackend(RenderBackend):
         self.table_buf = clc.to_device(pk.table)
         self.bricks_buf = clc.to_device(pk.bricks)
         self.pool_buf = clc.to_device(pk.pool)
+        self.nodes_buf = clc.to_device(pk.nodes)
         # Batch outputs: per-pixel mean and sum of squared deviations (Welford).
         self.mean_host, self.mean_buf = clc.output((h, w, 3))
         self.m2_host, self.m2_buf = clc.output((h, w, 3))
@@ -70,8 +71,8 @@ class OpenCLBackend(RenderBackend):
         self.clc.run(self.kernel, self.n_pix, self.local_size, self.params[0], self.medium[0],
                      self.lights_buf, self.grid_buf, self.maj_buf, self.mnr_buf,
                      self.emis_buf, self.table_buf, self.bricks_buf, self.pool_buf,
-                     np.uint32(sample_start), np.uint32(n_samples), self.mean_buf, self.m2_buf,
-                     self.cnt_buf, outs=[(self.mean_host, self.mean_buf),
+                     self.nodes_buf, np.uint32(sample_start), np.uint32(n_samples),
+                     self.mean_buf, self.m2_buf, self.cnt_buf, outs=[(self.mean_host, self.mean_buf),
                                          (self.m2_host, self.m2_buf)])
         mean = self.mean_host.astype(np.float64)
         film.sum += n_samples * mean

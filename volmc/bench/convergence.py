@@ -21,8 +21,11 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numba import njit
 
 from ..film import Film
+from ..reference.integrator import camera_ray, enter_box
+from ..reference.medium import ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next
 from ..params import COUNTER_NAMES
 from ..peers.compare import rmse_to_reference
 from ..backends import make_backend
@@ -65,6 +68,41 @@ def make_configs(backends, majorants, free_flights, transmittances, peer, baseli
         out.append(Config("mitsuba"))
     out += [Config("baseline", path=str(p)) for p in baselines]
     return out
+
+
+@njit(cache=True)
+def _camera_segments(params, medium, grid, maj, mnr, emis, table, bricks, pool, nodes):
+    """(majorant segments, camera rays through the medium box) over every pixel centre's
+    primary ray: the segments majorant_next yields (empty ones are skipped, as in tracking)."""
+    prm = params[0]
+    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes)
+    m = medium[0]
+    bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
+    bmax = (m.bmax[0], m.bmax[1], m.bmax[2])
+    it = np.empty(ITER_STATE_SIZE)
+    segments = 0
+    rays = 0
+    for py in range(prm.height):
+        for px in range(prm.width):
+            o, d = camera_ray(prm, px, py, 0.5, 0.5)
+            o, t0, t1, _ = enter_box(o, d, bmin, bmax)
+            if not t1 > t0:
+                continue
+            rays += 1
+            majorant_iter_init(it, med, o, d, t0, t1)
+            while majorant_next(it, med)[0]:
+                segments += 1
+    return segments, rays
+
+
+def segments_per_camera_ray(scene, majorant):
+    """Mean number of majorant segments along the camera rays (pixel centres) that cross the
+    medium box, with render.majorant = ``majorant`` (float64 reference walk)."""
+    from ..pack import pack_scene
+    pk = pack_scene(scene.with_render(majorant=majorant), np.float64)
+    segments, rays = _camera_segments(pk.params, pk.medium, pk.grid, pk.maj, pk.mnr, pk.emis,
+                                      pk.table, pk.bricks, pk.pool, pk.nodes)
+    return segments / max(rays, 1)
 
 
 class _VolmcRunner:
@@ -172,6 +210,8 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
             runners[cfg] = _VolmcRunner(scene, cfg, device)
         log(f"  {cfg.name}: ready in {time.perf_counter() - t:.1f} s")
 
+    segments = {c.majorant: segments_per_camera_ray(scene, c.majorant) for c in configs
+                if c.backend not in ("mitsuba", "baseline")}
     points = {cfg: [] for cfg in configs}
     order = list(configs)
     for rep in range(repeats):
@@ -201,6 +241,7 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
             lk = sum(p["lookups"] for p in pts)
             row["lookups_per_sample"] = lk / (pixels * spp_total)
             row["lookups_per_second"] = lk / secs
+            row["segments_per_camera_ray"] = segments[cfg.majorant]
             if ceiling and cfg.backend in ceiling:
                 row["fraction_of_lookup_ceiling"] = row["lookups_per_second"] / ceiling[
                     cfg.backend]
@@ -230,15 +271,17 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
 
 
 def majorant_pairs(report):
-    """(grid row, global row) for configurations that differ only in the majorant."""
+    """(grid row, other row) for configurations that differ only in the majorant, the other
+    being the global majorant or the octree."""
     by_key = {}
     for r in report["results"]:
-        if r["backend"] != "mitsuba":
+        if r["backend"] not in ("mitsuba", "baseline"):
             by_key[(r["backend"], r["free_flight"], r["transmittance"], r["majorant"])] = r
     out = []
     for (b, f, t, m), r in by_key.items():
-        if m == "grid" and (b, f, t, "global") in by_key:
-            out.append((r, by_key[(b, f, t, "global")]))
+        for other in ("global", "octree"):
+            if m == "grid" and (b, f, t, other) in by_key:
+                out.append((r, by_key[(b, f, t, other)]))
     return out
 
 
@@ -274,8 +317,13 @@ def print_report(report, log=print):
             f"{r['name']}: {r['guards']}" for r in bad)))
     pairs = majorant_pairs(report)
     if pairs:
-        log("majorant grid against global majorant (same backend, free flight, estimator):")
+        log("majorant grid against global majorant and octree (same backend, free flight, "
+            "estimator):")
         for g, o in pairs:
-            log(f"  {g['backend']} {g['free_flight']} {g['transmittance']}: lookups/sample "
-                f"{g['lookups_per_sample']:.1f} vs {o['lookups_per_sample']:.1f}; global "
-                f"needs {o['mse_seconds'] / g['mse_seconds']:.2f}x the time to equal error")
+            log(f"  {g['backend']} {g['free_flight']} {g['transmittance']}, grid vs "
+                f"{o['majorant']}: lookups/sample {g['lookups_per_sample']:.1f} vs "
+                f"{o['lookups_per_sample']:.1f}; segments/camera ray "
+                f"{g['segments_per_camera_ray']:.1f} vs {o['segments_per_camera_ray']:.1f}; "
+                f"samples/s {g['samples_per_second']:.0f} vs {o['samples_per_second']:.0f}; "
+                f"{o['majorant']} needs {o['mse_seconds'] / g['mse_seconds']:.2f}x the time "
+                f"to equal error")

@@ -236,11 +236,11 @@ def estimate_batch(est, media, grid, maj, mnr, rays, n_per_ray, seed, sample_off
     n = rays.shape[0] * n_per_ray
     out = np.empty(n)
     counters = np.zeros((n, N_COUNTERS), np.int64)
-    emis, table, bricks, pool = no_field_arrays()
+    emis, table, bricks, pool, nodes = no_field_arrays()
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, sample_offset + i % n_per_ray, STREAM_TEST)
-        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool)
+        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes)
         o = (rays[r, 0], rays[r, 1], rays[r, 2])
         d = (rays[r, 3], rays[r, 4], rays[r, 5])
         out[i] = transmittance(est, med, o, d, rays[r, 6], rays[r, 7], rng, counters[i],

@@ -477,11 +477,11 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
 
 
 @njit(cache=True)
-def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, pix,
+def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, pix,
                  sample_start, n_samples, film_sum, film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film."""
     prm = params[0]
-    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool)
+    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes)
     py = pix // prm.width
     px = pix - py * prm.width
     seed = (np.uint64(prm.seed_hi) << np.uint64(32)) | np.uint64(prm.seed_lo)
@@ -516,17 +516,20 @@ def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
 
 
 @njit(cache=True, parallel=True)
-def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool,
+def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes,
                  sample_start, n_samples, film_sum, film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of every pixel to the film.
 
     params: one-element array of ``params_dtype(float64)``; lights: array of
     ``light_dtype(float64)``; medium: one-element array of ``medium_dtype(float64)``; grid:
     float64 [nz, ny, nx] density (a 1x1x1 placeholder unless the density is a grid); maj,
-    mnr: per-cell density bounds [cz, cy, cx] of the majorant grid; emis: float64 emission
+    mnr: per-cell density bounds [cz, cy, cx] of the majorant grid (per node, [1, 1, n], of
+    an octree); emis: float64 emission
     field grid [nz, ny, nx]; table: the blackbody table [BLACKBODY_TABLE_SIZE, 3] (1x1x1 and
     2x3 placeholders without emission); bricks, pool: a brick grid's index table int32
     [bz, by, bx] and pool [n_slots, 8, 8, 8] (placeholders unless the density is bricks);
+    nodes: an octree's int32 first-child indices [n_nodes] (reference/octree.py; a
+    placeholder without one);
     film_sum, film_sq:
     float64 [height, width, 3] running sums of sample values and of their squares;
     counters: int64 [height * width, N_COUNTERS], accumulated in place.
@@ -534,7 +537,7 @@ def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     """
     n_pix = film_sum.shape[0] * film_sum.shape[1]
     for pix in prange(n_pix):
-        render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, pix,
+        render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, pix,
                      sample_start, n_samples, film_sum, film_sq, counters)
 
 

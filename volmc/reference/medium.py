@@ -28,7 +28,8 @@ structured record) plus the arrays it points to, carried together as ``MediumDat
   with sigma_min <= extinction <= sigma_maj on each. ``MAJORANT_GLOBAL`` is one piece with
   the record's ``sigma_maj`` and ``sigma_min``; ``MAJORANT_GRID`` yields one piece per cell of
   the majorant grid crossed by the 3-D DDA (dda.py), scale times the cell's density maximum
-  and minimum (majorant.py). Pieces with sigma_maj <= 0 (nothing there) and pieces of zero
+  and minimum (majorant.py); ``MAJORANT_OCTREE`` yields one piece per octree leaf crossed
+  (octree.py), in order, scale times the leaf's maximum and minimum. Pieces with sigma_maj <= 0 (nothing there) and pieces of zero
   length are skipped: an empty cell costs nothing. A piece with sigma_min == sigma_maj is
   homogeneous, and tracking treats it exactly (tracking.py).
 
@@ -39,7 +40,7 @@ structured record) plus the arrays it points to, carried together as ``MediumDat
   edited after the bounds were built over a homogeneous piece, is not, since those decisions
   make no lookup.
 
-Adding a source or a structure (RGB extinction, an emission field, an octree of majorants)
+Adding a source or a structure (RGB extinction, an emission field, the octree of majorants)
 adds a kind here and in medium.h, and every technique built on these three functions
 inherits it.
 """
@@ -52,22 +53,25 @@ from numba import njit
 
 from ..constants import (BLACKBODY_TABLE_SIZE, DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_COSINE,
                          DENSITY_GAUSS_BUMP, DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP,
-                         EMISSION_RADIANCE, MAJORANT_GLOBAL, MAJORANT_GRID, TWO_PI)
+                         EMISSION_RADIANCE, MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
+                         TWO_PI)
 from ..params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT, medium_dtype
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .grid import grid_lookup
+from .octree import OCTREE_STATE_SIZE, octree_init, octree_next
 from .sparse_grid import sparse_lookup
 from .vec import madd3
 
 #: A medium record with its arrays: the density grid [nz, ny, nx], the majorant grid's
-#: per-cell density maxima and minima [cz, cy, cx], the emission field grid [nz, ny, nx],
-#: the blackbody table [BLACKBODY_TABLE_SIZE, 3], and a brick grid's index table int32
-#: [bz, by, bx] and pool [n_slots, 8, 8, 8] (small placeholders when unused).
+#: per-cell density maxima and minima [cz, cy, cx] (an octree's: per node, [1, 1, n_nodes]),
+#: the emission field grid [nz, ny, nx], the blackbody table [BLACKBODY_TABLE_SIZE, 3], a
+#: brick grid's index table int32 [bz, by, bx] and pool [n_slots, 8, 8, 8], and an octree's
+#: first-child indices int32 [n_nodes] (octree.py) (small placeholders when unused).
 MediumData = namedtuple("MediumData", ["m", "grid", "maj", "mnr", "emis", "table", "bricks",
-                                       "pool"])
+                                       "pool", "nodes"])
 
-#: Iterator state: [done, t0, t1, unused] then the DDA's state.
-ITER_STATE_SIZE = 4 + DDA_STATE_SIZE
+#: Iterator state: [done, t0, t1, unused] then the DDA's or the octree walk's state.
+ITER_STATE_SIZE = 4 + max(DDA_STATE_SIZE, OCTREE_STATE_SIZE)
 
 
 @njit(cache=True, inline="always")
@@ -151,6 +155,9 @@ def majorant_iter_init(it, med, o, d, t0, t1):
     if m.majorant_kind == MAJORANT_GRID:
         dda_init(it[4:], o, d, t0, t1, (m.bmin[0], m.bmin[1], m.bmin[2]),
                  (m.bmax[0], m.bmax[1], m.bmax[2]), (m.maj_res[0], m.maj_res[1], m.maj_res[2]))
+    elif m.majorant_kind == MAJORANT_OCTREE:
+        octree_init(it[4:], o, d, t0, t1, (m.bmin[0], m.bmin[1], m.bmin[2]),
+                    (m.bmax[0], m.bmax[1], m.bmax[2]), m.octree_depth)
 
 
 @njit(cache=True, inline="always")
@@ -166,6 +173,15 @@ def majorant_next(it, med):
             s_maj = m.scale * med.maj[iz, iy, ix]
             if s_maj > 0.0 and tb > ta:
                 return True, ta, tb, s_maj, m.scale * med.mnr[iz, iy, ix]
+    if m.majorant_kind == MAJORANT_OCTREE:
+        while True:
+            ok, ta, tb, node = octree_next(it[4:], med.nodes, (m.bmin[0], m.bmin[1], m.bmin[2]),
+                                           (m.bmax[0], m.bmax[1], m.bmax[2]), m.octree_depth)
+            if not ok:
+                return False, 0.0, 0.0, 0.0, 0.0
+            s_maj = m.scale * med.maj[0, 0, node]
+            if s_maj > 0.0 and tb > ta:
+                return True, ta, tb, s_maj, m.scale * med.mnr[0, 0, node]
     if it[0] != 0.0:
         return False, 0.0, 0.0, 0.0, 0.0
     it[0] = 1.0
@@ -203,18 +219,18 @@ def segment_degenerate(L, mbar, counters, max_steps, min_steps):
 
 @njit(cache=True)
 def no_field_arrays():
-    """(emis, table, bricks, pool): placeholders of the emission grid, blackbody table and
-    brick arrays for a medium that does not emit and has no brick grid (tests, benchmarks)."""
+    """(emis, table, bricks, pool, nodes): placeholders of the emission grid, blackbody
+    table, brick arrays and octree nodes for a medium that does not emit, has no brick grid
+    and no octree (tests, benchmarks)."""
     return (np.zeros((1, 1, 1)), np.zeros((2, 3)), np.zeros((1, 1, 1), np.int32),
-            np.zeros((1, 8, 8, 8)))
+            np.zeros((1, 8, 8, 8)), np.zeros(1, np.int32))
 
 
 def medium_data(m, grid, maj, mnr):
     """A ``MediumData`` of record ``m``, density grid ``grid`` and majorant grid (maj, mnr),
     float64, with ``no_field_arrays`` for the rest (host side; jitted code calls
     ``no_field_arrays`` and builds the tuple itself)."""
-    emis, table, bricks, pool = no_field_arrays()
-    return MediumData(m, grid, maj, mnr, emis, table, bricks, pool)
+    return MediumData(m, grid, maj, mnr, *no_field_arrays())
 
 
 def new_medium():

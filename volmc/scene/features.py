@@ -3,7 +3,7 @@ scene needs"). The reference decides the same things at run time from the record
 
 A switch stays only while `volmc bench specialise` shows it pays at least 3 % on some
 shipped scene (README, "Specialisation"): of the nine switches and six baked constants
-measured for issue 10, only MAJORANT_GRID did. CHROMATIC and EMISSION measured neutral
+measured for issue 10, only MAJORANT_GRID did; MAJORANT_OCTREE is its sibling (issue 13). CHROMATIC and EMISSION measured neutral
 (0.98-1.015 on the cloud, homogeneous, sunset and plume scenes,
 docs/bench_specialise_issue11.json) but stay for what they guarantee rather than for speed:
 a grey scene runs exactly the scalar arithmetic it ran before colour existed (the same
@@ -19,6 +19,8 @@ from .schema import ConstantDensity
 FEATURES = {
     "MAJORANT_GRID": "per-cell majorants along a 3-D DDA walk (a grid with "
                      "render.majorant = \"grid\")",
+    "MAJORANT_OCTREE": "per-leaf majorants along an octree walk (a grid with "
+                       "render.majorant = \"octree\")",
     "CHROMATIC": "extinction per colour channel (medium.scale = [r, g, b] with unequal "
                  "channels): RGB transmittance and spectral tracking",
     "EMISSION": "an emitting medium (medium.emission): its source term at every tentative "
@@ -39,6 +41,8 @@ def features(scene) -> frozenset:
     out = set()
     if not isinstance(m.density, ConstantDensity) and r.majorant == "grid":
         out.add("MAJORANT_GRID")
+    if not isinstance(m.density, ConstantDensity) and r.majorant == "octree":
+        out.add("MAJORANT_OCTREE")
     if m.chromatic:
         out.add("CHROMATIC")
     if m.emission is not None:

@@ -180,7 +180,7 @@ RR_RULES = ("throughput", "albedo")
 MAX_LIGHT_SAMPLES = 1024
 GRID_STORAGES = ("auto", "dense", "bricks")
 SPECTRAL_MODES = ("tracking", "hero", "channel")
-MAJORANTS = ("global", "grid")
+MAJORANTS = ("global", "grid", "octree")
 FREE_FLIGHTS = ("delta", "decomposition")
 #: Shadow-ray transmittance estimators for grids: every estimator of the registry
 #: (volmc/techniques.py) except those exact only on homogeneous segments.
