@@ -35,6 +35,12 @@ def _variants(tmp_path):
             overrides=["camera.type=orthographic", "camera.size=2.5",
                        "medium.phase={type='hg', g=-0.4}", "render.max_depth=-1",
                        "render.rr_depth=2"]),
+        "grid under an octree, Sobol samples, equiangular, split light samples": scene_from_dict(
+            dict(HOMOG, lights=HOMOG["lights"] + [{"type": "environment", "radiance": 0.3}],
+                 medium=dict(HOMOG["medium"], density=grid, scale=5.0)),
+            overrides=["render.majorant=octree", "render.sampler=sobol",
+                       "render.equiangular=true", "render.light_samples=2", "render.rr=albedo",
+                       "render.rr_depth=1", "render.transmittance=telescoping"]),
         "grid with the global majorant": scene_from_dict(
             dict(HOMOG, medium=dict(HOMOG["medium"], density=grid, scale=5.0)),
             overrides=["render.majorant=global"]),
