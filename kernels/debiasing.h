@@ -1,7 +1,9 @@
 /* Bias-corrected ray marching on one majorant segment: the telescoping estimator (Misso et al.
  * 2022, unbiased) and the jackknife estimator (low bias). Twin of volmc/reference/debiasing.py,
  * where the estimators, constants, caps and guards are documented; the operation order and the
- * random-number consumption here follow it step by step. Compiled with -DVOLMC_DEBIASING. */
+ * random-number consumption here follow it step by step. Compiled with -DVOLMC_DEBIASING.
+ * Both return spec: channel c's optical depth is medium_chroma(med) x tau from the same
+ * lookups (grey builds: float, the scalar arithmetic). */
 #ifndef VOLMC_DEBIASING_H
 #define VOLMC_DEBIASING_H
 
@@ -27,11 +29,22 @@ inline int telescoping_levels(float v, int n, int max_steps, bool *capped) {
     return k;
 }
 
-inline float telescoping_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
-                                 float mbar, float mu_c, Rng *rng, ulong *counters,
-                                 int max_steps) {
+/* v, or 0 in each channel that is not finite. */
+inline spec finite_or_zero3(spec v) {
+#if FEATURE_CHROMATIC
+    return (float3)(finite_bits(v.x) ? v.x : 0.0f, finite_bits(v.y) ? v.y : 0.0f,
+                    finite_bits(v.z) ? v.z : 0.0f);
+#else
+    return finite_bits(v) ? v : 0.0f;
+#endif
+}
+
+inline spec telescoping_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
+                                float mbar, float mu_c, Rng *rng, ulong *counters,
+                                int max_steps) {
     float L = t1 - t0;
     if (segment_degenerate(L, mbar, counters, max_steps, 1)) return 1.0f;
+    spec kc = medium_chroma(med);
     int n = max(1, (int)ceil(TELESCOPE_SAMPLES_PER_MFP * mbar * L));
     float v = 1.0f - rng_next(rng);
     bool capped = n > max_steps;
@@ -44,8 +57,8 @@ inline float telescoping_segment(const MediumData *med, float3 o, float3 d, floa
     float s = 0.0f;
     for (int j = 0; j < n; ++j)
         s += extinction(med, o + (t0 + ((float)j + a) * h) * d, mbar, counters);
-    float y = exp(-s * h);
-    float est = y;
+    spec y = exp(-(kc * (s * h)));
+    spec est = y;
     float w = 1.0f;
     int m = n;
     for (int k = 0; k < k_max; ++k) {
@@ -60,16 +73,30 @@ inline float telescoping_segment(const MediumData *med, float3 o, float3 d, floa
         s += s_new;
         m += m;
         w *= TELESCOPE_CONTINUE;
-        float y_next = exp(-s * h);
+        spec y_next = exp(-(kc * (s * h)));
         est += (y_next - y) / w;
         y = y_next;
     }
+    return finite_or_zero3(est);
+}
+
+/* The jackknife estimate of one channel, whose combs are k xs (k its chroma). */
+inline float jackknife_channel(const float *xs, float k) {
+    int g = JACKKNIFE_GROUPS;
+    float total = 0.0f;
+    for (int i = 0; i < g; ++i) total += k * xs[i];
+    float xbar = total / (float)g;
+    float acc = 0.0f;
+    for (int i = 0; i < g; ++i) acc += exp((k * xs[i] - xbar) / (float)(g - 1));
+    float pre = exp(-xbar);
+    if (pre == 0.0f) return 0.0f;
+    float est = pre * ((float)g - (float)(g - 1) * acc / (float)g);
     return finite_bits(est) ? est : 0.0f;
 }
 
-inline float jackknife_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
-                               float mbar, float mu_c, Rng *rng, ulong *counters,
-                               int max_steps) {
+inline spec jackknife_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
+                              float mbar, float mu_c, Rng *rng, ulong *counters,
+                              int max_steps) {
     float L = t1 - t0;
     int g = JACKKNIFE_GROUPS;
     if (segment_degenerate(L, mbar, counters, max_steps, g)) return 1.0f;
@@ -79,18 +106,15 @@ inline float jackknife_segment(const MediumData *med, float3 o, float3 d, float 
         m = max_steps / g;
     }
     float xs[JACKKNIFE_GROUPS];
-    float total = 0.0f;
-    for (int i = 0; i < g; ++i) {
+    for (int i = 0; i < g; ++i)
         xs[i] = optical_depth_comb(med, o, d, t0, L, m, rng_next(rng), mbar, counters);
-        total += xs[i];
-    }
-    float xbar = total / (float)g;
-    float acc = 0.0f;
-    for (int i = 0; i < g; ++i) acc += exp((xs[i] - xbar) / (float)(g - 1));
-    float pre = exp(-xbar);
-    if (pre == 0.0f) return 0.0f;
-    float est = pre * ((float)g - (float)(g - 1) * acc / (float)g);
-    return finite_bits(est) ? est : 0.0f;
+#if FEATURE_CHROMATIC
+    float3 k = medium_chroma(med);
+    return (float3)(jackknife_channel(xs, k.x), jackknife_channel(xs, k.y),
+                    jackknife_channel(xs, k.z));
+#else
+    return jackknife_channel(xs, 1.0f);
+#endif
 }
 
 #endif

@@ -3,8 +3,9 @@
  * exactly one technique. Work item i estimates ray i / n_per_ray with sample index
  * sample_offset + i % n_per_ray on STREAM_TEST; rays are 9 floats: o(3), d(3), t0, t1, pad;
  * ray r goes through medium record media[r] (its majorant bounds included), all sharing the
- * grid and majorant arrays. Per-estimate counters go to counters_out[i][N_COUNTERS]. The
- * media are grey: out[i] is the first channel of the estimate. */
+ * grid and majorant arrays. Per-estimate counters go to counters_out[i][N_COUNTERS]. Built
+ * with FEATURE_CHROMATIC, out[i] is the RGB estimate (3 floats); otherwise the media are
+ * grey and out[i] is the estimate. */
 
 #include "params.h"
 #include "rng.h"
@@ -26,6 +27,11 @@ kernel void estimate_batch(global const Medium *media, global const float *grid,
     rng_init(&rng, seed, (uint)r, sample_offset + (uint)(i % n_per_ray), STREAM_TEST);
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
-    out[i] = spec_first(ESTIMATOR(&med, o, d, t0, t1, &rng, cnt, max_steps));
+    spec T = ESTIMATOR(&med, o, d, t0, t1, &rng, cnt, max_steps);
+#if FEATURE_CHROMATIC
+    vstore3(T, i, out);
+#else
+    out[i] = T;
+#endif
     for (int k = 0; k < N_COUNTERS; ++k) counters_out[(size_t)i * N_COUNTERS + k] = cnt[k];
 }

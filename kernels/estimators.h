@@ -1,6 +1,7 @@
 /* Transmittance estimators on one interface:
- *   float transmittance_<name>(const MediumData *med, float3 o, float3 d, float t0, float t1,
- *                              Rng *rng, ulong *counters, int max_steps)
+ *   spec transmittance_<name>(const MediumData *med, float3 o, float3 d, float t0, float t1,
+ *                             Rng *rng, ulong *counters, int max_steps)
+ * (spec: RGB with FEATURE_CHROMATIC; the power series stay grey, one value for all channels)
  * Twin of volmc/reference/estimators.py (the two families, the per-segment driver and the
  * exact treatment of homogeneous segments are described there); the registry of names is
  * volmc/techniques.py. The power series (power_series.h) are compiled in only with
@@ -23,9 +24,9 @@
 #include "debiasing.h"
 #endif
 
-inline float biased_raymarch_segment(const MediumData *med, float3 o, float3 d, float t0,
-                                     float t1, float mbar, float mu_c, Rng *rng,
-                                     ulong *counters, int max_steps) {
+inline spec biased_raymarch_segment(const MediumData *med, float3 o, float3 d, float t0,
+                                    float t1, float mbar, float mu_c, Rng *rng,
+                                    ulong *counters, int max_steps) {
     float L = fmax(t1 - t0, 0.0f);
     if (mbar <= 0.0f || L <= 0.0f) return 1.0f;
     int n = max(1, (int)ceil(RAYMARCH_SAMPLES_PER_MFP * mbar * L));
@@ -33,21 +34,23 @@ inline float biased_raymarch_segment(const MediumData *med, float3 o, float3 d, 
         counters[C_CAPPED] += 1;
         n = max_steps;
     }
-    return exp(-optical_depth_comb(med, o, d, t0, L, n, rng_next(rng), mbar, counters));
+    return exp(-(medium_chroma(med) *
+                 optical_depth_comb(med, o, d, t0, L, n, rng_next(rng), mbar, counters)));
 }
 
-inline float segment_estimate(int kind, const MediumData *med, float3 o, float3 d, float t0,
-                              float t1, float s_maj, float s_min, Rng *rng, ulong *counters,
-                              int max_steps) {
+inline spec segment_estimate(int kind, const MediumData *med, float3 o, float3 d, float t0,
+                             float t1, float s_maj, float s_min, Rng *rng, ulong *counters,
+                             int max_steps) {
     if (kind == SEGMENT_BIASED_RAYMARCH)
         return biased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
                                        max_steps);
 #ifdef VOLMC_POWER_SERIES
     if (kind == SEGMENT_POWER_SERIES)
-        return power_series_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps);
+        return (spec)(power_series_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
+                                           max_steps));
     if (kind == SEGMENT_UNBIASED_RAYMARCH)
-        return unbiased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
-                                         max_steps);
+        return (spec)(unbiased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
+                                                max_steps));
 #endif
 #ifdef VOLMC_DEBIASING
     if (kind == SEGMENT_TELESCOPING)
@@ -55,21 +58,23 @@ inline float segment_estimate(int kind, const MediumData *med, float3 o, float3 
     if (kind == SEGMENT_JACKKNIFE)
         return jackknife_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps);
 #endif
-    return exp(-s_maj * (t1 - t0)); /* SEGMENT_ANALYTIC */
+    return exp(-(medium_chroma(med) * (s_maj * (t1 - t0)))); /* SEGMENT_ANALYTIC */
 }
 
-inline float transmittance_by_segments(const MediumData *med, float3 o, float3 d, float t0,
-                                       float t1, int kind, Rng *rng, ulong *counters,
-                                       int max_steps) {
+/* RGB in chromatic builds, with transmittance roulette on the largest channel (spec_roulette). */
+inline spec transmittance_by_segments(const MediumData *med, float3 o, float3 d, float t0,
+                                      float t1, int kind, Rng *rng, ulong *counters,
+                                      int max_steps) {
     o = o + t0 * d;
     MajorantIter it;
     majorant_iter_init(&it, med, o, d, 0.0f, t1 - t0);
-    float T = 1.0f;
+    spec k = medium_chroma(med);
+    spec T = 1.0f;
     Segment seg;
     while (majorant_next(&it, med, &seg)) {
-        if (!transmittance_roulette(&T, rng)) return T;
+        if (!spec_roulette(&T, rng)) return T;
         if (seg.sigma_min == seg.sigma_maj) {
-            T *= exp(-seg.sigma_maj * (seg.t_max - seg.t_min));
+            T *= exp(-(k * (seg.sigma_maj * (seg.t_max - seg.t_min))));
             continue;
         }
         T *= segment_estimate(kind, med, o, d, seg.t_min, seg.t_max, seg.sigma_maj,
@@ -81,12 +86,12 @@ inline float transmittance_by_segments(const MediumData *med, float3 o, float3 d
 #define TRANSMITTANCE_ARGS const MediumData *med, float3 o, float3 d, float t0, float t1, \
     Rng *rng, ulong *counters, int max_steps
 
-inline float transmittance_analytic(TRANSMITTANCE_ARGS) {
+inline spec transmittance_analytic(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_ANALYTIC, rng, counters,
                                      max_steps);
 }
 
-/* The tracking estimators return spec: RGB in builds with colour-dependent extinction. */
+/* The tracking estimators return spec too. */
 inline spec tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
     float t;
     spec T;
@@ -114,30 +119,30 @@ inline spec transmittance_next_flight(TRANSMITTANCE_ARGS) {
                                  TRACK_NEXT_FLIGHT);
 }
 
-inline float transmittance_biased_raymarch(TRANSMITTANCE_ARGS) {
+inline spec transmittance_biased_raymarch(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_BIASED_RAYMARCH, rng,
                                      counters, max_steps);
 }
 
 #ifdef VOLMC_POWER_SERIES
-inline float transmittance_power_series(TRANSMITTANCE_ARGS) {
+inline spec transmittance_power_series(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_POWER_SERIES, rng, counters,
                                      max_steps);
 }
 
-inline float transmittance_unbiased_raymarch(TRANSMITTANCE_ARGS) {
+inline spec transmittance_unbiased_raymarch(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_UNBIASED_RAYMARCH, rng,
                                      counters, max_steps);
 }
 #endif
 
 #ifdef VOLMC_DEBIASING
-inline float transmittance_telescoping(TRANSMITTANCE_ARGS) {
+inline spec transmittance_telescoping(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_TELESCOPING, rng, counters,
                                      max_steps);
 }
 
-inline float transmittance_jackknife(TRANSMITTANCE_ARGS) {
+inline spec transmittance_jackknife(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_JACKKNIFE, rng, counters,
                                      max_steps);
 }

@@ -129,7 +129,7 @@ def test_spectral_tracking_of_a_grey_medium_is_unbiased(backend):
 
 def test_chromatic_scene_rejects_grey_estimators():
     with pytest.raises(SceneError, match="render.transmittance"):
-        load_scene(FURNACE, ["medium.scale=[1, 2, 3]", "render.transmittance=biased_raymarch"])
+        load_scene(FURNACE, ["medium.scale=[1, 2, 3]", "render.transmittance=power_series"])
 
 
 # --- Emission -----------------------------------------------------------------------------

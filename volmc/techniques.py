@@ -26,7 +26,8 @@ class Estimator:
     max_steps)`` in both backends;
     unbiased: E[estimate] = T exactly; signed: single estimates can be negative (a render
     keeps negative samples when it is chosen); homogeneous_only: exact only where the
-    extinction is constant, so it is no choice for grids; build_options: extra kernel build
+    extinction is constant, so it is no choice for grids; chromatic: estimates RGB
+    transmittance (colour-dependent extinction); build_options: extra kernel build
     options the function needs; summary: one line for help texts and tables.
     """
     name: str
@@ -53,7 +54,7 @@ class Estimator:
 
 _RECORDS = (
     Estimator("analytic", C.ESTIMATOR_ANALYTIC, "transmittance_analytic", True,
-              homogeneous_only=True,
+              homogeneous_only=True, chromatic=True,
               summary="exp(-sigma L) per majorant segment: exact on homogeneous segments only"),
     Estimator("track_length", C.ESTIMATOR_TRACK_LENGTH, "transmittance_track_length", True,
               chromatic=True,
@@ -68,7 +69,7 @@ _RECORDS = (
               chromatic=True,
               summary="next-flight ratio tracking: every vertex adds the chance to escape"),
     Estimator("biased_raymarch", C.ESTIMATOR_BIASED_RAYMARCH, "transmittance_biased_raymarch",
-              False,
+              False, chromatic=True,
               summary="jittered ray marching, exp(-tau estimate): biased (Jensen)"),
     Estimator("power_series", C.ESTIMATOR_POWER_SERIES, "transmittance_power_series", True,
               build_options=("-DVOLMC_POWER_SERIES",),
@@ -78,10 +79,10 @@ _RECORDS = (
               build_options=("-DVOLMC_POWER_SERIES",),
               summary="unbiased ray marching (Kettunen et al. 2021)"),
     Estimator("telescoping", C.ESTIMATOR_TELESCOPING, "transmittance_telescoping", True,
-              signed=True, build_options=("-DVOLMC_DEBIASING",),
+              signed=True, chromatic=True, build_options=("-DVOLMC_DEBIASING",),
               summary="telescoping sum over nested jittered ray marching (Misso et al. 2022)"),
     Estimator("jackknife", C.ESTIMATOR_JACKKNIFE, "transmittance_jackknife", False,
-              signed=True, build_options=("-DVOLMC_DEBIASING",),
+              signed=True, chromatic=True, build_options=("-DVOLMC_DEBIASING",),
               summary="jackknife-corrected ray marching over two combs: biased, second order"),
 )
 

@@ -7,7 +7,10 @@ t0, t1, pad); ``bounds`` [r, 2], each ray's extinction majorant and minorant (th
 global majorant is set to them); ``n_per_ray`` estimates per ray; the seed and the first
 sample index. They return (estimates float64 [r * n_per_ray], counters int64
 [r * n_per_ray, N_COUNTERS]); estimate i uses ray i // n_per_ray and sample index
-sample_offset + i % n_per_ray on STREAM_TEST, on both backends alike.
+sample_offset + i % n_per_ray on STREAM_TEST, on both backends alike. A runner made with
+``chromatic=True`` returns RGB estimates [r * n_per_ray, 3] (media with colour-dependent
+extinction, ``chroma`` < 1; the OpenCL build then has FEATURE_CHROMATIC); otherwise the
+first channel.
 """
 
 import numpy as np
@@ -41,15 +44,17 @@ class NumbaEstimator:
 
     backend = "numba"
 
-    def __init__(self, name, device=None):
+    def __init__(self, name, device=None, chromatic=False):
         self.est = ESTIMATORS[name]
+        self.chromatic = chromatic
 
     def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0):
         media = ray_media(med, grid, rays, bounds, np.float64)
-        return E.estimate_batch(self.est.id, media, np.asarray(grid, np.float64),
-                                _NO_MAJORANT_GRID, _NO_MAJORANT_GRID,
-                                np.asarray(rays, np.float64), n_per_ray, np.uint64(seed),
-                                sample_offset, MAX_STEPS)
+        out, cnt = E.estimate_batch(self.est.id, media, np.asarray(grid, np.float64),
+                                    _NO_MAJORANT_GRID, _NO_MAJORANT_GRID,
+                                    np.asarray(rays, np.float64), n_per_ray, np.uint64(seed),
+                                    sample_offset, MAX_STEPS)
+        return (out if self.chromatic else out[:, 0].copy()), cnt
 
 
 class OpenCLEstimator:
@@ -57,13 +62,14 @@ class OpenCLEstimator:
 
     backend = "opencl"
 
-    def __init__(self, name, device=None):
+    def __init__(self, name, device=None, chromatic=False):
         from ..cl.context import cl_context
         self.est = ESTIMATORS[name]
+        self.chromatic = chromatic
         self.clc = cl_context(device)
         # The benchmark's media are grey and emit nothing: the build says so, as a render
         # build of a grey scene does, so the timed loop is the production one.
-        opts = ([f"-DESTIMATOR={self.est.kernel}", "-DFEATURE_CHROMATIC=0",
+        opts = ([f"-DESTIMATOR={self.est.kernel}", f"-DFEATURE_CHROMATIC={int(chromatic)}",
                  "-DFEATURE_EMISSION=0"] + list(self.est.build_options))
         self.program, _ = self.clc.program("estimators.cl", opts)
         self.kernel = self.clc.kernel(self.program, "estimate_batch")
@@ -72,7 +78,7 @@ class OpenCLEstimator:
         clc = self.clc
         media = ray_media(med, grid, rays, bounds, np.float32)
         n = len(rays) * n_per_ray
-        out, ob = clc.output(n, np.float32)
+        out, ob = clc.output((n, 3) if self.chromatic else n, np.float32)
         cnt, cb = clc.output((n, N_COUNTERS), np.uint64)
         none = clc.to_device(_NO_MAJORANT_GRID, np.float32)
         clc.run(self.kernel, n, 1, clc.to_device(media), clc.to_device(grid, np.float32),
@@ -82,11 +88,13 @@ class OpenCLEstimator:
         return out.astype(np.float64), cnt.astype(np.int64)
 
 
-def estimator(backend, name, device=None):
+def estimator(backend, name, device=None, chromatic=False):
     """The runner of estimator ``name`` on ``backend`` ("numba" or "opencl")."""
-    return (NumbaEstimator if backend == "numba" else OpenCLEstimator)(name, device)
+    return (NumbaEstimator if backend == "numba" else OpenCLEstimator)(name, device, chromatic)
 
 
-def run_numba(name, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0):
-    """``NumbaEstimator(name).run(...)``."""
-    return NumbaEstimator(name).run(med, grid, rays, bounds, n_per_ray, seed, sample_offset)
+def run_numba(name, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0,
+              chromatic=False):
+    """``NumbaEstimator(name, chromatic=chromatic).run(...)``."""
+    return NumbaEstimator(name, chromatic=chromatic).run(med, grid, rays, bounds, n_per_ray,
+                                                         seed, sample_offset)

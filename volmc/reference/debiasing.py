@@ -14,6 +14,11 @@ is the same number), so it can change neither estimate. Every density evaluation
 counted ``extinction`` lookup. t1 <= t0 or mbar <= 0 returns 1 with no lookups; budgets
 above ``max_steps`` are cut (C_CAPPED counted). Roulette decisions compare v = 1 - u in
 (0, 1] against P(K >= k), as power_series.py does.
+
+Both return RGB: with colour-dependent extinction channel c's optical depth is chroma_c tau
+(``medium_chroma``), so one comb of lookups serves every channel and each channel's estimate
+is the same formula applied to chroma_c tau_hat (the same K, jitters and levels). A grey
+medium (chroma 1) gives three equal channels, each the scalar estimate bit for bit.
 """
 
 import math
@@ -25,9 +30,10 @@ from ..constants import (JACKKNIFE_GROUPS, JACKKNIFE_SAMPLES_PER_MFP, TELESCOPE_
                          TELESCOPE_MAX_LEVEL, TELESCOPE_SAMPLES_PER_MFP)
 from ..params import C_CAPPED
 from .guards import finite_bits
-from .medium import extinction, optical_depth_comb, segment_degenerate
+from .medium import extinction, medium_chroma, optical_depth_comb, segment_degenerate
 from .rng import rng_next
-from .vec import madd3
+from .tracking import ONE3
+from .vec import exp_neg3, madd3
 
 
 @njit(cache=True)
@@ -77,11 +83,13 @@ def telescoping_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps)
 
     Random numbers: one for K (drawn first, before any lookup), then the one jitter.
     Single estimates can be negative or above 1 (the differences are weighted by 1 / r^k);
-    the mean is unbiased. A non-finite estimate (absurd optical depths) returns 0.
+    the mean is unbiased. A non-finite channel (absurd optical depths) returns 0. RGB: every
+    level's Y_k,c = exp(-chroma_c tau_k) from the same comb, K and jitter.
     """
     L = t1 - t0
     if segment_degenerate(L, mbar, counters, max_steps, 1):
-        return 1.0
+        return ONE3
+    k = medium_chroma(med)
     n = max(1, int(math.ceil(TELESCOPE_SAMPLES_PER_MFP * mbar * L)))
     v = 1.0 - rng_next(rng)
     capped = n > max_steps
@@ -95,7 +103,7 @@ def telescoping_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps)
     s = 0.0
     for j in range(n):
         s += extinction(med, madd3(o, d, t0 + (j + a) * h), mbar, counters)
-    y = math.exp(-s * h)
+    y = exp_neg3(k, s * h)
     est = y
     w = 1.0
     m = n
@@ -110,12 +118,11 @@ def telescoping_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps)
         s += s_new
         m += m
         w *= TELESCOPE_CONTINUE
-        y_next = math.exp(-s * h)
-        est += (y_next - y) / w
+        y_next = exp_neg3(k, s * h)
+        est = (est[0] + (y_next[0] - y[0]) / w, est[1] + (y_next[1] - y[1]) / w,
+               est[2] + (y_next[2] - y[2]) / w)
         y = y_next
-    if not finite_bits(est):
-        return 0.0
-    return est
+    return finite_or_zero3(est)
 
 
 @njit(cache=True)
@@ -150,25 +157,36 @@ def jackknife_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
 
     Estimates are at most exp(-Xbar) and negative when the combs disagree by more than
     2 acosh(2) = 2.63 in optical depth. Random numbers: one jitter per comb. A cap
-    (max_steps < G M) shrinks M; max_steps < G returns 1. Both count C_CAPPED.
+    (max_steps < G M) shrinks M; max_steps < G returns 1. Both count C_CAPPED. RGB: channel
+    c applies the formula to the combs chroma_c X_g (``jackknife_channel``).
     """
     L = t1 - t0
     g = JACKKNIFE_GROUPS
     if segment_degenerate(L, mbar, counters, max_steps, g):
-        return 1.0
+        return ONE3
     m = max(1, int(math.ceil(JACKKNIFE_SAMPLES_PER_MFP * mbar * L / g)))
     if g * m > max_steps:
         counters[C_CAPPED] += 1
         m = max_steps // g
     xs = np.empty(JACKKNIFE_GROUPS)
-    total = 0.0
     for i in range(g):
         xs[i] = optical_depth_comb(med, o, d, t0, L, m, rng_next(rng), mbar, counters)
-        total += xs[i]
+    k = medium_chroma(med)
+    return (jackknife_channel(xs, k[0]), jackknife_channel(xs, k[1]),
+            jackknife_channel(xs, k[2]))
+
+
+@njit(cache=True, inline="always")
+def jackknife_channel(xs, k):
+    """The jackknife estimate of one channel, whose combs are k xs (k its chroma)."""
+    g = JACKKNIFE_GROUPS
+    total = 0.0
+    for i in range(g):
+        total += k * xs[i]
     xbar = total / g
     acc = 0.0
     for i in range(g):
-        acc += math.exp((xs[i] - xbar) / (g - 1))
+        acc += math.exp((k * xs[i] - xbar) / (g - 1))
     pre = math.exp(-xbar)
     if pre == 0.0:
         return 0.0
@@ -176,3 +194,10 @@ def jackknife_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
     if not finite_bits(est):
         return 0.0
     return est
+
+
+@njit(cache=True, inline="always")
+def finite_or_zero3(v):
+    """Each channel of v, or 0 where it is not finite (absurd optical depths)."""
+    return (v[0] if finite_bits(v[0]) else 0.0, v[1] if finite_bits(v[1]) else 0.0,
+            v[2] if finite_bits(v[2]) else 0.0)

@@ -17,7 +17,10 @@ Two families, each run by one loop over the majorant segments:
   telescoping and jackknife ray marching (debiasing.py) -- run
   on each segment in turn with its bounds (``transmittance_by_segments``); the product of
   independent unbiased per-segment estimates is unbiased. Between segments the running
-  product plays transmittance roulette (tracking.transmittance_roulette).
+  product plays transmittance roulette on its largest channel (``segment_roulette``).
+  The analytic, ray-marching, telescoping and jackknife estimates are RGB (channel c's
+  optical depth is chroma_c tau, from the same lookups); the power series are grey (the
+  schema keeps them from colour-dependent media) and count for all three channels.
 
 Either way a homogeneous segment (sigma_min == sigma_maj) contributes its exact
 exp(-sigma_maj L), with no lookup and no random number: a homogeneous medium always gets the
@@ -39,12 +42,12 @@ from ..constants import (ESTIMATOR_ANALYTIC, ESTIMATOR_BIASED_RAYMARCH, ESTIMATO
                          TRACK_NEXT_FLIGHT, TRACK_RATIO, TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, N_COUNTERS
 from .medium import (ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next,
-                     no_field_arrays, optical_depth_comb)
+                     medium_chroma, no_field_arrays, optical_depth_comb)
 from .debiasing import jackknife_segment, telescoping_segment
 from .power_series import power_series_segment, unbiased_raymarch_segment
 from .rng import rng_new, rng_next
 from .tracking import ONE3, track, transmittance_roulette
-from .vec import madd3
+from .vec import exp_neg3, madd3, max3, mul3
 
 
 @njit(cache=True)
@@ -53,55 +56,77 @@ def biased_raymarch_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_st
     of n = ceil(RAYMARCH_SAMPLES_PER_MFP * mbar L) equidistant points estimates tau without
     bias, but exp(-tau_hat) overestimates T (Jensen); the bias shrinks as the step shrinks (a
     looser majorant gives a finer comb). An empty segment (mbar <= 0, or zero length) gives
-    1 with no lookup."""
+    1 with no lookup. RGB: exp(-chroma_c tau_hat)."""
     L = max(t1 - t0, 0.0)
     if mbar <= 0.0 or L <= 0.0:
-        return 1.0
+        return ONE3
     n = max(1, int(math.ceil(RAYMARCH_SAMPLES_PER_MFP * mbar * L)))
     if n > max_steps:
         counters[C_CAPPED] += 1
         n = max_steps
-    return math.exp(-optical_depth_comb(med, o, d, t0, L, n, rng_next(rng), mbar, counters))
+    return exp_neg3(medium_chroma(med),
+                    optical_depth_comb(med, o, d, t0, L, n, rng_next(rng), mbar, counters))
 
 
 @njit(cache=True, inline="always")
 def segment_estimate(kind, med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps):
-    """One per-segment estimate of kind SEGMENT_* over [t0, t1] with bounds s_maj, s_min."""
+    """One per-segment estimate of kind SEGMENT_* over [t0, t1] with bounds s_maj, s_min:
+    RGB (the power series' grey estimate in every channel)."""
     if kind == SEGMENT_BIASED_RAYMARCH:
         return biased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
                                        max_steps)
     if kind == SEGMENT_POWER_SERIES:
-        return power_series_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps)
+        T = power_series_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps)
+        return (T, T, T)
     if kind == SEGMENT_UNBIASED_RAYMARCH:
-        return unbiased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
-                                         max_steps)
+        T = unbiased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
+                                      max_steps)
+        return (T, T, T)
     if kind == SEGMENT_TELESCOPING:
         return telescoping_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps)
     if kind == SEGMENT_JACKKNIFE:
         return jackknife_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps)
-    return math.exp(-s_maj * (t1 - t0))   # SEGMENT_ANALYTIC
+    return exp_neg3(medium_chroma(med), s_maj * (t1 - t0))   # SEGMENT_ANALYTIC
+
+
+@njit(cache=True, inline="always")
+def segment_roulette(T, rng):
+    """``transmittance_roulette`` on an RGB weight by its largest |channel| a (the decision
+    and the random numbers of the grey roulette on a): a survivor's channels are scaled by
+    TR_RR_THRESHOLD / a, as T_c / a x TR_RR_THRESHOLD, so a grey weight becomes exactly the
+    grey roulette's +-TR_RR_THRESHOLD."""
+    a = max3((abs(T[0]), abs(T[1]), abs(T[2])))
+    alive, s = transmittance_roulette(a, rng)   # a no-op while a >= TR_RR_THRESHOLD
+    if not alive:
+        return False, (0.0, 0.0, 0.0)
+    if s == a:
+        return True, T
+    return True, ((T[0] / a) * s, (T[1] / a) * s, (T[2] / a) * s)
 
 
 @njit(cache=True)
 def transmittance_by_segments(med, o, d, t0, t1, kind, rng, counters, max_steps):
     """Product over the majorant segments of [t0, t1] of per-segment estimates of ``kind``
-    (exact on homogeneous segments), with transmittance roulette between segments. Guard
-    "local distances": the walk starts at o + t0 d."""
+    (exact on homogeneous segments, exp(-chroma_c sigma L)), RGB, with transmittance roulette
+    on the largest channel between segments. Guard "local distances": the walk starts at
+    o + t0 d."""
     o = madd3(o, d, t0)
     it = np.empty(ITER_STATE_SIZE)
     majorant_iter_init(it, med, o, d, 0.0, t1 - t0)
-    T = 1.0
+    k = medium_chroma(med)
+    T = ONE3
     while True:
         ok, ta, tb, s_maj, s_min = majorant_next(it, med)
         if not ok:
             return T
-        alive, T = transmittance_roulette(T, rng)   # a no-op while T >= TR_RR_THRESHOLD
+        alive, T = segment_roulette(T, rng)
         if not alive:
             return T
         if s_min == s_maj:
-            T *= math.exp(-s_maj * (tb - ta))
+            T = mul3(T, exp_neg3(k, s_maj * (tb - ta)))
             continue
-        T *= segment_estimate(kind, med, o, d, ta, tb, s_maj, s_min, rng, counters, max_steps)
+        T = mul3(T, segment_estimate(kind, med, o, d, ta, tb, s_maj, s_min, rng, counters,
+                                     max_steps))
 
 
 @njit(cache=True)
@@ -198,7 +223,7 @@ def transmittance(est, med, o, d, t0, t1, rng, counters, max_steps):
     """Run the estimator with id ``est`` (ESTIMATOR_*; techniques.ESTIMATORS[name].id): the
     reference's run-time counterpart of the kernels' build-time choice. Returns RGB: the
     tracking estimators estimate every channel (colour-dependent extinction), the
-    per-segment ones are grey."""
+    per-segment ones too, but the power series are grey (three equal channels)."""
     if est == ESTIMATOR_TRACK_LENGTH:
         return transmittance_track_length(med, o, d, t0, t1, rng, counters, max_steps)
     if est == ESTIMATOR_RATIO:
@@ -207,22 +232,19 @@ def transmittance(est, med, o, d, t0, t1, rng, counters, max_steps):
         return transmittance_residual_ratio(med, o, d, t0, t1, rng, counters, max_steps)
     if est == ESTIMATOR_NEXT_FLIGHT:
         return transmittance_next_flight(med, o, d, t0, t1, rng, counters, max_steps)
-    # The per-segment estimators are grey (the schema keeps them from colour-dependent media).
     if est == ESTIMATOR_BIASED_RAYMARCH:
-        T = transmittance_biased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
-    elif est == ESTIMATOR_POWER_SERIES:
-        T = transmittance_power_series(med, o, d, t0, t1, rng, counters, max_steps)
-    elif est == ESTIMATOR_UNBIASED_RAYMARCH:
-        T = transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
-    elif est == ESTIMATOR_TELESCOPING:
-        T = transmittance_telescoping(med, o, d, t0, t1, rng, counters, max_steps)
-    elif est == ESTIMATOR_JACKKNIFE:
-        T = transmittance_jackknife(med, o, d, t0, t1, rng, counters, max_steps)
-    elif est == ESTIMATOR_ANALYTIC:
-        T = transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps)
-    else:
-        raise ValueError("unknown estimator id")
-    return (T, T, T)
+        return transmittance_biased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_POWER_SERIES:
+        return transmittance_power_series(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_UNBIASED_RAYMARCH:
+        return transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_TELESCOPING:
+        return transmittance_telescoping(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_JACKKNIFE:
+        return transmittance_jackknife(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_ANALYTIC:
+        return transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps)
+    raise ValueError("unknown estimator id")
 
 
 @njit(cache=True, parallel=True)
@@ -231,10 +253,10 @@ def estimate_batch(est, media, grid, maj, mnr, rays, n_per_ray, seed, sample_off
     """n_per_ray estimates of estimator ``est`` for each ray (rows of ``rays``: o(3), d(3),
     t0, t1, pad), ray r through medium record media[r] (its majorant and grids shared).
     Estimate i uses ray i // n_per_ray and sample index sample_offset + i % n_per_ray on
-    STREAM_TEST, like kernels/estimators.cl. Returns (estimates [n], counters
+    STREAM_TEST, like kernels/estimators.cl. Returns (estimates [n, 3], RGB, counters
     [n, N_COUNTERS])."""
     n = rays.shape[0] * n_per_ray
-    out = np.empty(n)
+    out = np.empty((n, 3))
     counters = np.zeros((n, N_COUNTERS), np.int64)
     emis, table, bricks, pool, nodes = no_field_arrays()
     for i in prange(n):
@@ -243,6 +265,7 @@ def estimate_batch(est, media, grid, maj, mnr, rays, n_per_ray, seed, sample_off
         med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes)
         o = (rays[r, 0], rays[r, 1], rays[r, 2])
         d = (rays[r, 3], rays[r, 4], rays[r, 5])
-        out[i] = transmittance(est, med, o, d, rays[r, 6], rays[r, 7], rng, counters[i],
-                               max_steps)[0]
+        T = transmittance(est, med, o, d, rays[r, 6], rays[r, 7], rng, counters[i],
+                          max_steps)
+        out[i, 0], out[i, 1], out[i, 2] = T[0], T[1], T[2]
     return out, counters
