@@ -158,7 +158,7 @@ def camera_ray(prm, px, py, u1, u2):
     return (e[0], e[1], e[2]), d
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def shadow_transmittance(prm, med, o, d, t_max, rng_s, counters):
     """Transmittance (RGB) from o towards unit d up to distance t_max (inf for distant
     lights), by the estimator render.transmittance chose (prm.shadow_estimator)."""
@@ -183,7 +183,7 @@ def bounce_pair(b, offset):
     return SAMPLER_FIRST_BOUNCE + b * SAMPLER_PAIRS_PER_BOUNCE + offset
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def path_pair_u24(prm, pix, s, pair, j, count):
     """The render.sampler's pair ``pair`` of sample s of pixel pix as two 24-bit integers;
     the j-th of ``count`` points the sample takes from it (index s count + j, stratified over
@@ -277,7 +277,7 @@ def point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t):
     return mis_weight(prm.mis, free_flight_pdf(m, t0, t), equiangular_pdf(t, h, D, t0, t1))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, counters):
     """Direct light scattered at p = o + t d towards -d, per unit throughput (RGB). The
     vertex was reached by free flight along segment [t0, t1] of the ray o + t d (unit d: the
@@ -325,7 +325,7 @@ def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, 
     return L
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng, rng_s,
                               counters):
     """Light from every point light scattered once inside segment [t0, t1] of the ray

@@ -247,7 +247,7 @@ def stratified_pair(index, n, seed_perm, seed_x, seed_y):
     return ux, uy
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sampler_pair(kind, key0, key1, pixel, index, pair, n):
     """Dimension pair ``pair`` of sample ``index`` of pixel ``pixel``, as (ux24, uy24).
 
