@@ -96,8 +96,8 @@ inline spec tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
     float t;
     spec T;
     float3 E;
-    track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, (float3)(1.0f), -1, rng,
-          counters, max_steps, &t, &T, &E);
+    track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH || technique == TRACK_AUTO,
+          (float3)(1.0f), -1, rng, counters, max_steps, &t, &T, &E);
     return T;
 }
 
@@ -117,6 +117,23 @@ inline spec transmittance_residual_ratio(TRANSMITTANCE_ARGS) {
 inline spec transmittance_next_flight(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps,
                                  TRACK_NEXT_FLIGHT);
+}
+
+#if defined(VOLMC_POWER_SERIES) && defined(VOLMC_DEBIASING)
+/* render.transmittance = "auto" (twins in estimators.py, which say why). */
+inline int auto_alone_kind(const MediumData *med) {
+    return (FEATURE_CHROMATIC ? med->m.spectral != SPECTRAL_GREY : 0) ? SEGMENT_TELESCOPING
+                                                                      : SEGMENT_UNBIASED_RAYMARCH;
+}
+
+inline spec transmittance_auto(TRANSMITTANCE_ARGS) {
+    return transmittance_by_segments(med, o, d, t0, t1, auto_alone_kind(med), rng, counters,
+                                     max_steps);
+}
+#endif
+
+inline spec transmittance_auto_shadow(TRANSMITTANCE_ARGS) {
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_AUTO);
 }
 
 inline spec transmittance_biased_raymarch(TRANSMITTANCE_ARGS) {

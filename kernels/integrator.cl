@@ -5,7 +5,9 @@
  * every one to 1) turn a code path off where the scene cannot take it; each is a plain constant
  * in an ordinary `if`, so the compiler drops the dead path. Only the switches `volmc bench
  * specialise` shows to pay are kept (README, "Specialisation"); a build with every one on
- * renders any scene. SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance).
+ * renders any scene. SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance);
+ * VIEW_ESTIMATOR, defined only where it differs ("auto"), the one for camera rays that cannot
+ * scatter, whose transmittance is the whole estimate.
  * params.h (generated from volmc/params.py and volmc/constants.py) defines the records and
  * constants. */
 
@@ -105,12 +107,15 @@ inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, 
 }
 
 inline spec shadow_transmittance(const Params *prm, const MediumData *med, float3 o, float3 d,
-                                 float t_max, Rng *rng_s, ulong *counters) {
+                                 float t_max, int view, Rng *rng_s, ulong *counters) {
     float t0, t1, shift;
     o = enter_box(o, d, vec3(med->m.bmin), vec3(med->m.bmax), &t0, &t1, &shift);
     t1 = fmin(t1, t_max - shift);
     if (t1 <= t0) return 1.0f;
     counters[C_SHADOW] += 1;
+#ifdef VIEW_ESTIMATOR
+    if (view) return VIEW_ESTIMATOR(med, o, d, t0, t1, rng_s, counters, prm->max_steps);
+#endif
     return SHADOW_ESTIMATOR(med, o, d, t0, t1, rng_s, counters, prm->max_steps);
 }
 
@@ -212,7 +217,7 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
         }
         float f = phase_eval(m->phase_kind, m->g, dot(d, wl)) * falloff * inv_n;
         for (int j = 0; j < n; ++j) {
-            spec tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
+            spec tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters);
             L += vec3g(lights[i].color) * (tr * f);
         }
     }
@@ -223,7 +228,7 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
             float pdf_l;
             float3 wl = sample_uniform_sphere(u.x, u.y, &pdf_l);
             float f = phase_eval(m->phase_kind, m->g, dot(d, wl));
-            spec tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, rng_s, counters);
+            spec tr = shadow_transmittance(prm, med, p, wl, NO_LIMIT, 0, rng_s, counters);
             float w = mis_weight(prm->mis, (float)n * pdf_l, f) * inv_n;
             L += vec3(prm->env) * (tr * (f * w / pdf_l));
         }
@@ -260,7 +265,7 @@ inline float3 sample_equiangular_lights(const Params *prm, global const Light *l
         if (fmax(sig_s.x, fmax(sig_s.y, sig_s.z)) <= 0.0f) continue;
         counters[C_SHADOW] += 1;
         spec t_cam = SHADOW_ESTIMATOR(med, o, d, t0, t, rng_s, counters, prm->max_steps);
-        spec t_lt = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters);
+        spec t_lt = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters);
         float w = ea == EQUIANGULAR_MIS ? mis_weight(prm->mis, pdf, free_flight_pdf(m, t0, t))
                                         : 1.0f;
         float f = phase_eval(m->phase_kind, m->g, dot(d, wl)) * w / (dist * dist * pdf);
@@ -291,7 +296,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
     if (!emissive && (prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f)) {
         /* No scattering can contribute: environment times transmittance (see integrator.py). */
         if (!prm->has_env) return L;
-        return env * shadow_transmittance(prm, med, o, d, NO_LIMIT, rng_s, counters);
+        return env * shadow_transmittance(prm, med, o, d, NO_LIMIT, 1, rng_s, counters);
     }
     int hero = -1;
     float3 R = (float3)(1.0f); /* hero MIS: decision probabilities over the hero's */

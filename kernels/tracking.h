@@ -73,6 +73,12 @@ inline int spectral_choice(float3 W, float3 k, float mu, float s_maj, float u, f
 }
 #endif
 
+/* render.transmittance = "auto": the technique for one majorant segment of extinction bounds
+ * [s_min, s_maj] and length L (twin in tracking.py, where the rule and its measurements are). */
+inline int auto_segment_technique(float s_maj, float s_min, float L) {
+    return (s_maj - s_min) * L <= AUTO_THIN_DEPTH ? TRACK_RESIDUAL_RATIO : TRACK_LENGTH;
+}
+
 /* Walks o + t d over [t0, t1]. Returns the event; writes the distance (t1 on escape) to
  * *t_out, the transmittance estimate or flight weight to *T_out and the emission gathered
  * (free flight, per unit beta) to *E_out. */
@@ -93,7 +99,6 @@ inline __attribute__((always_inline)) int track(const MediumData *med, float3 o,
     o = o + t0 * d;
     MajorantIter it;
     majorant_iter_init(&it, med, o, d, 0.0f, t1 - t0);
-    int flight = technique == TRACK_FREE_FLIGHT || technique == TRACK_LENGTH;
     float budget = -1.0f; /* optical depth left to the next tentative collision; < 0: not drawn */
     spec T = 1.0f;
     float3 E = (float3)(0.0f);
@@ -104,6 +109,11 @@ inline __attribute__((always_inline)) int track(const MediumData *med, float3 o,
     while (majorant_next(&it, med, &seg)) {
         float ta = seg.t_min, tb = seg.t_max, s_maj = seg.sigma_maj;
         int homogeneous = seg.sigma_min == s_maj;
+        /* This segment's technique: the walk's own, or auto's choice for it. */
+        const int tech = technique == TRACK_AUTO ? auto_segment_technique(s_maj, seg.sigma_min,
+                                                                           tb - ta)
+                                                 : technique;
+        const int flight = tech == TRACK_FREE_FLIGHT || tech == TRACK_LENGTH;
         /* Roulette on the product so far before spending work on another segment (a no-op
          * while T >= TR_RR_THRESHOLD, so on the first segment). Grey track length keeps its
          * estimate 0 or 1: a fraction left by homogeneous segments goes on with probability T
@@ -126,11 +136,11 @@ inline __attribute__((always_inline)) int track(const MediumData *med, float3 o,
             T *= exp(-(k * s_maj) * (tb - ta));
             continue;
         }
-        float control = (homogeneous || technique == TRACK_RESIDUAL_RATIO ||
-                         (flight && use_control)) ? seg.sigma_min : 0.0f;
-        float rate = technique == TRACK_RESIDUAL_RATIO ? s_maj - control : s_maj;
+        float control = (homogeneous || tech == TRACK_RESIDUAL_RATIO || (flight && use_control))
+                            ? seg.sigma_min : 0.0f;
+        float rate = tech == TRACK_RESIDUAL_RATIO ? s_maj - control : s_maj;
         float inv_rate = 1.0f / rate; /* a multiplication per step instead of a division */
-        if (technique == TRACK_RESIDUAL_RATIO) T *= exp(-(k * control) * (tb - ta));
+        if (tech == TRACK_RESIDUAL_RATIO) T *= exp(-(k * control) * (tb - ta));
         spec w = 1.0f;                        /* next flight: weight of the current vertex */
         /* next flight: this segment's estimate (no exp for the other techniques) */
         spec acc = technique == TRACK_NEXT_FLIGHT ? exp(-s_maj * (tb - ta)) : 0.0f;
@@ -164,7 +174,7 @@ inline __attribute__((always_inline)) int track(const MediumData *med, float3 o,
                 int real = spectral_choice(W, k, mu, s_maj, rng_next(rng), &f);
                 if (real) {
                     *t_out = t0 + t;
-                    *T_out = technique == TRACK_LENGTH ? (float3)(0.0f) : T * f;
+                    *T_out = tech == TRACK_LENGTH ? (float3)(0.0f) : T * f;
                     *E_out = E;
                     return EVENT_SCATTER;
                 }

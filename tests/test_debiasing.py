@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from render_pairs import assert_estimators_render_alike
 from stats import ALPHA, z_bound
 from volmc.bench.transmittance import SHAPES, profile_case
 from volmc.bench.transmittance_runner import estimator, run_numba
@@ -96,18 +97,7 @@ def test_telescoping_render_equals_ratio_tracking(backend, colour):
     """render.transmittance = telescoping renders the cloud (a grid, majorant grid) as ratio
     tracking does, grey and with colour-dependent extinction: per-pixel and image-mean
     two-sample z-tests."""
-    from volmc.check import compare_images
-    from volmc.render import render
-    keys = ["medium.density.resolution=32", "camera.resolution=[8, 8]", "render.spp=64",
-            "render.max_depth=4"] + colour
-    a = render(load_scene(default_scene(), keys + ["render.transmittance=telescoping"]),
-               progress=False, backend=backend)
-    b = render(load_scene(default_scene(), keys + ["render.transmittance=ratio",
-                                                   "render.seed=11"]),
-               progress=False, backend=backend)
-    c = compare_images(a.image, a.film.variance_of_mean(), b.image, b.film.variance_of_mean())
-    assert c.passed, c.summary()
-    assert a.counters["capped"] == 0
+    assert_estimators_render_alike(backend, "telescoping", extra=colour)
 
 
 # --- Colour-dependent extinction (RGB estimates) ---------------------------------------------

@@ -122,8 +122,15 @@ TRACK_LENGTH = 1
 TRACK_RATIO = 2
 #: ... residual ratio tracking with the segment's minorant as control ...
 TRACK_RESIDUAL_RATIO = 3
-#: ... or next-flight ratio tracking (each vertex adds the chance the next flight escapes).
+#: ... next-flight ratio tracking (each vertex adds the chance the next flight escapes) ...
 TRACK_NEXT_FLIGHT = 4
+#: ... or, per segment, the technique ``auto_segment_technique`` picks (render.transmittance =
+#: "auto"): residual ratio tracking on optically thin segments, track length on the rest.
+TRACK_AUTO = 5
+#: auto's threshold: a segment whose majorant-minorant gap (sigma_maj - sigma_min) L is at
+#: most this many mean free paths gets residual ratio tracking, a thicker one track length
+#: (measured: volmc/reference/tracking.py, auto_segment_technique).
+AUTO_THIN_DEPTH = 0.1
 
 #: Per-segment transmittance estimators, run on each majorant segment in turn: exp(-sigma L)
 #: (exact only on homogeneous segments) ...
@@ -150,6 +157,10 @@ ESTIMATOR_POWER_SERIES = 6
 ESTIMATOR_UNBIASED_RAYMARCH = 7
 ESTIMATOR_TELESCOPING = 8
 ESTIMATOR_JACKKNIFE = 9
+#: render.transmittance = "auto": where the transmittance is the whole estimate ...
+ESTIMATOR_AUTO = 10
+#: ... and on the shadow rays of scattering paths.
+ESTIMATOR_AUTO_SHADOW = 11
 #: Biased ray marching's comb: points per majorant mean free path (ceil(this x sigma_maj L)).
 RAYMARCH_SAMPLES_PER_MFP = 1.0
 

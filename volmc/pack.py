@@ -155,7 +155,8 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["equiangular"] = int(rnd.equiangular)
     p["rr"] = RR_ALBEDO if rnd.rr == "albedo" else RR_THROUGHPUT
     est = ESTIMATORS[rnd.transmittance]
-    p["shadow_estimator"] = est.id
+    p["shadow_estimator"] = est.shadow_estimator_id
+    p["view_estimator"] = est.id
     p["decomposition"] = int(scene.grid is not None and rnd.majorant in ("grid", "octree")
                              and rnd.free_flight == "decomposition")
     p["signed_samples"] = int(est.signed and scene.grid is not None)

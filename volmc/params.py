@@ -25,6 +25,8 @@ PARAM_FIELDS = (
     ("aspect", "real", 1, "width / height"),
     ("decomposition", "i4", 1, "1: free flight uses each segment's minorant as its control"),
     ("shadow_estimator", "i4", 1, "ESTIMATOR_* id of shadow rays (the kernels build it in)"),
+    ("view_estimator", "i4", 1, "ESTIMATOR_* id of camera rays that cannot scatter, whose "
+                                "transmittance is the whole estimate (the kernels build it in)"),
     ("signed_samples", "i4", 1, "1 if samples may be negative (a signed shadow estimator)"),
     ("mis", "i4", 1, "MIS_BALANCE or MIS_POWER: how light and phase sampling combine"),
     ("sampler", "i4", 1, "SAMPLER_INDEPENDENT, SAMPLER_STRATIFIED or SAMPLER_SOBOL"),

@@ -28,7 +28,10 @@ class Estimator:
     keeps negative samples when it is chosen); homogeneous_only: exact only where the
     extinction is constant, so it is no choice for grids; chromatic: estimates RGB
     transmittance (colour-dependent extinction); build_options: extra kernel build
-    options the function needs; summary: one line for help texts and tables.
+    options the function needs; summary: one line for help texts and tables;
+    shadow_function, shadow_id: the twins that run instead on the shadow rays of scattering
+    paths, where the transmittance is one factor of a noisy path rather than the whole
+    estimate (only "auto" has them; by default the same as function and id).
     """
     name: str
     id: int
@@ -39,6 +42,18 @@ class Estimator:
     chromatic: bool = False
     build_options: tuple = ()
     summary: str = ""
+    shadow_function: str = ""
+    shadow_id: int = -1
+
+    @property
+    def shadow_kernel(self):
+        """The OpenCL function of shadow rays in scattering paths."""
+        return self.shadow_function or self.function
+
+    @property
+    def shadow_estimator_id(self):
+        """The ESTIMATOR_* id of shadow rays in scattering paths."""
+        return self.shadow_id if self.shadow_id >= 0 else self.id
 
     @property
     def reference(self):
@@ -84,6 +99,12 @@ _RECORDS = (
     Estimator("jackknife", C.ESTIMATOR_JACKKNIFE, "transmittance_jackknife", False,
               signed=True, chromatic=True, build_options=("-DVOLMC_DEBIASING",),
               summary="jackknife-corrected ray marching over two combs: biased, second order"),
+    Estimator("auto", C.ESTIMATOR_AUTO, "transmittance_auto", True, signed=True,
+              chromatic=True, build_options=("-DVOLMC_POWER_SERIES", "-DVOLMC_DEBIASING"),
+              summary="chosen from measurements: on shadow rays residual ratio tracking per "
+                      "thin segment and track length per thick one; where T is the whole "
+                      "estimate unbiased ray marching (grey) or telescoping (colour)",
+              shadow_function="transmittance_auto_shadow", shadow_id=C.ESTIMATOR_AUTO_SHADOW),
 )
 
 #: name -> Estimator, in registry order.

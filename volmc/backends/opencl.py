@@ -34,7 +34,9 @@ class OpenCLBackend(RenderBackend):
                              "cannot render this scene")
         pk = pack_scene(scene, np.float32)
         est = ESTIMATORS[scene.render.transmittance]
-        self.options = (define_flags(self.features) + [f"-DSHADOW_ESTIMATOR={est.kernel}"]
+        self.options = (define_flags(self.features) + [f"-DSHADOW_ESTIMATOR={est.shadow_kernel}"]
+                        + ([f"-DVIEW_ESTIMATOR={est.kernel}"]
+                           if est.kernel != est.shadow_kernel else [])
                         + list(est.build_options) + list(options))
         self.local_size = local_size
         if pk.grid.size >= 2**31 or pk.emis.size >= 2**31:

@@ -10,7 +10,9 @@ sample index. They return (estimates float64 [r * n_per_ray], counters int64
 sample_offset + i % n_per_ray on STREAM_TEST, on both backends alike. A runner made with
 ``chromatic=True`` returns RGB estimates [r * n_per_ray, 3] (media with colour-dependent
 extinction, ``chroma`` < 1; the OpenCL build then has FEATURE_CHROMATIC); otherwise the
-first channel.
+first channel. A runner made with ``shadow=True`` runs the estimator's shadow-ray twins
+(``Estimator.shadow_function``: what a render runs on the shadow rays of scattering paths;
+the same as the estimator itself except for "auto").
 """
 
 import numpy as np
@@ -44,13 +46,14 @@ class NumbaEstimator:
 
     backend = "numba"
 
-    def __init__(self, name, device=None, chromatic=False):
+    def __init__(self, name, device=None, chromatic=False, shadow=False):
         self.est = ESTIMATORS[name]
         self.chromatic = chromatic
+        self.id = self.est.shadow_estimator_id if shadow else self.est.id
 
     def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0):
         media = ray_media(med, grid, rays, bounds, np.float64)
-        out, cnt = E.estimate_batch(self.est.id, media, np.asarray(grid, np.float64),
+        out, cnt = E.estimate_batch(self.id, media, np.asarray(grid, np.float64),
                                     _NO_MAJORANT_GRID, _NO_MAJORANT_GRID,
                                     np.asarray(rays, np.float64), n_per_ray, np.uint64(seed),
                                     sample_offset, MAX_STEPS)
@@ -62,14 +65,15 @@ class OpenCLEstimator:
 
     backend = "opencl"
 
-    def __init__(self, name, device=None, chromatic=False):
+    def __init__(self, name, device=None, chromatic=False, shadow=False):
         from ..cl.context import cl_context
         self.est = ESTIMATORS[name]
         self.chromatic = chromatic
         self.clc = cl_context(device)
         # The benchmark's media are grey and emit nothing: the build says so, as a render
         # build of a grey scene does, so the timed loop is the production one.
-        opts = ([f"-DESTIMATOR={self.est.kernel}", f"-DFEATURE_CHROMATIC={int(chromatic)}",
+        fn = self.est.shadow_kernel if shadow else self.est.kernel
+        opts = ([f"-DESTIMATOR={fn}", f"-DFEATURE_CHROMATIC={int(chromatic)}",
                  "-DFEATURE_EMISSION=0"] + list(self.est.build_options))
         self.program, _ = self.clc.program("estimators.cl", opts)
         self.kernel = self.clc.kernel(self.program, "estimate_batch")
@@ -88,9 +92,10 @@ class OpenCLEstimator:
         return out.astype(np.float64), cnt.astype(np.int64)
 
 
-def estimator(backend, name, device=None, chromatic=False):
+def estimator(backend, name, device=None, chromatic=False, shadow=False):
     """The runner of estimator ``name`` on ``backend`` ("numba" or "opencl")."""
-    return (NumbaEstimator if backend == "numba" else OpenCLEstimator)(name, device, chromatic)
+    return (NumbaEstimator if backend == "numba" else OpenCLEstimator)(name, device, chromatic,
+                                                                      shadow)
 
 
 def run_numba(name, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0,

@@ -32,13 +32,15 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import (ESTIMATOR_ANALYTIC, ESTIMATOR_BIASED_RAYMARCH, ESTIMATOR_JACKKNIFE,
+from ..constants import (ESTIMATOR_ANALYTIC, ESTIMATOR_AUTO, ESTIMATOR_AUTO_SHADOW,
+                         ESTIMATOR_BIASED_RAYMARCH, ESTIMATOR_JACKKNIFE,
                          ESTIMATOR_NEXT_FLIGHT, ESTIMATOR_POWER_SERIES, ESTIMATOR_RATIO,
                          ESTIMATOR_RESIDUAL_RATIO, ESTIMATOR_TELESCOPING,
                          ESTIMATOR_TRACK_LENGTH, ESTIMATOR_UNBIASED_RAYMARCH,
                          RAYMARCH_SAMPLES_PER_MFP, SEGMENT_ANALYTIC, SEGMENT_BIASED_RAYMARCH,
                          SEGMENT_JACKKNIFE, SEGMENT_POWER_SERIES, SEGMENT_TELESCOPING,
-                         SEGMENT_UNBIASED_RAYMARCH, STREAM_TEST, TRACK_LENGTH,
+                         SEGMENT_UNBIASED_RAYMARCH, SPECTRAL_GREY, STREAM_TEST, TRACK_AUTO,
+                         TRACK_LENGTH,
                          TRACK_NEXT_FLIGHT, TRACK_RATIO, TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, N_COUNTERS
 from .medium import (ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next,
@@ -142,8 +144,9 @@ def tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, technique
     """The transmittance estimate of the tracking loop with ``technique``. Track length uses
     each segment's minorant as control (decomposition tracking): the same 0/1 decisions as
     delta tracking for the same random numbers, without the lookups the control decides."""
-    return track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH, ONE3, -1, rng,
-                 counters, max_steps)[2]
+    return track(med, o, d, t0, t1, technique,
+                 technique == TRACK_LENGTH or technique == TRACK_AUTO, ONE3, -1, rng, counters,
+                 max_steps)[2]
 
 
 @njit(cache=True)
@@ -177,6 +180,34 @@ def transmittance_next_flight(med, o, d, t0, t1, rng, counters, max_steps):
     its expectation). In empty space under a majorant m its variance is (1 - e^{-2 m L}) / 2:
     it needs a tight majorant."""
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_NEXT_FLIGHT)
+
+
+@njit(cache=True, inline="always")
+def auto_alone_kind(med):
+    """The per-segment estimator ``transmittance_auto`` runs on every varying segment:
+    unbiased ray marching in a grey medium, telescoping in a colour-dependent one (the power
+    series are grey)."""
+    return SEGMENT_UNBIASED_RAYMARCH if med.m.spectral == SPECTRAL_GREY else SEGMENT_TELESCOPING
+
+
+@njit(cache=True)
+def transmittance_auto(med, o, d, t0, t1, rng, counters, max_steps):
+    """render.transmittance = "auto" where the transmittance is the whole estimate (the
+    transmittance benchmark, the camera rays of a render that cannot scatter): the most
+    efficient unbiased estimator of T alone by the benchmark's measurements -- unbiased ray
+    marching on every varying segment of a grey medium, telescoping in colour (exact on
+    homogeneous ones). Single estimates can be negative. Shadow rays inside scattering paths
+    use ``transmittance_auto_shadow``."""
+    return transmittance_by_segments(med, o, d, t0, t1, auto_alone_kind(med), rng, counters,
+                                     max_steps)
+
+
+@njit(cache=True)
+def transmittance_auto_shadow(med, o, d, t0, t1, rng, counters, max_steps):
+    """render.transmittance = "auto" on the shadow rays of scattering paths: per segment,
+    residual ratio tracking where it is optically thin, track length where it is thick
+    (tracking.auto_segment_technique, where the rule and its measurements are)."""
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_AUTO)
 
 
 @njit(cache=True)
@@ -242,6 +273,10 @@ def transmittance(est, med, o, d, t0, t1, rng, counters, max_steps):
         return transmittance_telescoping(med, o, d, t0, t1, rng, counters, max_steps)
     if est == ESTIMATOR_JACKKNIFE:
         return transmittance_jackknife(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_AUTO:
+        return transmittance_auto(med, o, d, t0, t1, rng, counters, max_steps)
+    if est == ESTIMATOR_AUTO_SHADOW:
+        return transmittance_auto_shadow(med, o, d, t0, t1, rng, counters, max_steps)
     if est == ESTIMATOR_ANALYTIC:
         return transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps)
     raise ValueError("unknown estimator id")

@@ -159,9 +159,12 @@ def camera_ray(prm, px, py, u1, u2):
 
 
 @njit(cache=True)
-def shadow_transmittance(prm, med, o, d, t_max, rng_s, counters):
+def shadow_transmittance(prm, med, o, d, t_max, view, rng_s, counters):
     """Transmittance (RGB) from o towards unit d up to distance t_max (inf for distant
-    lights), by the estimator render.transmittance chose (prm.shadow_estimator)."""
+    lights), by the estimator render.transmittance chose: prm.shadow_estimator for the
+    shadow rays of scattering paths (view = 0), prm.view_estimator for camera rays that
+    cannot scatter (view = 1), whose transmittance is the whole estimate. They differ only
+    for "auto" (estimators.transmittance_auto and transmittance_auto_shadow)."""
     m = med.m
     bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
     bmax = (m.bmax[0], m.bmax[1], m.bmax[2])
@@ -170,8 +173,8 @@ def shadow_transmittance(prm, med, o, d, t_max, rng_s, counters):
     if t1 <= t0:
         return (1.0, 1.0, 1.0)
     counters[C_SHADOW] += 1
-    return transmittance(prm.shadow_estimator, med, o, d, t0, t1, rng_s, counters,
-                         prm.max_steps)
+    return transmittance(prm.view_estimator if view else prm.shadow_estimator, med, o, d, t0,
+                         t1, rng_s, counters, prm.max_steps)
 
 
 @njit(cache=True, inline="always")
@@ -311,7 +314,7 @@ def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, 
                 continue
         f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * falloff * inv_n
         for _ in range(n):
-            tr = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters)
+            tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
             L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]), scale3(tr, f)))
     if prm.has_env != 0:
         pair = bounce_pair(b, SAMPLER_LIGHT)
@@ -319,7 +322,7 @@ def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, 
             ua, ub = path_u2(prm, pix, s, pair, j, n, rng)
             wl, pdf_l = sample_uniform_sphere(ua, ub)
             f = phase_eval(m.phase_kind, m.g, dot(d, wl))
-            tr = shadow_transmittance(prm, med, p, wl, math.inf, rng_s, counters)
+            tr = shadow_transmittance(prm, med, p, wl, math.inf, 0, rng_s, counters)
             w = mis_weight(prm.mis, n * pdf_l, f) * inv_n
             L = add3(L, mul3((prm.env[0], prm.env[1], prm.env[2]), scale3(tr, f * w / pdf_l)))
     return L
@@ -362,7 +365,7 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
         counters[C_SHADOW] += 1
         t_cam = transmittance(prm.shadow_estimator, med, o, d, t0, t, rng_s, counters,
                               prm.max_steps)
-        t_lt = shadow_transmittance(prm, med, p, wl, dist, rng_s, counters)
+        t_lt = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
         w = 1.0
         if ea == EQUIANGULAR_MIS:
             w = mis_weight(prm.mis, pdf, free_flight_pdf(m, t0, t))
@@ -403,7 +406,7 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
         # a homogeneous medium, lower variance than a 0/1 free-flight outcome for grids).
         if prm.has_env == 0:
             return L
-        return mul3(env, shadow_transmittance(prm, med, o, d, math.inf, rng_s, counters))
+        return mul3(env, shadow_transmittance(prm, med, o, d, math.inf, 1, rng_s, counters))
     hero = -1
     R = (1.0, 1.0, 1.0)   # hero MIS: each channel's decision probability over the hero's
     if m.spectral == SPECTRAL_CHANNEL or m.spectral == SPECTRAL_HERO:
