@@ -140,9 +140,9 @@ def build_parser():
                                               "(default: the cloud, the plume and the scan)")
     bt.add_argument("--estimators", help="comma-separated subset (default: all)")
     bt.add_argument("--quick", action="store_true", help="a small sweep (seconds, for tests)")
-    bt.add_argument("--rays", type=_positive_int, default=512,
+    bt.add_argument("--rays", type=_positive_int, default=1024,
                     help="recorded camera and shadow segments replayed per grid scene "
-                         "(default 512 each; a quarter with --quick)")
+                         "(default 1024 each; a quarter with --quick)")
     bt.add_argument("--json", help="write the full report to this JSON file")
     bt.add_argument("--figures", help="write PNG figures into this directory")
     bt.add_argument("--device", help="OpenCL device (as for render)")

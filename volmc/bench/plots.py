@@ -80,8 +80,12 @@ def convergence_plots(report, path_cost, path_time):
             (path_cost, "lookups", "variance", -1.0, "density lookups per estimate",
              "variance of the mean"),
             (path_time, "seconds", "rmse", -0.5, "OpenCL time per estimate (s)", "RMSE")):
-        fig, axs = plt.subplots(1, len(rows), figsize=(5 * len(rows), 4), squeeze=False)
-        for ax, row in zip(axs[0], rows):
+        cols = min(3, len(rows))
+        n_rows = -(-len(rows) // cols)
+        fig, axs = plt.subplots(n_rows, cols, figsize=(5 * cols, 4 * n_rows), squeeze=False)
+        for ax in axs.ravel()[len(rows):]:
+            ax.axis("off")
+        for ax, row in zip(axs.ravel(), rows):
             for n, r in row["results"].items():
                 pts = [c for c in r["convergence"] if c[ykey] == c[ykey] and c[ykey] > 0]
                 if not pts:
@@ -198,28 +202,33 @@ def _map_axes(ax, maps):
 
 
 def segment_maps(report, path):
-    """Per estimator: log10 1/(MSE x time) over the bins of (majorant optical depth,
-    tightness) of the replayed majorant segments (segment_maps.py); blank bins hold too few
-    segments. Zero-error bins are drawn at the colour maximum."""
+    """Per estimator: its 1/(MSE x time) relative to the best unbiased estimator's in each
+    bin of (majorant optical depth, tightness) of the replayed majorant segments
+    (segment_maps.py), log10: 0 where it wins, -1 at a tenth. Relative, because a bin's
+    absolute efficiency scales with 1/T^2 and would swamp the comparison. Blank bins hold
+    too few segments."""
     from ..techniques import ESTIMATORS
     maps = report["maps"]
     names = [n for n in report["estimators"] if not ESTIMATORS[n].homogeneous_only]
 
-    def eff(n):
+    def best(b):
+        e = [r["eff_mse_time"] for n, r in b["results"].items() if report["unbiased"][n]]
+        return max(e) if e else None
+
+    def rel(n):
         def f(b):
-            r = b["results"].get(n)
-            if r is None:
+            r, top = b["results"].get(n), best(b)
+            if r is None or top is None or not top > 0:
                 return None
-            e = r["eff_mse_time"]
-            return math.log10(e) if 0 < e < math.inf else (12.0 if e == math.inf else None)
+            if top == math.inf:
+                return 0.0 if r["eff_mse_time"] == math.inf else -3.0
+            return math.log10(max(r["eff_mse_time"], 1e-300) / top)
         return f
-    grids = {n: _map_grid(maps, eff(n)) for n in names}
-    finite = np.concatenate([g[np.isfinite(g) & (g < 12)] for g in grids.values()])
-    limits = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
-    _estimator_panels(report, grids, limits, lambda ax: _map_axes(ax, maps),
-                      "log10 1 / (MSE x OpenCL time)",
-                      "Efficiency over the majorant segments of replayed render segments",
-                      path, (3.8, 3.1))
+    grids = {n: _map_grid(maps, rel(n)) for n in names}
+    _estimator_panels(report, grids, (-3.0, 1.0), lambda ax: _map_axes(ax, maps),
+                      "log10 of 1 / (MSE x time) over the best unbiased estimator's",
+                      "Efficiency over the majorant segments of replayed render segments, "
+                      "relative to each bin's winner", path, (3.8, 3.1))
 
 
 def winner_map(report, path):

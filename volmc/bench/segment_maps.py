@@ -15,7 +15,6 @@ estimator in one timed launch per recording, and the bin gets each estimator's
 """
 
 import math
-import time
 
 import numpy as np
 from numba import njit
@@ -142,7 +141,6 @@ def measure(runners, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
     """The maps' data over ``replays``, a list of (Recording, rays [r, 9]) (every replayed
     segment of a scene): per bin the pieces counted, the subsample run and each estimator's
     metrics; JSON-able. Bins with fewer than ``min_segments`` pieces are not measured."""
-    from .transmittance import stats
     names = [n for n in runners if not ESTIMATORS[n].homogeneous_only]
     per_scene = []
     n_all = n_homog = 0
@@ -160,9 +158,6 @@ def measure(runners, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
     bi, bj = bin_index(tau_bar, tight)
     rule, rule_names_ = auto_rule()
     rng = np.random.default_rng(seed)
-    for n in names:   # the first launch of a kernel pays for its compilation: not timed
-        rec, rays = replays[0]
-        runners[n].run(rec.medium, rec.grid, rays[:1], np.array([[1.0, 0.0]]), 1, seed)
     bins = []
     for i in range(len(TAU_BAR_EDGES) - 1):
         for j in range(len(TIGHTNESS_EDGES) - 1):
@@ -182,8 +177,7 @@ def measure(runners, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
                                          replace=False))
                 row["n_used"] = int(use.size)
                 for n in names:
-                    row["results"][n] = _run_bin(runners[n], replays, scene_of, pieces, use,
-                                                 stats)
+                    row["results"][n] = _run_bin(runners[n], replays, scene_of, pieces, use)
                 row.update(winners(row["results"]))
             bins.append(row)
     log(f"  maps: {len(pieces)} heterogeneous majorant segments ({n_homog} homogeneous of "
@@ -200,9 +194,10 @@ def measure(runners, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
     return out
 
 
-def _run_bin(runner, replays, scene_of, pieces, use, stats):
+def _run_bin(runner, replays, scene_of, pieces, use):
     """One estimator on the bin's pieces ``use``: a timed launch per recording they come
     from, the estimates pooled."""
+    from .transmittance import stats, timed_launch
     ests, cnts, truths, seconds = [], [], [], 0.0
     for k in np.unique(scene_of[use]):
         sel = use[scene_of[use] == k]
@@ -211,9 +206,8 @@ def _run_bin(runner, replays, scene_of, pieces, use, stats):
         r = rays[p[:, 0].astype(np.int64)].copy()
         r[:, 6], r[:, 7] = p[:, 1], p[:, 2]
         bounds = np.stack([p[:, 3] * (1.0 + SLACK), p[:, 4] * (1.0 - SLACK)], 1)
-        t = time.perf_counter()
-        est, cnt = runner.run(rec.medium, rec.grid, r, bounds, PER_SEGMENT, 53)
-        seconds += time.perf_counter() - t
+        est, cnt, sec = timed_launch(runner, rec.medium, rec.grid, r, bounds, PER_SEGMENT, 53)
+        seconds += sec
         ests.append(est)
         cnts.append(cnt)
         truths.append(np.exp(-p[:, 5]))

@@ -8,8 +8,8 @@ global majorant is set to them); ``n_per_ray`` estimates per ray; the seed and t
 sample index. Given ``maj`` and ``mnr`` (the density maxima and minima of the medium's
 majorant grid, or of its octree with ``nodes``, as pack.py builds them), the records keep
 their own majorant kind and fields and ``bounds`` is ignored (may be None): the estimators
-then walk the majorant structure a render walks. They return (estimates float64 [r * n_per_ray], counters int64
-[r * n_per_ray, N_COUNTERS]); estimate i uses ray i // n_per_ray and sample index
+then walk the majorant structure a render walks. They return (estimates float64
+[r * n_per_ray], counters int64 [r * n_per_ray, N_COUNTERS]); estimate i uses ray i // n_per_ray and sample index
 sample_offset + i % n_per_ray on STREAM_TEST, on both backends alike. A runner made with
 ``chromatic=True`` returns RGB estimates [r * n_per_ray, 3] (media with colour-dependent
 extinction, ``chroma`` < 1; the OpenCL build then has FEATURE_CHROMATIC); otherwise the
