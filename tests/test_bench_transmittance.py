@@ -56,3 +56,30 @@ def test_auto_rule_annotation_reads_the_rule(monkeypatch):
     assert len(grid) == 3 and len(grid[0]) == 8
     assert all(row[k] == ("track_length" if taus[k] > 1 else "residual_ratio")
                for row in grid for k in range(8))
+
+
+def test_maps_figures_with_the_auto_rule(tmp_path):
+    """The winner map draws the rule's per-bin choice and its regions panel, and the
+    per-estimator maps draw every estimator, from a report as measure() writes it."""
+    from volmc.bench import plots
+    names = {TRACK_LENGTH: "track_length", TRACK_RESIDUAL_RATIO: "residual_ratio"}
+
+    def rule(s_maj, s_min, L):
+        return TRACK_LENGTH if s_maj * L > 1.0 else TRACK_RESIDUAL_RATIO
+    taus, ratios, grid = sm.rule_regions(rule, names, 0.1, n_tau=16, n_ratio=4)
+    res = {"ratio": {"eff_mse_time": 1.0, "eff_var_lookups": 2.0},
+           "power_series": {"eff_mse_time": 3.0, "eff_var_lookups": 1.0}}
+    bins = [{"i": i, "j": j, "n_segments": 40, "results": dict(res), "auto": "track_length",
+             **sm.winners(res)} for i in (2, 5) for j in (0, 4)]
+    assert bins[0]["winner_var_lookups"] == "ratio"
+    assert bins[0]["winner_mse_time"] == "power_series"
+    report = {"estimators": list(res), "unbiased": {n: True for n in res},
+              "maps": {"tau_bar_edges": sm.TAU_BAR_EDGES.tolist(),
+                       "tightness_edges": sm.TIGHTNESS_EDGES.tolist(), "bins": bins,
+                       "auto": True, "auto_regions": {"length": 0.1, "tau_bar": taus,
+                                                      "bound_ratio": ratios,
+                                                      "choice": grid}}}
+    plots.winner_map(report, tmp_path / "w.png")
+    plots.segment_maps(report, tmp_path / "m.png")
+    assert (tmp_path / "w.png").stat().st_size > 1000
+    assert (tmp_path / "m.png").stat().st_size > 1000
