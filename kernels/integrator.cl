@@ -112,6 +112,7 @@ inline spec shadow_transmittance(const Params *prm, const MediumData *med, float
     o = enter_box(o, d, vec3(med->m.bmin), vec3(med->m.bmax), &t0, &t1, &shift);
     t1 = fmin(t1, t_max - shift);
     if (t1 <= t0) return 1.0f;
+    record_segment(med, o, d, t0, t1, RECORD_SHADOW);
     counters[C_SHADOW] += 1;
 #ifdef VIEW_ESTIMATOR
     if (view) return VIEW_ESTIMATOR(med, o, d, t0, t1, rng_s, counters, prm->max_steps);
@@ -321,6 +322,7 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
         int event = EVENT_ESCAPE;
         float t = t1;
         if (t1 > t0) {
+            if (depth == 0) record_segment(med, o, d, t0, t1, RECORD_CAMERA);
             if (ea != EQUIANGULAR_OFF && (prm->max_depth < 0 || depth < prm->max_depth)) {
                 float3 bw = FEATURE_CHROMATIC && hero >= 0 ? beta * mis_weights(R) : beta;
                 L += bw * sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s,
@@ -391,14 +393,20 @@ kernel void render_batch(const Params prm, const Medium medium, global const Lig
                          global const float *mnr, global const float *emis,
                          global const float *table, global const int *bricks,
                          global const float *pool, global const int *nodes,
-                         uint sample_start, uint n_samples,
+                         global float *rec, int rec_capacity, uint sample_start,
+                         uint n_samples,
                          global float *out_mean, global float *out_m2,
                          global ulong *counters_out) {
     int pix = get_global_id(0);
     if (pix >= prm.width * prm.height) return;
     int py = pix / prm.width;
     int px = pix - py * prm.width;
-    MediumData med = {medium, grid, maj, mnr, emis, table, bricks, pool, nodes};
+    /* Pixel pix owns rows [pix (K + 1), (pix + 1) (K + 1)) of the record (K = rec_capacity);
+     * without recording, rec is a 1-float dummy that nothing may index. */
+    global float *rec_pix = FEATURE_RECORD && rec_capacity > 0
+                                ? rec + (size_t)pix * (rec_capacity + 1) * RECORD_COLUMNS
+                                : 0;
+    MediumData med = {medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rec_pix};
     ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
     ulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;

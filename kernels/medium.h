@@ -16,7 +16,8 @@
  * majorant grid's per-cell density maxima and minima [cz][cy][cx] (an octree's: per node),
  * the emission field grid [nz][ny][nx], the blackbody table [BLACKBODY_TABLE_SIZE][3], a
  * brick grid's index table [bz][by][bx] and pool [n_slots][8][8][8] (grid.h), and an
- * octree's first-child indices [n_nodes] (octree.h). */
+ * octree's first-child indices [n_nodes] (octree.h), and the pixel's segment record
+ * [K + 1][RECORD_COLUMNS] (record_segment; 0 when not recording). */
 typedef struct {
     Medium m; /* a copy: the compiler keeps its fields in registers */
     global const float *grid;
@@ -27,6 +28,7 @@ typedef struct {
     global const int *bricks;
     global const float *pool;
     global const int *nodes;
+    global float *rec;
 } MediumData;
 
 inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
@@ -106,6 +108,23 @@ inline bool segment_degenerate(float L, float mbar, ulong *counters, int max_ste
         return true;
     }
     return false;
+}
+
+/* Twin of record_segment in medium.py, which describes the record. A build without
+ * FEATURE_RECORD compiles it to nothing, so a normal render pays nothing for it. */
+inline void record_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
+                           int kind) {
+    if (!FEATURE_RECORD || med->rec == 0) return;
+    global float *rec = med->rec;
+    int n = convert_int_rtz(rec[0]);
+    if ((float)n >= rec[1]) return;
+    global float *row = rec + (n + 1) * RECORD_COLUMNS;
+    vstore3(o, 0, row);
+    vstore3(d, 1, row);
+    row[6] = t0;
+    row[7] = t1;
+    row[8] = (float)kind;
+    rec[0] = (float)(n + 1);
 }
 
 typedef struct {

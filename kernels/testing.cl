@@ -114,7 +114,7 @@ kernel void t_track(int technique, int use_control, global const Medium *media,
     int i = get_global_id(0);
     int r = i / n_per_ray;
     Medium m = media[r];
-    MediumData med = {m, grid, maj, mnr, grid, grid, 0, grid, 0};
+    MediumData med = {m, grid, maj, mnr, grid, grid, 0, grid, 0, 0};
     float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
     float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
     Rng rng;

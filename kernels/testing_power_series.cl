@@ -17,7 +17,7 @@ kernel void t_power_series(int kind, global const Medium *media, global const fl
     int r = i / n_per_ray;
     global const float *ray = rays + 10 * r;
     Medium m = media[r];
-    MediumData med = {m, grid, grid, grid, grid, grid, 0, grid, 0};
+    MediumData med = {m, grid, grid, grid, grid, grid, 0, grid, 0, 0};
     float3 o = (float3)(ray[0], ray[1], ray[2]);
     float3 d = (float3)(ray[3], ray[4], ray[5]);
     Rng rng;

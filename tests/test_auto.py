@@ -107,47 +107,20 @@ def test_shadow_variant_unbiased_on_every_profile(backend):
 
 @functools.lru_cache(maxsize=None)
 def _cloud():
-    """The cloud at 32^3 with its majorant grid (the render's structure), and rays."""
-    from volmc.bench.transmittance import grid_rays
-    from volmc.constants import MAJORANT_GRID
-    from volmc.reference.majorant import build_majorant_grid
-    scene = load_scene(default_scene(), ["medium.density.resolution=32"])
-    lo, hi = scene.medium.bounds
-    nz, ny, nx = scene.grid.shape
-    med = X.make_grid_medium(lo, hi, scene.medium.scale[0], (nx, ny, nz))
-    mx, mn = build_majorant_grid(scene.grid, (8, 8, 8))
-    med["majorant_kind"] = MAJORANT_GRID
-    med["maj_res"] = mx.shape
-    return scene, med, mx, mn, grid_rays(scene, 48, 48, seed=1)
+    """Camera and shadow segments recorded from a small render of the cloud (32^3), with the
+    medium record, grid and majorant grid the render traced them through."""
+    from volmc.bench.segments import record_segments
+    from volmc.bench.transmittance import replay_cases
+    scene = load_scene(default_scene(), ["medium.density.resolution=32",
+                                         "camera.resolution=[16, 16]"])
+    rec = record_segments(scene, "opencl", per_pixel=8)
+    return rec, replay_cases(rec, 48, seed=1)
 
 
-def _run_grid(backend, shadow, scene, med, mx, mn, rays, n):
-    """Runs auto on ``rays`` with the cloud's majorant grid (not one global bound)."""
-    from volmc.bench.transmittance_runner import MAX_STEPS, ray_media
-    from volmc.params import N_COUNTERS
-    from volmc.reference import estimators as E
-    from volmc.techniques import ESTIMATORS
-    grid = scene.grid
-    bounds = np.tile([scene.medium.scale[0] * float(grid.max()), 0.0], (len(rays), 1))
-    real = np.float64 if backend == "numba" else np.float32
-    media = ray_media(med, grid, rays, bounds, real)
-    media["majorant_kind"], media["maj_res"] = med["majorant_kind"], med["maj_res"]
-    est = ESTIMATORS["auto"]
-    if backend == "numba":
-        out, cnt = E.estimate_batch(est.shadow_estimator_id if shadow else est.id, media,
-                                    np.asarray(grid, np.float64), mx, mn, rays, n,
-                                    np.uint64(9), 0, MAX_STEPS)
-        return out[:, 0], cnt
-    r = _runner("opencl", "auto", shadow=shadow)
-    clc = r.clc
-    m = len(rays) * n
-    out, ob = clc.output(m, np.float32)
-    cnt, cb = clc.output((m, N_COUNTERS), np.uint64)
-    clc.run(r.kernel, m, 1, clc.to_device(media), clc.to_device(grid, np.float32),
-            clc.to_device(mx, np.float32), clc.to_device(mn, np.float32),
-            clc.to_device(rays, np.float32), np.int32(n), np.uint64(9), np.uint32(0),
-            np.int32(MAX_STEPS), ob, cb, outs=[(out, ob), (cnt, cb)])
-    return out.astype(np.float64), cnt.astype(np.int64)
+def _run_grid(backend, shadow, rec, rays, n):
+    """auto on ``rays`` through the recording's own majorant grid (not one global bound)."""
+    return _runner(backend, "auto", shadow=shadow).run(rec.medium, rec.grid, rays, None, n, 9,
+                                                       maj=rec.maj, mnr=rec.mnr)
 
 
 @pytest.mark.parametrize("backend", ["numba", "opencl"])
@@ -155,10 +128,10 @@ def _run_grid(backend, shadow, scene, med, mx, mn, rays, n):
 def test_unbiased_on_cloud_rays_with_a_majorant_grid(backend, shadow):
     """Camera and shadow rays through the cloud's majorant grid (segments thin and thick, so
     the rule picks both techniques): mean error within the Sidak bound."""
-    scene, med, mx, mn, sets = _cloud()
+    rec, sets = _cloud()
     bound = z_bound(ALPHA, len(sets))
     for label, rays, exact in sets:
-        est, cnt = _run_grid(backend, shadow, scene, med, mx, mn, rays, 256)
+        est, cnt = _run_grid(backend, shadow, rec, rays, 256)
         err = est.reshape(len(rays), -1) - exact[:, None]
         se = err.std(ddof=1) / math.sqrt(err.size)
         assert abs(err.mean()) < bound * se + 1e-6, (label, err.mean(), se)
@@ -169,10 +142,10 @@ def test_unbiased_on_cloud_rays_with_a_majorant_grid(backend, shadow):
 def test_kernel_matches_reference_on_a_majorant_grid(shadow):
     """Same rays and streams through the majorant grid: per-estimate agreement for the vast
     majority, equal means."""
-    scene, med, mx, mn, sets = _cloud()
+    rec, sets = _cloud()
     label, rays, exact = sets[1]
-    a, ca = _run_grid("numba", shadow, scene, med, mx, mn, rays, 128)
-    b, cb = _run_grid("opencl", shadow, scene, med, mx, mn, rays, 128)
+    a, ca = _run_grid("numba", shadow, rec, rays, 128)
+    b, cb = _run_grid("opencl", shadow, rec, rays, 128)
     same = np.isclose(a, b, rtol=1e-3, atol=1e-5) & (ca[:, 0] == cb[:, 0])
     assert same.mean() > 0.99, same.mean()
     se = math.sqrt(a.var() / a.size + b.var() / b.size)

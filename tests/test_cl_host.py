@@ -145,14 +145,20 @@ def test_bench_transmittance_cli(tmp_path):
     from volmc.resources import scenes_dir
     scene = str(scenes_dir() / "tests" / "white_furnace.toml")
     out = tmp_path / "t.json"
+    # A 4^3 majorant grid gives the 8^3 ramp heterogeneous majorant segments for the maps.
     r = _run(["bench", "transmittance", scene, "--quick", "--rays", "64", "--json", str(out),
-              "--figures", str(tmp_path)])
+              "--figures", str(tmp_path), "-D", "render.majorant_resolution=[4, 4, 4]"])
     assert r.returncode == 0, r.stderr
-    assert "camera rays" in r.stdout and "1/(MSE*t)" in r.stdout
-    assert "guard counters over every case" in r.stdout
+    assert "camera segments" in r.stdout and "1/(MSE*t)" in r.stdout
+    assert "guard counters over every case" in r.stdout and "grid majorant" in r.stdout
     rep = json.loads(out.read_text())
     assert len(rep["profiles"]) == 5 * 2 * 2 and len(rep["grids"]) == 2
-    for row in rep["profiles"] + rep["grids"]:
+    # Recorded segments, replayed on the scene's majorant grid: 64 // 4 of each kind.
+    assert [g["n_rays"] for g in rep["grids"]] == [16, 16]
+    assert all(g["majorant"].startswith("grid majorant") for g in rep["grids"])
+    assert rep["maps"]["n_pieces"] > 0 and len(rep["maps"]["bins"]) == 8 * 5
+    assert any(b["results"] and b["winner_var_lookups"] for b in rep["maps"]["bins"])
+    for row in rep["profiles"] + rep["grids"] + rep["maps"]["bins"]:
         for res in row["results"].values():
             assert res["guards"] == {"capped": 0, "over_majorant": 0, "non_finite": 0}
     for row in rep["profiles"]:
@@ -169,7 +175,8 @@ def test_bench_transmittance_cli(tmp_path):
         if row["profile"] == "constant" and row["effective_tightness"] < 0.5:
             assert abs(got - expect) < tol, (row["profile"], got)
     for name in ("estimators_heatmap.png", "estimators_variance_cost.png",
-                 "estimators_error_time.png"):
+                 "estimators_error_time.png", "estimators_segment_maps.png",
+                 "estimators_winner_map.png"):
         assert (tmp_path / name).stat().st_size > 1000
     r = _run(["bench", "transmittance", scene, "--quick", "--estimators", "ratio,nope"])
     assert r.returncode == 2 and "nope" in r.stderr

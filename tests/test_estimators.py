@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from stats import ALPHA, z_bound
-from volmc.bench.transmittance import SHAPES, grid_rays, profile_case
+from volmc.bench.segments import record_segments
+from volmc.bench.transmittance import SHAPES, profile_case, replay_cases
 from volmc.bench.transmittance_runner import OpenCLEstimator, run_numba
 from volmc.techniques import ESTIMATORS
 from volmc.reference import medium as X
@@ -49,24 +50,27 @@ def test_unbiased_on_every_profile(backend, name):
 
 @functools.lru_cache(maxsize=None)
 def _cloud_rays():
+    """48 camera and 48 shadow segments recorded from a small render of the cloud (packed
+    frame), the medium record and grid they were traced through, and the global majorant."""
     from volmc.resources import default_scene
     from volmc.scene import load_scene
-    scene = load_scene(default_scene(), ["medium.density.resolution=32"])
-    lo, hi = scene.medium.bounds
-    med = X.make_grid_medium(lo, hi, scene.medium.scale[0])
-    return scene, med, grid_rays(scene, 48, 48, seed=1)
+    scene = load_scene(default_scene(), ["medium.density.resolution=32",
+                                         "camera.resolution=[16, 16]"])
+    rec = record_segments(scene, "opencl", per_pixel=8)
+    mbar = float(rec.medium[0]["scale"]) * float(rec.grid.max())
+    return rec, mbar, replay_cases(rec, 48, seed=1)
 
 
 @pytest.mark.parametrize("name", UNBIASED)
 def test_unbiased_on_grid_rays(backend, name):
-    """Camera and shadow rays through the cloud: the mean error over all rays and estimates
-    is within the bound, against the exact optical depth of each ray."""
-    scene, med, sets = _cloud_rays()
-    mbar = scene.medium.scale[0] * float(scene.grid.max())
+    """Recorded camera and shadow segments of the cloud under its global majorant: the mean
+    error over all segments and estimates is within the bound, against the exact optical
+    depth of each."""
+    rec, mbar, sets = _cloud_rays()
     bound = z_bound(ALPHA, len(sets))
     for label, rays, exact in sets:
         bounds = np.tile([mbar, 0.0], (len(rays), 1))
-        est, cnt = _run(backend, name, med, scene.grid, rays, bounds, 256)
+        est, cnt = _run(backend, name, rec.medium, rec.grid, rays, bounds, 256)
         err = est.reshape(len(rays), -1) - exact[:, None]
         se = err.std(ddof=1) / math.sqrt(err.size)
         assert abs(err.mean()) < bound * se + 1e-6, (label, err.mean(), se)
@@ -129,14 +133,13 @@ def test_biased_raymarch_converges_as_the_step_shrinks():
 @pytest.mark.parametrize("name", list(ESTIMATORS))
 def test_kernel_matches_reference(name):
     """Same rays and streams: per-estimate agreement for the vast majority, equal means."""
-    scene, med, sets = _cloud_rays()
-    mbar = scene.medium.scale[0] * float(scene.grid.max())
+    rec, mbar, sets = _cloud_rays()
     label, rays, exact = sets[1]
     bounds = np.tile([mbar, 0.0], (len(rays), 1))
     if ESTIMATORS[name].homogeneous_only:
         bounds = np.tile([mbar, mbar], (len(rays), 1))
-    a, ca = run_numba(name, med, scene.grid, rays, bounds, 128)
-    b, cb = _ocl(name).run(med, scene.grid, rays, bounds, 128)
+    a, ca = run_numba(name, rec.medium, rec.grid, rays, bounds, 128)
+    b, cb = _ocl(name).run(rec.medium, rec.grid, rays, bounds, 128)
     same = np.isclose(a, b, rtol=1e-3, atol=1e-5) & (ca[:, 0] == cb[:, 0])
     assert same.mean() > 0.99, same.mean()
     se = math.sqrt(a.var() / a.size + b.var() / b.size)

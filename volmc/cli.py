@@ -134,13 +134,15 @@ def build_parser():
     b = sub.add_parser("bench", help="benchmarks (speed of backends, builds, work-group sizes)")
     bsub = b.add_subparsers(dest="bench", required=True, parser_class=_Parser)
     bt = bsub.add_parser("transmittance", help="every transmittance estimator on 1-D profiles and "
-                                               "grid rays: error against cost")
-    bt.add_argument("scenes", nargs="*", help="grid scenes for ray cases (default: the cloud "
-                                              "and the white furnace)")
+                                               "on the segments a render traces: error against "
+                                               "cost, and maps of which wins where")
+    bt.add_argument("scenes", nargs="*", help="grid scenes whose recorded segments are replayed "
+                                              "(default: the cloud, the plume and the scan)")
     bt.add_argument("--estimators", help="comma-separated subset (default: all)")
     bt.add_argument("--quick", action="store_true", help="a small sweep (seconds, for tests)")
-    bt.add_argument("--rays", type=_positive_int, default=512,
-                    help="camera rays and shadow rays per grid scene (default 512 each)")
+    bt.add_argument("--rays", type=_positive_int, default=1024,
+                    help="recorded camera and shadow segments replayed per grid scene "
+                         "(default 1024 each; a quarter with --quick)")
     bt.add_argument("--json", help="write the full report to this JSON file")
     bt.add_argument("--figures", help="write PNG figures into this directory")
     bt.add_argument("--device", help="OpenCL device (as for render)")
@@ -384,6 +386,7 @@ def _rgb(v):
 
 def cmd_bench_transmittance(args):
     from .bench import transmittance as bt
+    from .scene.bricks import stores_bricks
     from .techniques import ESTIMATORS
     from .resources import default_scene, scenes_dir
     from .scene import load_scene
@@ -399,13 +402,18 @@ def cmd_bench_transmittance(args):
             _check_writable(path, "--json")
     if args.figures and not os.path.isdir(args.figures):
         raise SceneError("command line", "--figures", f"not a directory: {args.figures}")
-    paths = args.scenes or [str(default_scene()), str(scenes_dir() / "tests" /
-                                                       "white_furnace.toml")]
+    paths = args.scenes or [str(default_scene()), str(scenes_dir() / "gallery" / "plume.toml"),
+                            str(scenes_dir() / "gallery" / "scan.toml")]
+    # The recorded render is small; a -D of the caller's comes later and wins.
+    w, h = bt.QUICK_RESOLUTION if args.quick else bt.RECORD_RESOLUTION
     scenes = []
     for p in paths:
-        s = load_scene(p, args.defines)
+        s = load_scene(p, [f"camera.resolution=[{w}, {h}]"] + args.defines)
         if s.grid is None:
             raise SceneError(p, "medium.density", "the transmittance benchmark needs a grid")
+        if stores_bricks(s):
+            raise SceneError(p, "render.grid_storage", "the transmittance benchmark replays "
+                                                       "dense grids: set it to \"dense\"")
         scenes.append(s)
     t = time.perf_counter()
     report = bt.run(names, scenes, n_rays=args.rays, quick=args.quick, device=args.device)
@@ -418,6 +426,10 @@ def cmd_bench_transmittance(args):
         plots.heatmaps(report, os.path.join(args.figures, "estimators_heatmap.png"))
         plots.convergence_plots(report, os.path.join(args.figures, "estimators_variance_cost.png"),
                                 os.path.join(args.figures, "estimators_error_time.png"))
+        if report.get("maps"):
+            plots.segment_maps(report, os.path.join(args.figures,
+                                                    "estimators_segment_maps.png"))
+            plots.winner_map(report, os.path.join(args.figures, "estimators_winner_map.png"))
     print(f"\nvolmc bench transmittance: {report['seconds']:.0f} s", file=sys.stderr)
     return 0
 

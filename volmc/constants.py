@@ -316,3 +316,13 @@ HASH_M1 = _frac_u32(math.sqrt(43.0), odd=True)
 PERM_M0 = _frac_u32(math.sqrt(47.0), odd=True)
 PERM_M1 = _frac_u32(math.sqrt(53.0), odd=True)
 PERM_M2 = _frac_u32(math.sqrt(59.0), odd=True)
+
+# --- Segment recording (reference/medium.py: record_segment; volmc/bench/segments.py) --------
+
+#: Floats per row of a pixel's segment record: o(3), d(3), t0, t1, kind, the layout of the
+#: estimator runners' rays; row 0 holds the count and the capacity instead.
+RECORD_COLUMNS = 9
+#: Kinds of a recorded segment: the primary ray's clipped segment ...
+RECORD_CAMERA = 0
+#: ... or a shadow ray's, as shadow_transmittance hands it to the estimator.
+RECORD_SHADOW = 1

@@ -8,7 +8,9 @@ the work into batches gives the same image.
 
 import abc
 
-from ..constants import RR_MAX_SURVIVAL
+import numpy as np
+
+from ..constants import RECORD_COLUMNS, RR_MAX_SURVIVAL
 
 #: Backend names, in the order tests and benchmarks use them: the production kernels first.
 BACKENDS = ("opencl", "numba")
@@ -36,16 +38,31 @@ class RenderBackend(abc.ABC):
         """Counters summed over pixels since the backend was made: int64 [N_COUNTERS]
         (volmc.params.COUNTER_NAMES)."""
 
+    @abc.abstractmethod
+    def segment_record(self):
+        """The transmittance segments recorded since the backend was made, float64
+        [n_pix, K + 1, RECORD_COLUMNS] (reference/medium.py, ``record_segment``), for a
+        backend made with ``record=K`` > 0; None otherwise."""
 
-def make_backend(name, scene, device=None):
+
+def new_segment_record(n_pix, capacity, real):
+    """A zeroed segment record [n_pix, capacity + 1, RECORD_COLUMNS] of type ``real`` with
+    each pixel's capacity in row 0, column 1 (the count, column 0, starts at 0)."""
+    rec = np.zeros((n_pix, capacity + 1, RECORD_COLUMNS), real)
+    rec[:, 0, 1] = capacity
+    return rec
+
+
+def make_backend(name, scene, device=None, record=0):
     """A render backend by name: "opencl" on ``device`` (None: the default device), or
-    "numba"."""
+    "numba"; ``record`` > 0 records up to that many transmittance segments per pixel
+    (``segment_record``)."""
     if name == "numba":
         from .numba import NumbaBackend
-        return NumbaBackend(scene)
+        return NumbaBackend(scene, record=record)
     if name == "opencl":
         from .opencl import OpenCLBackend
-        return OpenCLBackend(scene, device=device)
+        return OpenCLBackend(scene, device=device, record=record)
     raise ValueError(f"unknown backend {name!r} (available: {', '.join(BACKENDS)})")
 
 

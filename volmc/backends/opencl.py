@@ -8,7 +8,7 @@ from ..pack import pack_scene
 from ..params import N_COUNTERS
 from ..scene.features import define_flags, features
 from ..techniques import ESTIMATORS
-from .base import RenderBackend, techniques
+from .base import RenderBackend, new_segment_record, techniques
 
 #: Work-group size of the render kernel (None lets the driver choose). On PoCL, 1 is about
 #: 1.2x faster than the driver default for these divergent loops (`volmc bench workgroup`).
@@ -21,14 +21,18 @@ class OpenCLBackend(RenderBackend):
     name = "opencl"
 
     def __init__(self, scene, device=None, feature_set=None, local_size=DEFAULT_LOCAL_SIZE,
-                 options=()):
+                 options=(), record=0):
         """feature_set: the FEATURE_X switches to compile in (default: what the scene needs);
-        options: more compiler options; local_size: the work-group size (None: driver's)."""
+        options: more compiler options; local_size: the work-group size (None: driver's);
+        record: transmittance segments to record per pixel (0: none; > 0 adds the RECORD
+        switch to the build)."""
         self.scene = scene
         self.clc = cl_context(device)
         self.device = self.clc.device
         needed = features(scene)
         self.features = needed if feature_set is None else frozenset(feature_set)
+        if record > 0:
+            self.features = self.features | {"RECORD"}
         if not needed <= self.features:
             raise ValueError(f"a build without {', '.join(sorted(needed - self.features))} "
                              "cannot render this scene")
@@ -39,12 +43,12 @@ class OpenCLBackend(RenderBackend):
                            if est.kernel != est.shadow_kernel else [])
                         + list(est.build_options) + list(options))
         self.local_size = local_size
+        w, h = scene.camera.resolution
         if pk.grid.size >= 2**31 or pk.emis.size >= 2**31:
             raise ValueError(f"grid of {max(pk.grid.size, pk.emis.size)} voxels exceeds the "
                              "kernels' 2^31 limit for dense grids (use render.grid_storage = "
                              "\"bricks\")")
         self.params, self.medium = pk.params, pk.medium
-        w, h = scene.camera.resolution
         self.n_pix = w * h
         clc = self.clc
         self.lights_buf = clc.to_device(pk.lights)
@@ -56,6 +60,11 @@ class OpenCLBackend(RenderBackend):
         self.bricks_buf = clc.to_device(pk.bricks)
         self.pool_buf = clc.to_device(pk.pool)
         self.nodes_buf = clc.to_device(pk.nodes)
+        self.record = record
+        # Without recording the kernel gets capacity 0 and a 1-float dummy it never indexes.
+        self.rec_host = (new_segment_record(w * h, record, np.float32) if record > 0
+                         else np.zeros(1, np.float32))
+        self.rec_buf = clc.to_device(self.rec_host, writable=True)
         # Batch outputs: per-pixel mean and sum of squared deviations (Welford).
         self.mean_host, self.mean_buf = clc.output((h, w, 3))
         self.m2_host, self.m2_buf = clc.output((h, w, 3))
@@ -73,7 +82,8 @@ class OpenCLBackend(RenderBackend):
         self.clc.run(self.kernel, self.n_pix, self.local_size, self.params[0], self.medium[0],
                      self.lights_buf, self.grid_buf, self.maj_buf, self.mnr_buf,
                      self.emis_buf, self.table_buf, self.bricks_buf, self.pool_buf,
-                     self.nodes_buf, np.uint32(sample_start), np.uint32(n_samples),
+                     self.nodes_buf, self.rec_buf, np.int32(self.record),
+                     np.uint32(sample_start), np.uint32(n_samples),
                      self.mean_buf, self.m2_buf, self.cnt_buf, outs=[(self.mean_host, self.mean_buf),
                                          (self.m2_host, self.m2_buf)])
         mean = self.mean_host.astype(np.float64)
@@ -83,3 +93,9 @@ class OpenCLBackend(RenderBackend):
     def counter_totals(self):
         self.clc.read(self.counters, self.cnt_buf)
         return self.counters.sum(axis=0).astype(np.int64)
+
+    def segment_record(self):
+        if self.record <= 0:
+            return None
+        self.clc.read(self.rec_host, self.rec_buf)
+        return self.rec_host.astype(np.float64)

@@ -75,7 +75,8 @@ def _camera_segments(params, medium, grid, maj, mnr, emis, table, bricks, pool, 
     """(majorant segments, camera rays through the medium box) over every pixel centre's
     primary ray: the segments majorant_next yields (empty ones are skipped, as in tracking)."""
     prm = params[0]
-    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes)
+    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes,
+                     np.zeros((1, 9)))
     m = medium[0]
     bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
     bmax = (m.bmax[0], m.bmax[1], m.bmax[2])

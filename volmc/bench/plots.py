@@ -17,7 +17,6 @@ def heatmaps(report, path):
     """Per estimator: log10 of 1/(MSE x lookups) over target T x majorant tightness,
     geometric mean over the 1-D profiles (zero-error cases shown at the colour maximum). MSE,
     not variance, so the biased ray marcher is charged for its bias."""
-    plt = _plt()
     from ..techniques import ESTIMATORS
     names = [n for n in report["estimators"] if not ESTIMATORS[n].homogeneous_only]
     Ts = sorted({r["target_T"] for r in report["profiles"]})
@@ -37,22 +36,35 @@ def heatmaps(report, path):
         grids[n] = acc / np.maximum(cnt, 1)
     vmin = min(g.min() for g in grids.values())
     vmax = min(max(g.max() for g in grids.values()), vmin + 8)
-    cols = 4
-    rows = -(-len(names) // cols)
-    fig, axs = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.3 * rows), squeeze=False,
-                            constrained_layout=True)
-    for ax, n in zip(axs.ravel(), names):
-        im = ax.imshow(grids[n], origin="lower", vmin=vmin, vmax=vmax, cmap="viridis",
-                       aspect="auto")
+
+    def axes(ax):
         ax.set_xticks(range(len(Ts)), [f"{t:g}" for t in Ts], fontsize=7)
         ax.set_yticks(range(len(ks)), [f"{k:g}" for k in ks], fontsize=7)
-        ax.set_title(n + ("" if report["unbiased"][n] else " (biased)"), fontsize=9)
         ax.set_xlabel("target transmittance", fontsize=8)
         ax.set_ylabel("mean mu / majorant", fontsize=8)
+    _estimator_panels(report, grids, (vmin, vmax), axes, "log10 1 / (MSE x lookups)",
+                      "Efficiency over the 1-D profile sweep (geometric mean over 5 profiles)",
+                      path, (3.6, 3.3))
+
+
+def _estimator_panels(report, grids, limits, axes, colour_label, title, path, size):
+    """One image panel per estimator ({name: 2-D array}) on a shared colour scale
+    ``limits``, four to a row; ``axes(ax)`` labels each panel's axes."""
+    plt = _plt()
+    names = list(grids)
+    cols = 4
+    rows = -(-len(names) // cols)
+    fig, axs = plt.subplots(rows, cols, figsize=(size[0] * cols, size[1] * rows),
+                            squeeze=False, constrained_layout=True)
+    for ax, n in zip(axs.ravel(), names):
+        im = ax.imshow(grids[n], origin="lower", vmin=limits[0], vmax=limits[1],
+                       cmap="viridis", aspect="auto")
+        axes(ax)
+        ax.set_title(n + ("" if report["unbiased"][n] else " (biased)"), fontsize=9)
     for ax in axs.ravel()[len(names):]:
         ax.axis("off")
-    fig.colorbar(im, ax=axs.ravel().tolist(), label="log10 1 / (MSE x lookups)")
-    fig.suptitle("Efficiency over the 1-D profile sweep (geometric mean over 5 profiles)")
+    fig.colorbar(im, ax=axs.ravel().tolist(), label=colour_label)
+    fig.suptitle(title)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -68,8 +80,12 @@ def convergence_plots(report, path_cost, path_time):
             (path_cost, "lookups", "variance", -1.0, "density lookups per estimate",
              "variance of the mean"),
             (path_time, "seconds", "rmse", -0.5, "OpenCL time per estimate (s)", "RMSE")):
-        fig, axs = plt.subplots(1, len(rows), figsize=(5 * len(rows), 4), squeeze=False)
-        for ax, row in zip(axs[0], rows):
+        cols = min(3, len(rows))
+        n_rows = -(-len(rows) // cols)
+        fig, axs = plt.subplots(n_rows, cols, figsize=(5 * cols, 4 * n_rows), squeeze=False)
+        for ax in axs.ravel()[len(rows):]:
+            ax.axis("off")
+        for ax, row in zip(axs.ravel(), rows):
             for n, r in row["results"].items():
                 pts = [c for c in r["convergence"] if c[ykey] == c[ykey] and c[ykey] > 0]
                 if not pts:
@@ -163,3 +179,111 @@ def variance_sampler_plot(full, path):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _map_grid(maps, value):
+    """[n_tightness, n_tau_bar] array of value(bin) (NaN where the bin was not measured)."""
+    nt = len(maps["tau_bar_edges"]) - 1
+    nk = len(maps["tightness_edges"]) - 1
+    out = np.full((nk, nt), np.nan)
+    for b in maps["bins"]:
+        v = value(b)
+        if v is not None:
+            out[b["j"], b["i"]] = v
+    return out
+
+
+def _map_axes(ax, maps):
+    te, ke = maps["tau_bar_edges"], maps["tightness_edges"]
+    ax.set_xticks(np.arange(len(te)) - 0.5, [f"{t:.2g}" for t in te], fontsize=6)
+    ax.set_yticks(np.arange(len(ke)) - 0.5, [f"{k:.1f}" for k in ke], fontsize=6)
+    ax.set_xlabel("majorant optical depth sigma_maj L", fontsize=8)
+    ax.set_ylabel("tightness tau / (sigma_maj L)", fontsize=8)
+
+
+def segment_maps(report, path):
+    """Per estimator: its 1/(MSE x time) relative to the best unbiased estimator's in each
+    bin of (majorant optical depth, tightness) of the replayed majorant segments
+    (segment_maps.py), log10: 0 where it wins, -1 at a tenth. Relative, because a bin's
+    absolute efficiency scales with 1/T^2 and would swamp the comparison. Blank bins hold
+    too few segments."""
+    from ..techniques import ESTIMATORS
+    maps = report["maps"]
+    names = [n for n in report["estimators"] if not ESTIMATORS[n].homogeneous_only]
+
+    def best(b):
+        e = [r["eff_mse_time"] for n, r in b["results"].items() if report["unbiased"][n]]
+        return max(e) if e else None
+
+    def rel(n):
+        def f(b):
+            r, top = b["results"].get(n), best(b)
+            if r is None or top is None or not top > 0:
+                return None
+            if top == math.inf:
+                return 0.0 if r["eff_mse_time"] == math.inf else -3.0
+            return math.log10(max(r["eff_mse_time"], 1e-300) / top)
+        return f
+    grids = {n: _map_grid(maps, rel(n)) for n in names}
+    _estimator_panels(report, grids, (-3.0, 1.0), lambda ax: _map_axes(ax, maps),
+                      "log10 of 1 / (MSE x time) over the best unbiased estimator's",
+                      "Efficiency over the majorant segments of replayed render segments, "
+                      "relative to each bin's winner", path, (3.8, 3.1))
+
+
+def winner_map(report, path):
+    """The most efficient unbiased estimator per bin of (majorant optical depth, tightness),
+    by 1/(variance x lookups) and by 1/(MSE x time). When the renderer has the "auto" rule,
+    each bin is labelled with the rule's majority choice over the bin's segments, and a last
+    panel shows the rule's regions over (majorant optical depth, sigma_min / sigma_maj)."""
+    plt = _plt()
+    from matplotlib.colors import ListedColormap
+    maps = report["maps"]
+    names = sorted({b[k] for b in maps["bins"] for k in ("winner_var_lookups",
+                                                          "winner_mse_time") if b.get(k)})
+    regions = maps.get("auto_regions")
+    if regions:
+        names = sorted(set(names) | {c for row in regions["choice"] for c in row})
+    if not names:
+        return
+    cmap = ListedColormap(plt.get_cmap("tab10").colors[:len(names)])
+    panels = [("winner_var_lookups", "by 1 / (variance x lookups)"),
+              ("winner_mse_time", "by 1 / (MSE x time)")]
+    n_ax = len(panels) + (1 if regions else 0)
+    fig, axs = plt.subplots(1, n_ax, figsize=(5.2 * n_ax, 4.2), squeeze=False)
+    for ax, (key, title) in zip(axs[0], panels):
+        g = _map_grid(maps, lambda b: names.index(b[key]) if b.get(key) else None)
+        ax.imshow(g, origin="lower", cmap=cmap, vmin=-0.5, vmax=len(names) - 0.5,
+                  aspect="auto")
+        _map_axes(ax, maps)
+        ax.set_title(f"most efficient unbiased estimator {title}", fontsize=8)
+        for b in maps["bins"]:
+            label = f"n={b['n_segments']}" if b["results"] else ""
+            if b.get("auto"):
+                label = _short(b["auto"]) + ("\n" + label if label else "")
+            if label:
+                ax.text(b["i"], b["j"], label, ha="center", va="center", fontsize=5.5)
+    if regions:
+        ax = axs[0][-1]
+        g = np.array([[names.index(c) for c in row] for row in regions["choice"]], float)
+        t, q = regions["tau_bar"], regions["bound_ratio"]
+        ax.pcolormesh(t, q, g, cmap=cmap, vmin=-0.5, vmax=len(names) - 0.5, shading="nearest")
+        ax.set_xscale("log")
+        ax.set_xlabel("majorant optical depth sigma_maj L", fontsize=8)
+        ax.set_ylabel("sigma_min / sigma_maj", fontsize=8)
+        ax.set_title(f"the auto rule's choice (L = {regions['length']:.3g})", fontsize=8)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=cmap(k)) for k in range(len(names))]
+    fig.legend(handles, [f"{n} ({_short(n)})" for n in names], loc="lower center",
+               ncol=len(names), fontsize=7)
+    note = ("\nletters: the auto rule's majority choice per bin on shadow rays of scattering "
+            "paths (a lone transmittance: unbiased ray marching)" if maps.get("auto") else "")
+    fig.suptitle("Winner over the majorant segments of replayed render segments" + note,
+                 fontsize=9)
+    fig.tight_layout(rect=(0, 0.07, 1, 0.95))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _short(name):
+    """A two-letter label of an estimator for the map cells."""
+    return "".join(w[0] for w in name.split("_")).upper() if "_" in name else name[:2].upper()

@@ -1,15 +1,19 @@
-"""`volmc bench transmittance`: every estimator on analytic profiles and on grid rays, speed
-against error.
+"""`volmc bench transmittance`: every estimator on analytic profiles and on the segments a
+real render traces, speed against error, and maps of which estimator wins where.
 
 Cases:
 * 1-D profiles (constant, linear ramp, Gaussian bump, Gaussian hole, cosine) on [0, 1], scaled
   to a target transmittance T (0.01 ... 0.99) and given a majorant at a target tightness
   (mean extinction / majorant, 0.05 ... 1; capped at the profile's own mean / max). The
   control mu_c is the profile's minimum. Truth: the closed-form optical depth.
-* Rays through shipped grid scenes: camera rays (random pixels, clipped to the box) and shadow
-  rays from points inside the medium towards each light (random directions for the
-  environment). Majorant: the global one; control: scale * min(grid). Truth: the exact optical
-  depth (piecewise Gauss-Legendre, float64).
+* Recorded segments of grid scenes (segments.py): a small render of each scene records the
+  camera segments and the shadow segments it hands to its transmittance estimator, and a
+  fixed-seed subset of each kind is replayed with every estimator on the scene's own
+  majorant structure (the majorant grid by default), as the render has it. Truth: the exact
+  optical depth (piecewise Gauss-Legendre, float64) along each float32 segment, in the
+  packed frame. A chromatic scene is measured on its largest channel (the grey runner).
+* Maps (segment_maps.py): the replayed segments split into their majorant segments, binned
+  over (majorant optical depth, tightness), every estimator run on each bin's pieces.
 
 Statistics come from the OpenCL backend (the production path) and times are OpenCL wall
 times per estimate. Per estimator and case: mean, standard error, bias z-score against the
@@ -23,17 +27,28 @@ import math
 import time
 
 import numpy as np
+from numba import njit
 
 from ..constants import (DENSITY_CONSTANT, DENSITY_COSINE, DENSITY_GAUSS_BUMP,
                          DENSITY_GAUSS_HOLE, DENSITY_RAMP)
 from ..reference import medium as X
 from ..techniques import ESTIMATORS
-from ..reference.integrator import ray_box
 from ..reference.optical_depth import optical_depth_exact
+from . import segment_maps
+from .segments import majorant_name, record_segments, with_resolution
 from .transmittance_runner import OpenCLEstimator
+
+#: The recorded render of each grid scene: resolution (--quick: the smaller one), samples
+#: per pixel and segments kept per pixel (the first ones of the pixel's paths).
+RECORD_RESOLUTION = (64, 64)
+QUICK_RESOLUTION = (16, 16)
+RECORD_SPP = 1
+RECORD_PER_PIXEL = 16
 
 TARGET_T = (0.01, 0.1, 0.3, 0.6, 0.9, 0.99)
 TIGHTNESS = (0.05, 0.1, 0.25, 0.5, 0.75, 1.0)
+#: Identical timed launches per case; the fastest counts.
+TIME_REPEATS = 3
 #: Lookup budget of the equal-cost variance column.
 BUDGET = 100.0
 
@@ -64,80 +79,35 @@ def profile_case(shape, target_T, tightness):
     return med, mbar, lo, exact, mean / mbar
 
 
-def grid_rays(scene, n_camera, n_shadow, seed=0):
-    """Camera and shadow rays through a grid scene: (label, rays [n, 9], exact T [n])."""
-    from ..pack import camera_basis
-    from ..scene.schema import DirectionalLight, PointLight
+def replay_cases(rec, n, seed=3):
+    """Random subsets (fixed ``seed``) of at most ``n`` camera and ``n`` shadow segments of a
+    ``segments.Recording``: [(label, rays [k, 9] rounded to float32 as the kernels see them,
+    exact transmittance [k] along exactly those rays, in the packed frame)]."""
     rng = np.random.default_rng(seed)
-    grid = scene.grid.astype(np.float64)
-    lo = np.array(scene.medium.bounds[0])
-    hi = np.array(scene.medium.bounds[1])
-    scale = max(scene.medium.scale)   # grey: the benchmark's media have one channel
-    cam = scene.camera
-    f, r, u = camera_basis(cam)
-    w, h = cam.resolution
-    half = math.tan(math.radians(cam.fov) / 2) if cam.type == "perspective" else cam.size / 2
     out = []
+    for label, segs in (("camera segments", rec.camera), ("shadow segments", rec.shadow)):
+        idx = np.sort(rng.choice(len(segs), size=min(n, len(segs)), replace=False))
+        rays = segs[idx].astype(np.float32).astype(np.float64)
+        out.append((label, rays, np.exp(-optical_depths(rec, rays))))
+    return out
 
-    def clip(o, d):
-        t0, t1 = ray_box(tuple(o), tuple(d), tuple(lo), tuple(hi))
-        t0 = max(t0, 0.0)
-        return (t0, t1) if t1 > t0 else None
 
-    cams = []
-    while len(cams) < n_camera:
-        sx = (2 * rng.random() - 1) * half * w / h
-        sy = (2 * rng.random() - 1) * half
-        if cam.type == "perspective":
-            o = np.array(cam.eye)
-            d = np.array(f) + sx * np.array(r) + sy * np.array(u)
-            d /= np.linalg.norm(d)
-        else:
-            o = np.array(cam.eye) + sx * np.array(r) + sy * np.array(u)
-            d = np.array(f)
-        seg = clip(o, d)
-        if seg is not None:
-            cams.append((o, d, *seg))
-    out.append(("camera rays", cams))
-    # Shadow-ray origins: voxel centres drawn in proportion to density, jittered in the voxel.
-    p = grid.ravel() / grid.sum()
-    idx = rng.choice(grid.size, size=n_shadow, p=p)
-    zz, yy, xx = np.unravel_index(idx, grid.shape)
-    vox = (hi - lo) / np.array([grid.shape[2], grid.shape[1], grid.shape[0]])
-    pts = lo + (np.stack([xx, yy, zz], 1) + rng.random((n_shadow, 3))) * vox
-    lights = [lt for lt in scene.lights]
-    shadows = []
-    for i, pt in enumerate(pts):
-        lt = lights[i % len(lights)] if lights else None
-        if isinstance(lt, DirectionalLight):
-            d = -np.array(lt.direction)
-            tmax = np.inf
-        elif isinstance(lt, PointLight):
-            v = np.array(lt.position) - pt
-            tmax = np.linalg.norm(v)
-            d = v / tmax
-        else:
-            d = rng.normal(size=3)
-            d /= np.linalg.norm(d)
-            tmax = np.inf
-        seg = clip(pt, d)
-        if seg is not None and min(seg[1], tmax) > seg[0]:
-            shadows.append((pt, d, seg[0], min(seg[1], tmax)))
-    out.append(("shadow rays", shadows))
-    result = []
-    for label, items in out:
-        rays = np.zeros((len(items), 9))
-        exact = np.zeros(len(items))
-        for k, (o, d, t0, t1) in enumerate(items):
-            rays[k, :3], rays[k, 3:6], rays[k, 6], rays[k, 7] = o, d, t0, t1
-            # The kernels see float32 rays: take the truth along exactly those rays.
-            r32 = rays[k].astype(np.float32).astype(np.float64)
-            rays[k] = r32
-            exact[k] = math.exp(-optical_depth_exact(grid, tuple(lo), tuple(hi), scale,
-                                                     tuple(r32[:3]), tuple(r32[3:6]),
-                                                     r32[6], r32[7]))
-        result.append((label, rays, exact))
-    return result
+def optical_depths(rec, rays):
+    """Exact optical depth along each ray [k, 9] over its [t0, t1] through the recording's
+    grid (packed frame and extinction scale)."""
+    m = rec.medium[0]
+    return _optical_depths(np.asarray(rec.grid, np.float64), tuple(m["bmin"]),
+                           tuple(m["bmax"]), float(m["scale"]), rays)
+
+
+@njit(cache=True)
+def _optical_depths(grid, bmin, bmax, scale, rays):
+    out = np.empty(rays.shape[0])
+    for i in range(rays.shape[0]):
+        r = rays[i]
+        out[i] = optical_depth_exact(grid, bmin, bmax, scale, (r[0], r[1], r[2]),
+                                     (r[3], r[4], r[5]), r[6], r[7])
+    return out
 
 
 def stats(est, exact, counters, seconds, n_per_ray):
@@ -175,16 +145,30 @@ def stats(est, exact, counters, seconds, n_per_ray):
     }
 
 
-def _timed(runner, med, grid, rays, bounds, n_per_ray, seed):
-    runner.run(med, grid, rays[:1], bounds[:1], 1, seed)  # first launch compiles for the size
-    t = time.perf_counter()
-    est, cnt = runner.run(med, grid, rays, bounds, n_per_ray, seed)
-    return est, cnt, time.perf_counter() - t
+def timed_launch(runner, med, grid, rays, bounds, n_per_ray, seed,
+                 structure=(None, None, None)):
+    """A launch's (estimates, counters, seconds), after an untimed launch of one estimate
+    (the first launch compiles for the size). ``structure``: (maj, mnr, nodes) of the
+    medium's own majorant structure, or Nones for ``bounds``. The time is the fastest of
+    TIME_REPEATS identical launches: other work on the machine only ever adds time."""
+    maj, mnr, nodes = structure
+    runner.run(med, grid, rays[:1], None if bounds is None else bounds[:1], 1, seed, 0, maj,
+               mnr, nodes)
+    best = math.inf
+    for _ in range(TIME_REPEATS):
+        t = time.perf_counter()
+        est, cnt = runner.run(med, grid, rays, bounds, n_per_ray, seed, 0, maj, mnr, nodes)
+        best = min(best, time.perf_counter() - t)
+    return est, cnt, best
 
 
-def run(names=None, scenes=(), n_per_case=2048, n_rays=512, n_per_ray=32, quick=False,
-        log=print, device=None):
-    """Run the benchmark; returns the JSON-able report."""
+def run(names=None, scenes=(), n_per_case=2048, n_rays=1024, n_per_ray=64, quick=False,
+        log=print, device=None, resolution=None, per_pixel=RECORD_PER_PIXEL):
+    """Run the benchmark; returns the JSON-able report. ``scenes``: grid scenes whose render
+    is recorded at their own camera.resolution or at ``resolution`` (width, height) if given
+    (the CLI sets RECORD_RESOLUTION, or QUICK_RESOLUTION with --quick, by -D), keeping
+    ``per_pixel`` segments per pixel; ``n_rays`` camera and ``n_rays`` shadow segments (a
+    quarter with ``quick``) are replayed with ``n_per_ray`` estimates each."""
     names = list(names or ESTIMATORS)
     targets = TARGET_T if not quick else (0.1, 0.6)
     tights = TIGHTNESS if not quick else (0.25, 1.0)
@@ -204,35 +188,54 @@ def run(names=None, scenes=(), n_per_case=2048, n_rays=512, n_per_ray=32, quick=
                         continue  # analytic needs a homogeneous segment
                     mu = float(med["density"])  # homogeneous_only: the constant profile
                     bnd = bounds if not ESTIMATORS[n].homogeneous_only else np.array([[mu, mu]])
-                    est, cnt, sec = _timed(runners[n], med, np.zeros((1, 1, 1)), ray, bnd,
-                                           n_per_case, 17)
+                    est, cnt, sec = timed_launch(runners[n], med, np.zeros((1, 1, 1)), ray,
+                                                 bnd, n_per_case, 17)
                     row["results"][n] = stats(est, [exact], cnt, sec, n_per_case)
                 report["profiles"].append(row)
         log(f"  profiles: {shape} done")
+    replays = []
     for scene in scenes:
-        grid = scene.grid
-        lo, hi = scene.medium.bounds
-        nz, ny, nx = grid.shape
-        scale = max(scene.medium.scale)   # grey: the largest channel
-        med = X.make_grid_medium(lo, hi, scale, (nx, ny, nz))
-        mbar = scale * float(grid.max())
-        mu_c = scale * float(grid.min())
-        n_cam = n_rays if not quick else n_rays // 4
-        for label, rays, exact in grid_rays(scene, n_cam, n_cam, seed=3):
-            bounds = np.tile([mbar, mu_c], (len(rays), 1))
+        if resolution:
+            scene = with_resolution(scene, resolution)
+        res = scene.camera.resolution
+        rec = record_segments(scene, "opencl", spp=RECORD_SPP, per_pixel=per_pixel,
+                              device=device, seed=0)
+        grey = "" if not scene.medium.chromatic else " (chromatic: the largest channel)"
+        log(f"  {scene.file}: recorded {len(rec.camera)} camera and {len(rec.shadow)} shadow "
+            f"segments at {res[0]}x{res[1]}, {majorant_name(rec)}{grey}")
+        n = n_rays if not quick else n_rays // 4
+        cases = replay_cases(rec, n, seed=3)
+        replays.append((rec, np.concatenate([c[1] for c in cases])))
+        for label, rays, exact in cases:
+            pieces = segment_maps.majorant_pieces(
+                rec.medium, np.asarray(rec.grid, np.float64), np.asarray(rec.maj, np.float64),
+                np.asarray(rec.mnr, np.float64), rec.nodes, rays)
             row = {"scene": scene.file, "rays": label, "n_rays": len(rays),
+                   "majorant": majorant_name(rec), "extinction": "grey" if not grey else
+                   "largest channel", "resolution": list(res),
+                   "recorded": {"camera": len(rec.camera), "shadow": len(rec.shadow),
+                                "pixels_full": rec.full},
                    "mean_exact_T": float(exact.mean()),
-                   "mean_majorant_depth": float(mbar * np.mean(rays[:, 7] - rays[:, 6])),
+                   "mean_majorant_depth": float(np.sum(pieces[:, 3] * (pieces[:, 2] -
+                                                                       pieces[:, 1]))
+                                                / max(len(rays), 1)),
+                   "mean_majorant_segments": len(pieces) / max(len(rays), 1),
                    "results": {}}
-            for n in names:
-                if ESTIMATORS[n].homogeneous_only:
+            for n_ in names:
+                if ESTIMATORS[n_].homogeneous_only:
                     continue
-                est, cnt, sec = _timed(runners[n], med, grid, rays, bounds, n_per_ray, 29)
-                row["results"][n] = stats(est, exact, cnt, sec, n_per_ray)
-                row["results"][n]["convergence"] = convergence(est, exact, cnt[:, 0], sec,
-                                                               n_per_ray)
+                est, cnt, sec = timed_launch(runners[n_], rec.medium, rec.grid, rays, None,
+                                             n_per_ray, 29,
+                                             structure=(rec.maj, rec.mnr, rec.nodes))
+                row["results"][n_] = stats(est, exact, cnt, sec, n_per_ray)
+                row["results"][n_]["convergence"] = convergence(est, exact, cnt[:, 0], sec,
+                                                                n_per_ray)
             report["grids"].append(row)
             log(f"  {scene.file}: {label} done")
+    if replays:
+        report["maps"] = segment_maps.measure(
+            runners, replays, log=log,
+            min_segments=segment_maps.MIN_SEGMENTS // (4 if quick else 1))
     report["summary"] = summarise(report)
     return report
 
@@ -279,9 +282,10 @@ def print_report(report, log=print):
     hdr = (f"{'estimator':>17s} {'mean':>8s} {'bias z':>7s} {'variance':>10s} {'lookups':>8s} "
            f"{'us/est':>7s} {'1/(V*L)':>10s} {'1/(MSE*t)':>10s} {'V@100lk':>10s}")
     for row in report["grids"]:
-        log(f"\n{row['scene']}: {row['rays']} ({row['n_rays']} rays, mean T "
-            f"{row['mean_exact_T']:.3f}, mean majorant optical depth "
-            f"{row['mean_majorant_depth']:.1f})")
+        log(f"\n{row['scene']}: {row['rays']} ({row['n_rays']} replayed, {row['majorant']}, "
+            f"{row['extinction']}; mean T {row['mean_exact_T']:.3f}, mean majorant optical "
+            f"depth {row['mean_majorant_depth']:.1f} over "
+            f"{row['mean_majorant_segments']:.1f} majorant segments)")
         log(hdr)
         for n, r in row["results"].items():
             tag = "" if report["unbiased"][n] else "  (biased)"
@@ -295,6 +299,16 @@ def print_report(report, log=print):
     for n, s in report["summary"].items():
         g = s["geomean_eff_var_lookups"]
         log(f"{n:>17s} {('%.3e' % g) if g else '     n/a':>10s}  best in {s['wins']}")
+    if report.get("maps"):
+        maps = report["maps"]
+        wins = segment_maps.win_counts(maps)
+        log(f"\nmaps over (majorant optical depth, tightness): {maps['n_pieces']} majorant "
+            f"segments, {maps['n_homogeneous']} homogeneous left out; bins won by each "
+            f"unbiased estimator")
+        for key, label in (("winner_var_lookups", "1/(V*L)"), ("winner_mse_time",
+                                                               "1/(MSE*t)")):
+            log(f"  by {label}: " + ", ".join(f"{n} {c}" for n, c in
+                                              sorted(wins[key].items(), key=lambda x: -x[1])))
     totals = guard_totals(report)
     log("\nguard counters over every case (0 on a correct run): " + "; ".join(
         f"{n}: capped {t['capped']}, over majorant {t['over_majorant']}, non-finite "
@@ -304,7 +318,7 @@ def print_report(report, log=print):
 def guard_totals(report):
     """{estimator: summed guard counts} over the profile and grid cases."""
     out = {}
-    for row in report["profiles"] + report["grids"]:
+    for row in report["profiles"] + report["grids"] + report.get("maps", {}).get("bins", []):
         for n, r in row["results"].items():
             t = out.setdefault(n, {"capped": 0, "over_majorant": 0, "non_finite": 0})
             for k in t:

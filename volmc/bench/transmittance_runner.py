@@ -5,8 +5,11 @@ Both runners take the same arguments: ``med``, a medium record (volmc/reference/
 per ray; ``grid``, the density grid (any 1x1x1 array for profiles); ``rays`` [r, 9] (o, d,
 t0, t1, pad); ``bounds`` [r, 2], each ray's extinction majorant and minorant (the medium's
 global majorant is set to them); ``n_per_ray`` estimates per ray; the seed and the first
-sample index. They return (estimates float64 [r * n_per_ray], counters int64
-[r * n_per_ray, N_COUNTERS]); estimate i uses ray i // n_per_ray and sample index
+sample index. Given ``maj`` and ``mnr`` (the density maxima and minima of the medium's
+majorant grid, or of its octree with ``nodes``, as pack.py builds them), the records keep
+their own majorant kind and fields and ``bounds`` is ignored (may be None): the estimators
+then walk the majorant structure a render walks. They return (estimates float64
+[r * n_per_ray], counters int64 [r * n_per_ray, N_COUNTERS]); estimate i uses ray i // n_per_ray and sample index
 sample_offset + i % n_per_ray on STREAM_TEST, on both backends alike. A runner made with
 ``chromatic=True`` returns RGB estimates [r * n_per_ray, 3] (media with colour-dependent
 extinction, ``chroma`` < 1; the OpenCL build then has FEATURE_CHROMATIC); otherwise the
@@ -24,21 +27,32 @@ from ..techniques import ESTIMATORS
 
 MAX_STEPS = 1_000_000
 _NO_MAJORANT_GRID = np.zeros((1, 1, 1))
+_NO_NODES = np.zeros(1, np.int32)
 
 
 def ray_media(med, grid, rays, bounds, real):
     """One medium record per ray (``real`` precision) with the ray's bounds as its global
-    majorant and minorant, and the grid's dimensions."""
+    majorant and minorant (``bounds`` None: the record's own majorant structure is kept),
+    and the grid's dimensions."""
     med = np.atleast_1d(np.asarray(med))
     media = np.zeros(len(rays), medium_dtype(real))
     for name in media.dtype.names:
         media[name] = med[name] if len(med) > 1 else med[name][0]
-    b = np.asarray(bounds, np.float64).reshape(len(rays), 2)
-    media["sigma_maj"], media["sigma_min"] = b[:, 0], b[:, 1]
-    media["majorant_kind"] = MAJORANT_GLOBAL
+    if bounds is not None:
+        b = np.asarray(bounds, np.float64).reshape(len(rays), 2)
+        media["sigma_maj"], media["sigma_min"] = b[:, 0], b[:, 1]
+        media["majorant_kind"] = MAJORANT_GLOBAL
     nz, ny, nx = np.shape(grid)
     media["dims"] = (nx, ny, nz)
     return media
+
+
+def _structure(maj, mnr, nodes, real):
+    """(maj, mnr, nodes) arrays for a launch: the given structure, or placeholders."""
+    if maj is None:
+        return _NO_MAJORANT_GRID.astype(real), _NO_MAJORANT_GRID.astype(real), _NO_NODES
+    return (np.ascontiguousarray(maj, real), np.ascontiguousarray(mnr, real),
+            np.ascontiguousarray(_NO_NODES if nodes is None else nodes, np.int32))
 
 
 class NumbaEstimator:
@@ -51,12 +65,13 @@ class NumbaEstimator:
         self.chromatic = chromatic
         self.id = self.est.shadow_estimator_id if shadow else self.est.id
 
-    def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0):
-        media = ray_media(med, grid, rays, bounds, np.float64)
+    def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
+            mnr=None, nodes=None):
+        media = ray_media(med, grid, rays, None if maj is not None else bounds, np.float64)
+        maj, mnr, nodes = _structure(maj, mnr, nodes, np.float64)
         out, cnt = E.estimate_batch(self.id, media, np.asarray(grid, np.float64),
-                                    _NO_MAJORANT_GRID, _NO_MAJORANT_GRID,
-                                    np.asarray(rays, np.float64), n_per_ray, np.uint64(seed),
-                                    sample_offset, MAX_STEPS)
+                                    maj, mnr, nodes, np.asarray(rays, np.float64), n_per_ray,
+                                    np.uint64(seed), sample_offset, MAX_STEPS)
         return (out if self.chromatic else out[:, 0].copy()), cnt
 
 
@@ -78,15 +93,17 @@ class OpenCLEstimator:
         self.program, _ = self.clc.program("estimators.cl", opts)
         self.kernel = self.clc.kernel(self.program, "estimate_batch")
 
-    def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0):
+    def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
+            mnr=None, nodes=None):
         clc = self.clc
-        media = ray_media(med, grid, rays, bounds, np.float32)
+        media = ray_media(med, grid, rays, None if maj is not None else bounds, np.float32)
+        maj, mnr, nodes = _structure(maj, mnr, nodes, np.float32)
         n = len(rays) * n_per_ray
         out, ob = clc.output((n, 3) if self.chromatic else n, np.float32)
         cnt, cb = clc.output((n, N_COUNTERS), np.uint64)
-        none = clc.to_device(_NO_MAJORANT_GRID, np.float32)
         clc.run(self.kernel, n, 1, clc.to_device(media), clc.to_device(grid, np.float32),
-                none, none, clc.to_device(rays, np.float32), np.int32(n_per_ray),
+                clc.to_device(maj), clc.to_device(mnr), clc.to_device(nodes),
+                clc.to_device(rays, np.float32), np.int32(n_per_ray),
                 np.uint64(seed), np.uint32(sample_offset), np.int32(MAX_STEPS), ob, cb,
                 outs=[(out, ob), (cnt, cb)])
         return out.astype(np.float64), cnt.astype(np.int64)
@@ -99,7 +116,7 @@ def estimator(backend, name, device=None, chromatic=False, shadow=False):
 
 
 def run_numba(name, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0,
-              chromatic=False):
+              chromatic=False, maj=None, mnr=None, nodes=None):
     """``NumbaEstimator(name, chromatic=chromatic).run(...)``."""
     return NumbaEstimator(name, chromatic=chromatic).run(med, grid, rays, bounds, n_per_ray,
-                                                         seed, sample_offset)
+                                                         seed, sample_offset, maj, mnr, nodes)

@@ -283,21 +283,22 @@ def transmittance(est, med, o, d, t0, t1, rng, counters, max_steps):
 
 
 @njit(cache=True, parallel=True)
-def estimate_batch(est, media, grid, maj, mnr, rays, n_per_ray, seed, sample_offset,
+def estimate_batch(est, media, grid, maj, mnr, nodes, rays, n_per_ray, seed, sample_offset,
                    max_steps):
     """n_per_ray estimates of estimator ``est`` for each ray (rows of ``rays``: o(3), d(3),
-    t0, t1, pad), ray r through medium record media[r] (its majorant and grids shared).
+    t0, t1, pad), ray r through medium record media[r] (its majorant grid or octree -- maj,
+    mnr, nodes -- and density grid shared).
     Estimate i uses ray i // n_per_ray and sample index sample_offset + i % n_per_ray on
     STREAM_TEST, like kernels/estimators.cl. Returns (estimates [n, 3], RGB, counters
     [n, N_COUNTERS])."""
     n = rays.shape[0] * n_per_ray
     out = np.empty((n, 3))
     counters = np.zeros((n, N_COUNTERS), np.int64)
-    emis, table, bricks, pool, nodes = no_field_arrays()
+    emis, table, bricks, pool, _, rec = no_field_arrays()
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, sample_offset + i % n_per_ray, STREAM_TEST)
-        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes)
+        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes, rec)
         o = (rays[r, 0], rays[r, 1], rays[r, 2])
         d = (rays[r, 3], rays[r, 4], rays[r, 5])
         T = transmittance(est, med, o, d, rays[r, 6], rays[r, 7], rng, counters[i],

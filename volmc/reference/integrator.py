@@ -54,7 +54,8 @@ import numpy as np
 from numba import njit, prange
 
 from ..constants import (CAMERA_ORTHOGRAPHIC, DENSITY_CONSTANT, EMISSION_NONE, EVENT_CAPPED,
-                         EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, RR_ALBEDO,
+                         EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, RECORD_CAMERA,
+                         RECORD_SHADOW, RR_ALBEDO,
                          RR_MAX_SURVIVAL, SAMPLER_BOUNCES, SAMPLER_EQUIANGULAR,
                          SAMPLER_FIRST_BOUNCE, SAMPLER_FLIGHT, SAMPLER_INDEPENDENT,
                          SAMPLER_LIGHT, SAMPLER_PAIR_CHANNEL, SAMPLER_PAIR_PIXEL,
@@ -65,7 +66,7 @@ from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
 from .estimators import transmittance
 from .free_flight import free_flight
 from .guards import sample_ok
-from .medium import MediumData, extinction, medium_chroma
+from .medium import MediumData, extinction, medium_chroma, record_segment
 from .phase import phase_eval, phase_sample
 from .tracking import mis_weights
 from .rng import RNG_STATE_SIZE, rng_drop_preset, rng_init, rng_next, rng_preset
@@ -172,6 +173,7 @@ def shadow_transmittance(prm, med, o, d, t_max, view, rng_s, counters):
     t1 = min(t1, t_max - shift)
     if t1 <= t0:
         return (1.0, 1.0, 1.0)
+    record_segment(med, o, d, t0, t1, RECORD_SHADOW)
     counters[C_SHADOW] += 1
     return transmittance(prm.view_estimator if view else prm.shadow_estimator, med, o, d, t0,
                          t1, rng_s, counters, prm.max_steps)
@@ -426,6 +428,8 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:
+            if depth == 0:
+                record_segment(med, o, d, t0, t1, RECORD_CAMERA)
             if ea != EQUIANGULAR_OFF and (prm.max_depth < 0 or depth < prm.max_depth):
                 beta_w = mul3(beta, mis_weights(R)) if hero >= 0 else beta
                 L = add3(L, mul3(beta_w, sample_equiangular_lights(
@@ -480,11 +484,12 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
 
 
 @njit(cache=True)
-def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, pix,
-                 sample_start, n_samples, film_sum, film_sq, counters):
-    """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film."""
+def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rec,
+                 pix, sample_start, n_samples, film_sum, film_sq, counters):
+    """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film;
+    ``rec``: the pixel's segment record [K + 1, 9] or the [1, 9] placeholder."""
     prm = params[0]
-    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes)
+    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes, rec)
     py = pix // prm.width
     px = pix - py * prm.width
     seed = (np.uint64(prm.seed_hi) << np.uint64(32)) | np.uint64(prm.seed_lo)
@@ -519,7 +524,7 @@ def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
 
 
 @njit(cache=True, parallel=True)
-def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes,
+def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rec,
                  sample_start, n_samples, film_sum, film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of every pixel to the film.
 
@@ -532,7 +537,9 @@ def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     2x3 placeholders without emission); bricks, pool: a brick grid's index table int32
     [bz, by, bx] and pool [n_slots, 8, 8, 8] (placeholders unless the density is bricks);
     nodes: an octree's int32 first-child indices [n_nodes] (reference/octree.py; a
-    placeholder without one);
+    placeholder without one); rec: the segment record [n_pix, K + 1, 9] (record_segment in
+    medium.py; row 0 of each pixel holds its count and the capacity K), or a [1, 1, 9]
+    placeholder when not recording;
     film_sum, film_sq:
     float64 [height, width, 3] running sums of sample values and of their squares;
     counters: int64 [height * width, N_COUNTERS], accumulated in place.
@@ -540,8 +547,9 @@ def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     """
     n_pix = film_sum.shape[0] * film_sum.shape[1]
     for pix in prange(n_pix):
-        render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, pix,
-                     sample_start, n_samples, film_sum, film_sq, counters)
+        rp = rec[pix] if rec.shape[1] > 1 else rec[0]
+        render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rp,
+                     pix, sample_start, n_samples, film_sum, film_sq, counters)
 
 
 def new_counters(width, height):

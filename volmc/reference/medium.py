@@ -2,7 +2,7 @@
 
 Twin of ``kernels/medium.h``. A medium is a record (``params.MEDIUM_FIELDS``, a numpy
 structured record) plus the arrays it points to, carried together as ``MediumData``
-(m, grid, maj, mnr); the kernels' ``MediumData`` struct holds the same four things.
+(m, grid, maj, mnr, ..., rec); the kernels' ``MediumData`` struct holds the same things.
 
 * **Density sources** (``m.density_kind``): ``DENSITY_CONSTANT`` (``m.density`` everywhere:
   a homogeneous medium), ``DENSITY_GRID`` (trilinear in ``grid``, see grid.py),
@@ -66,9 +66,11 @@ from .vec import madd3
 #: per-cell density maxima and minima [cz, cy, cx] (an octree's: per node, [1, 1, n_nodes]),
 #: the emission field grid [nz, ny, nx], the blackbody table [BLACKBODY_TABLE_SIZE, 3], a
 #: brick grid's index table int32 [bz, by, bx] and pool [n_slots, 8, 8, 8], and an octree's
-#: first-child indices int32 [n_nodes] (octree.py) (small placeholders when unused).
+#: first-child indices int32 [n_nodes] (octree.py) (small placeholders when unused), and
+#: the record of the transmittance segments this pixel's samples query, [K + 1, 9]
+#: (``record_segment``; a [1, 9] placeholder when not recording).
 MediumData = namedtuple("MediumData", ["m", "grid", "maj", "mnr", "emis", "table", "bricks",
-                                       "pool", "nodes"])
+                                       "pool", "nodes", "rec"])
 
 #: Iterator state: [done, t0, t1, unused] then the DDA's or the octree walk's state.
 ITER_STATE_SIZE = 4 + max(DDA_STATE_SIZE, OCTREE_STATE_SIZE)
@@ -215,15 +217,36 @@ def segment_degenerate(L, mbar, counters, max_steps, min_steps):
     return False
 
 
+@njit(cache=True, inline="always")
+def record_segment(med, o, d, t0, t1, kind):
+    """Append the transmittance segment (o, d, t0, t1) of kind ``kind`` (RECORD_CAMERA,
+    RECORD_SHADOW) to the pixel's record ``med.rec`` [K + 1, 9]: row 0 holds the count so far
+    (column 0) and the capacity K (column 1, set by the host); rows 1..K hold o(3), d(3), t0,
+    t1, kind, the layout of the estimator runners' rays. A full record or the [1, 9]
+    placeholder records nothing. No random number is drawn, so a recording render is the
+    same render."""
+    rec = med.rec
+    if rec.shape[0] <= 1:
+        return
+    n = int(rec[0, 0])
+    if n >= rec[0, 1]:
+        return
+    row = rec[n + 1]
+    row[0], row[1], row[2] = o[0], o[1], o[2]
+    row[3], row[4], row[5] = d[0], d[1], d[2]
+    row[6], row[7], row[8] = t0, t1, kind
+    rec[0, 0] = n + 1
+
+
 # --- Host-side constructors and closed forms (tests and the estimator benchmark) ------------
 
 @njit(cache=True)
 def no_field_arrays():
-    """(emis, table, bricks, pool, nodes): placeholders of the emission grid, blackbody
-    table, brick arrays and octree nodes for a medium that does not emit, has no brick grid
-    and no octree (tests, benchmarks)."""
+    """(emis, table, bricks, pool, nodes, rec): placeholders of the emission grid, blackbody
+    table, brick arrays, octree nodes and segment record for a medium that does not emit,
+    has no brick grid and no octree, and records nothing (tests, benchmarks)."""
     return (np.zeros((1, 1, 1)), np.zeros((2, 3)), np.zeros((1, 1, 1), np.int32),
-            np.zeros((1, 8, 8, 8)), np.zeros(1, np.int32))
+            np.zeros((1, 8, 8, 8)), np.zeros(1, np.int32), np.zeros((1, 9)))
 
 
 def medium_data(m, grid, maj, mnr):

@@ -351,12 +351,12 @@ def track_batch(technique, use_control, media, grid, maj, mnr, rays, n_per_ray, 
     t_out = np.empty(n)
     T_out = np.empty((n, 3))
     lookups = np.empty(n, np.int64)
-    emis, table, bricks, pool, nodes = no_field_arrays()
+    emis, table, bricks, pool, nodes, rec = no_field_arrays()
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, i % n_per_ray, STREAM_TEST)
         counters = np.zeros(N_COUNTERS, np.int64)
-        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes)
+        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes, rec)
         ev, t, T, _ = track(med, (rays[r, 0], rays[r, 1], rays[r, 2]),
                             (rays[r, 3], rays[r, 4], rays[r, 5]), rays[r, 6], rays[r, 7],
                             technique, use_control, ONE3, -1, rng, counters, max_steps)

@@ -35,6 +35,14 @@ TEST_FEATURES = {
 }
 
 
+#: Instrumentation no scene needs: off in every render build unless a tool asks for it
+#: (``OpenCLBackend(record=K)``), so a normal render compiles none of it.
+TOOL_FEATURES = {
+    "RECORD": "recording of the transmittance segments a render queries (med.rec; "
+              "volmc/bench/segments.py)",
+}
+
+
 def features(scene) -> frozenset:
     """The set of feature names (keys of FEATURES) a loaded Scene needs."""
     m, r = scene.medium, scene.render
@@ -54,7 +62,7 @@ def define_flags(feature_set) -> list:
     """Compiler options ``-DFEATURE_X=1`` for the features in the set and ``=0`` for the
     others, in a stable order (a kernel built without options has every feature on)."""
     return [f"-DFEATURE_{name}={int(name in feature_set)}"
-            for name in sorted(FEATURES) + sorted(TEST_FEATURES)]
+            for name in sorted(FEATURES) + sorted(TEST_FEATURES) + sorted(TOOL_FEATURES)]
 
 
 def features_header() -> str:
@@ -62,7 +70,7 @@ def features_header() -> str:
     unless the build defines it, so kernels test plain constants and need no #ifdef."""
     out = ["/* Generated from volmc/scene/features.py: do not edit. */",
            "#ifndef VOLMC_FEATURES_H", "#define VOLMC_FEATURES_H"]
-    for name, meaning in {**FEATURES, **TEST_FEATURES}.items():
+    for name, meaning in {**FEATURES, **TEST_FEATURES, **TOOL_FEATURES}.items():
         out += [f"/* {meaning} */", f"#ifndef FEATURE_{name}", f"#define FEATURE_{name} 1",
                 "#endif"]
     return "\n".join(out + ["#endif", ""])
