@@ -7,7 +7,7 @@
  * specialise` shows to pay are kept (README, "Specialisation"); a build with every one on
  * renders any scene. SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance);
  * VIEW_ESTIMATOR, defined only where it differs ("auto"), the one for camera rays that cannot
- * scatter, whose transmittance is the whole estimate.
+ * scatter, whose transmittance is the sample.
  * params.h (generated from volmc/params.py and volmc/constants.py) defines the records and
  * constants. */
 

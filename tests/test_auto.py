@@ -160,17 +160,17 @@ def test_render_equals_ratio_tracking(backend):
 
 
 @pytest.mark.parametrize("backend", ["numba", "opencl"])
-def test_view_rays_use_the_alone_variant(backend):
+def test_view_rays_use_residual_ratio_tracking(backend):
     """A render that cannot scatter (albedo 0: each pixel is the environment times the
-    camera ray's transmittance) runs auto's estimator for lone transmittances, not the
-    shadow-ray mix: it matches the closed form, and its lookups are unbiased ray
-    marching's."""
+    camera ray's transmittance) runs auto's estimator for camera rays, residual ratio
+    tracking, not the shadow-ray mix: the same image bit for bit, and lookups differing from
+    the mix's."""
     from volmc.render import render
     keys = ["medium.density.resolution=16", "camera.resolution=[6, 6]", "render.spp=64",
             "medium.albedo=0"]
     a = render(load_scene(default_scene(), keys + ["render.transmittance=auto"]),
                progress=False, backend=backend)
-    b = render(load_scene(default_scene(), keys + ["render.transmittance=unbiased_raymarch"]),
+    b = render(load_scene(default_scene(), keys + ["render.transmittance=residual_ratio"]),
                progress=False, backend=backend)
     c = render(load_scene(default_scene(), keys + ["render.transmittance=track_length"]),
                progress=False, backend=backend)

@@ -156,10 +156,10 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["rr"] = RR_ALBEDO if rnd.rr == "albedo" else RR_THROUGHPUT
     est = ESTIMATORS[rnd.transmittance]
     p["shadow_estimator"] = est.shadow_estimator_id
-    p["view_estimator"] = est.id
+    p["view_estimator"] = est.view_estimator_id
     p["decomposition"] = int(scene.grid is not None and rnd.majorant in ("grid", "octree")
                              and rnd.free_flight == "decomposition")
-    p["signed_samples"] = int(est.signed and scene.grid is not None)
+    p["signed_samples"] = int(est.signed_in_renders and scene.grid is not None)
     seed = rnd.seed if spp_seed is None else spp_seed
     p["seed_lo"] = seed & 0xFFFFFFFF
     p["seed_hi"] = seed >> 32

@@ -29,9 +29,12 @@ class Estimator:
     extinction is constant, so it is no choice for grids; chromatic: estimates RGB
     transmittance (colour-dependent extinction); build_options: extra kernel build
     options the function needs; summary: one line for help texts and tables;
-    shadow_function, shadow_id: the twins that run instead on the shadow rays of scattering
-    paths, where the transmittance is one factor of a noisy path rather than the whole
-    estimate (only "auto" has them; by default the same as function and id).
+    shadow_function, shadow_id: the twins a render runs instead on the shadow rays of
+    scattering paths, where the transmittance is one factor of a noisy path; view_function,
+    view_id: those it runs on the camera rays of a scene that cannot scatter, where the
+    transmittance is the sample but a pixel's rays still differ. Only "auto" has them (by
+    default both are function and id): ``function`` is then its choice for a transmittance
+    on a fixed ray, where the estimate's own variance is all the error.
     """
     name: str
     id: int
@@ -44,6 +47,16 @@ class Estimator:
     summary: str = ""
     shadow_function: str = ""
     shadow_id: int = -1
+    view_function: str = ""
+    view_id: int = -1
+    #: whether a render's samples can be negative (None: ``signed``; "auto" renders with
+    #: tracking estimators, which never are)
+    render_signed: bool = None
+
+    @property
+    def signed_in_renders(self):
+        """True if a render with this estimator can produce negative samples."""
+        return self.signed if self.render_signed is None else self.render_signed
 
     @property
     def shadow_kernel(self):
@@ -54,6 +67,16 @@ class Estimator:
     def shadow_estimator_id(self):
         """The ESTIMATOR_* id of shadow rays in scattering paths."""
         return self.shadow_id if self.shadow_id >= 0 else self.id
+
+    @property
+    def view_kernel(self):
+        """The OpenCL function of camera rays in scenes that cannot scatter."""
+        return self.view_function or self.function
+
+    @property
+    def view_estimator_id(self):
+        """The ESTIMATOR_* id of camera rays in scenes that cannot scatter."""
+        return self.view_id if self.view_id >= 0 else self.id
 
     @property
     def reference(self):
@@ -102,9 +125,12 @@ _RECORDS = (
     Estimator("auto", C.ESTIMATOR_AUTO, "transmittance_auto", True, signed=True,
               chromatic=True, build_options=("-DVOLMC_POWER_SERIES", "-DVOLMC_DEBIASING"),
               summary="chosen from measurements: on shadow rays residual ratio tracking per "
-                      "thin segment and track length per thick one; where T is the whole "
-                      "estimate unbiased ray marching (grey) or telescoping (colour)",
-              shadow_function="transmittance_auto_shadow", shadow_id=C.ESTIMATOR_AUTO_SHADOW),
+                      "thin segment and track length per thick one; on camera rays that "
+                      "cannot scatter residual ratio tracking; on a fixed ray unbiased ray "
+                      "marching (grey) or telescoping (colour)",
+              shadow_function="transmittance_auto_shadow", shadow_id=C.ESTIMATOR_AUTO_SHADOW,
+              view_function="transmittance_residual_ratio",
+              view_id=C.ESTIMATOR_RESIDUAL_RATIO, render_signed=False),
 )
 
 #: name -> Estimator, in registry order.

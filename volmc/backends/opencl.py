@@ -39,8 +39,8 @@ class OpenCLBackend(RenderBackend):
         pk = pack_scene(scene, np.float32)
         est = ESTIMATORS[scene.render.transmittance]
         self.options = (define_flags(self.features) + [f"-DSHADOW_ESTIMATOR={est.shadow_kernel}"]
-                        + ([f"-DVIEW_ESTIMATOR={est.kernel}"]
-                           if est.kernel != est.shadow_kernel else [])
+                        + ([f"-DVIEW_ESTIMATOR={est.view_kernel}"]
+                           if est.view_kernel != est.shadow_kernel else [])
                         + list(est.build_options) + list(options))
         self.local_size = local_size
         w, h = scene.camera.resolution

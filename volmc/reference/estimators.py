@@ -192,12 +192,14 @@ def auto_alone_kind(med):
 
 @njit(cache=True)
 def transmittance_auto(med, o, d, t0, t1, rng, counters, max_steps):
-    """render.transmittance = "auto" where the transmittance is the whole estimate (the
-    transmittance benchmark, the camera rays of a render that cannot scatter): the most
-    efficient unbiased estimator of T alone by the benchmark's measurements -- unbiased ray
+    """render.transmittance = "auto" on a fixed ray, where the estimate's own variance is all
+    the error (the transmittance benchmark, tests, a transmittance asked for on its own): the
+    most efficient unbiased estimator there by the benchmark's measurements -- unbiased ray
     marching on every varying segment of a grey medium, telescoping in colour (exact on
-    homogeneous ones). Single estimates can be negative. Shadow rays inside scattering paths
-    use ``transmittance_auto_shadow``."""
+    homogeneous ones). Single estimates can be negative. A render runs cheaper estimators,
+    since its samples carry other noise (techniques.py: shadow rays of scattering paths
+    ``transmittance_auto_shadow``, camera rays that cannot scatter residual ratio
+    tracking)."""
     return transmittance_by_segments(med, o, d, t0, t1, auto_alone_kind(med), rng, counters,
                                      max_steps)
 

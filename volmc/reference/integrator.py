@@ -164,8 +164,8 @@ def shadow_transmittance(prm, med, o, d, t_max, view, rng_s, counters):
     """Transmittance (RGB) from o towards unit d up to distance t_max (inf for distant
     lights), by the estimator render.transmittance chose: prm.shadow_estimator for the
     shadow rays of scattering paths (view = 0), prm.view_estimator for camera rays that
-    cannot scatter (view = 1), whose transmittance is the whole estimate. They differ only
-    for "auto" (estimators.transmittance_auto and transmittance_auto_shadow)."""
+    cannot scatter (view = 1), whose transmittance is the sample. They differ only for
+    "auto" (techniques.py)."""
     m = med.m
     bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
     bmax = (m.bmax[0], m.bmax[1], m.bmax[2])

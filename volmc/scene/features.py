@@ -3,7 +3,9 @@ scene needs"). The reference decides the same things at run time from the record
 
 A switch stays only while `volmc bench specialise` shows it pays at least 3 % on some
 shipped scene (README, "Specialisation"): of the nine switches and six baked constants
-measured for issue 10, only MAJORANT_GRID did; MAJORANT_OCTREE is its sibling (issue 13). CHROMATIC and EMISSION measured neutral
+measured for issue 10, only MAJORANT_GRID did. MAJORANT_OCTREE (issue 13) pays 1.15x on the
+homogeneous scene and 1.12x on the roulette scene, whose loops would otherwise carry the
+octree walk (docs/bench_specialise_issue13.json). CHROMATIC and EMISSION measured neutral
 (0.98-1.015 on the cloud, homogeneous, sunset and plume scenes,
 docs/bench_specialise_issue11.json) but stay for what they guarantee rather than for speed:
 a grey scene runs exactly the scalar arithmetic it ran before colour existed (the same
