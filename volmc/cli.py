@@ -6,6 +6,7 @@ Ctrl-C during a render writes what was accumulated (marked partial) and exits 13
 """
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -30,6 +31,16 @@ def _positive_int(text):
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {v}")
+    return v
+
+
+def _nonnegative_seconds(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not (v >= 0.0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0, got {v}")
     return v
 
 
@@ -99,6 +110,15 @@ def build_parser():
     r.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
     r.add_argument("--stats", action="store_true",
                    help="print samples/s, path length, lookups and guard counters")
+    r.add_argument("--checkpoint", metavar="FILE",
+                   help="write the accumulated samples to FILE (atomically) every "
+                        "--checkpoint-every seconds and at the end")
+    r.add_argument("--checkpoint-every", type=_nonnegative_seconds, default=60.0,
+                   metavar="SECONDS", help="checkpoint interval in seconds (default 60)")
+    r.add_argument("--resume", metavar="FILE",
+                   help="continue the render saved in checkpoint FILE to the requested spp "
+                        "(it must be of the same scene, seed, sampler and backend); "
+                        "checkpoints go on to FILE unless --checkpoint says otherwise")
 
     k = sub.add_parser("check", help="render a scene with two backends and compare the images "
                                      "(per-pixel z-test)")
@@ -291,10 +311,17 @@ def cmd_render(args):
         w, h = scene.camera.resolution
         print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "
               f"backend {args.backend})", file=sys.stderr, flush=True)
+    checkpoint = args.checkpoint or args.resume
+    if checkpoint:
+        _check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
+    if args.resume:
+        from .checkpoint import load
+        load(args.resume, scene, args.backend)   # a wrong checkpoint fails before compiling
     from .backends import make_backend
     backend = make_backend(args.backend, scene, args.device)
     res = render(scene, backend=backend, progress=False if args.quiet else None,
-                 on_start=None if args.quiet else _announce_start)
+                 on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
+                 checkpoint_every=args.checkpoint_every, resume=args.resume)
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
     meta["scene_toml"] = to_toml(scene.spec)

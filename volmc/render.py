@@ -23,13 +23,18 @@ from .params import COUNTER_NAMES
 BATCH_SAMPLES = 1 << 16
 
 
-def batch_schedule(n_pixels, spp):
-    """Samples per pixel of each batch: 1, 2, 4, ... up to BATCH_SAMPLES / n_pixels."""
+def batch_schedule(n_pixels, spp, start=0):
+    """Samples per pixel of each batch: 1, 2, 4, ... up to BATCH_SAMPLES / n_pixels.
+
+    start: samples per pixel already done (a resumed render); the batches returned cover
+    [start, spp) and are the schedule's own batches from there on (the rest of the batch
+    ``start`` falls in first, when it is not at a batch boundary)."""
     cap = max(1, BATCH_SAMPLES // max(n_pixels, 1))
     out, size, done = [], 1, 0
     while done < spp:
         n = min(size, cap, spp - done)
-        out.append(n)
+        if done + n > start:
+            out.append(done + n - max(done, start))
         done += n
         size *= 2
     return out
@@ -107,27 +112,42 @@ class _StopFlag:
         return False
 
 
-def render(scene, backend="opencl", spp=None, progress=None, on_start=None):
+def render(scene, backend="opencl", spp=None, progress=None, on_start=None, checkpoint=None,
+           checkpoint_every=60.0, resume=None):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
     when stderr is a terminal). on_start: called once the backend is compiled and the
-    Ctrl-C handler is installed, just before the first batch.
+    Ctrl-C handler is installed, just before the first batch. checkpoint: a path to write
+    checkpoints to (checkpoint.py) between batches, every ``checkpoint_every`` seconds of
+    wall time and at the end (also when interrupted). resume: a checkpoint to continue from;
+    it must be of this scene, seed, sampler and backend (SceneError otherwise), and the
+    result equals an uninterrupted render bit for bit.
     """
     from tqdm import tqdm
+    from . import checkpoint as ckpt
     spp = scene.render.spp if spp is None else int(spp)
     be = make_backend(backend, scene) if isinstance(backend, str) else backend
-    be.warm_up()
     w, h = scene.camera.resolution
-    film = Film(w, h)
+    film, prior, elapsed = Film(w, h), dict.fromkeys(COUNTER_NAMES, 0), 0.0
+    if resume is not None:
+        film, prior, elapsed = ckpt.load(resume, scene, be.name)
+    ident = ckpt.identity(scene, be.name) if checkpoint is not None else None
+    be.warm_up()
     if progress is None:
         progress = sys.stderr.isatty()
-    bar = tqdm(total=spp, unit="spp", disable=not progress, leave=False, file=sys.stderr)
-    elapsed = 0.0
+    bar = tqdm(total=spp, initial=min(film.spp, spp), unit="spp", disable=not progress,
+               leave=False, file=sys.stderr)
+
+    def counters():
+        totals = be.counter_totals()
+        return {name: prior[name] + int(totals[i]) for i, name in enumerate(COUNTER_NAMES)}
+
+    last_save = time.monotonic()
     with _StopFlag() as flag:
         if on_start is not None:
             on_start()
-        for n in batch_schedule(w * h, spp):
+        for n in batch_schedule(w * h, spp, film.spp):
             if flag.stop:
                 break
             t = time.perf_counter()
@@ -135,11 +155,14 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None):
             elapsed += time.perf_counter() - t
             film.spp += n
             bar.update(n)
+            if checkpoint is not None and time.monotonic() - last_save >= checkpoint_every:
+                ckpt.save(checkpoint, film, counters(), elapsed, ident)
+                last_save = time.monotonic()
         stopped = flag.stop and film.spp < spp
     bar.close()
-    totals = be.counter_totals()
-    counters = {name: int(totals[i]) for i, name in enumerate(COUNTER_NAMES)}
-    return RenderResult(film, be.name, elapsed, stopped, counters, be.techniques, spp,
+    if checkpoint is not None:
+        ckpt.save(checkpoint, film, counters(), elapsed, ident)
+    return RenderResult(film, be.name, elapsed, stopped, counters(), be.techniques, spp,
                         scene.render.seed)
 
 

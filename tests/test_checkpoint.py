@@ -1,0 +1,132 @@
+"""Checkpoint and resume (volmc/checkpoint.py, render(checkpoint=..., resume=...), and the
+CLI's --checkpoint, --checkpoint-every and --resume): a resumed render equals an
+uninterrupted one bit for bit, also after SIGKILL, and a checkpoint of another render is
+refused with the one-line error and exit status 2."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from volmc.film import read_exr
+from volmc.render import batch_schedule, render
+from volmc.resources import default_scene
+from volmc.scene import load_scene
+from volmc.scene.errors import SceneError
+
+SMALL = ["medium.density.resolution=16", "camera.resolution=[12, 10]", "render.max_depth=4"]
+
+
+def _cli(args, cwd):
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(__file__)),
+                                         env.get("PYTHONPATH", "")])
+    return subprocess.Popen([sys.executable, "-m", "volmc.cli", *args], cwd=cwd, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _header(path):
+    with np.load(path) as z:
+        return json.loads(str(z["header"]))
+
+
+@pytest.mark.parametrize("n_pixels, spp", [(1, 1), (120, 8), (120, 1000), (70000, 5)])
+def test_schedule_from_any_start_continues_the_schedule(n_pixels, spp):
+    """From a batch boundary the schedule goes on with the full schedule's own batches; from
+    inside a batch it finishes that batch first; either way it covers [start, spp)."""
+    full = batch_schedule(n_pixels, spp)
+    ends = np.cumsum(full)
+    for k, start in enumerate([0] + list(ends)):
+        assert batch_schedule(n_pixels, spp, start) == full[k:]
+    for start in range(spp):
+        rest = batch_schedule(n_pixels, spp, start)
+        assert sum(rest) == spp - start and all(n > 0 for n in rest)
+        cut = int(np.searchsorted(ends, start, side="right"))
+        assert rest[1:] == full[cut + 1:]
+
+
+@pytest.mark.parametrize("backend", ["numba", "opencl"])
+def test_resumed_render_equals_uninterrupted(backend, tmp_path):
+    """A render of 3 spp checkpointed, then resumed to 8, gives the 8-spp render's image
+    and squared sums bit for bit, and its counters; so does resuming a checkpoint that
+    stopped inside a batch of the longer schedule (2 spp), up to summation order."""
+    scene = load_scene(default_scene(), SMALL)
+    full = render(scene, backend=backend, spp=8, progress=False)
+    for done in (3, 2):
+        ck = tmp_path / f"ck{done}.npz"
+        render(scene, backend=backend, spp=done, progress=False, checkpoint=str(ck))
+        assert _header(ck)["spp"] == done
+        res = render(scene, backend=backend, spp=8, progress=False, resume=str(ck))
+        assert res.film.spp == 8
+        if done == 3:   # a batch boundary of the 8-spp schedule (1, 2, 4, 1)
+            np.testing.assert_array_equal(res.film.sum, full.film.sum)
+            np.testing.assert_array_equal(res.film.sum_sq, full.film.sum_sq)
+        else:
+            np.testing.assert_allclose(res.film.sum, full.film.sum, rtol=1e-6, atol=1e-12)
+        assert res.counters == full.counters
+
+
+def test_checkpoint_of_another_render_is_refused(tmp_path):
+    """Another seed, sampler, backend, scene key or grid: SceneError naming the file and
+    --resume; more samples than the checkpoint's are fine."""
+    scene = load_scene(default_scene(), SMALL)
+    ck = tmp_path / "ck.npz"
+    render(scene, backend="opencl", spp=2, progress=False, checkpoint=str(ck))
+    for keys, backend, word in [(["render.seed=5"], "opencl", "seed"),
+                                (["render.sampler=sobol"], "opencl", "render.sampler"),
+                                ([], "numba", "backend"),
+                                (["medium.albedo=0.5"], "opencl", "different scene"),
+                                (["medium.density.seed=8"], "opencl", "grids")]:
+        other = load_scene(default_scene(), SMALL + keys)
+        with pytest.raises(SceneError) as e:
+            render(other, backend=backend, spp=4, progress=False, resume=str(ck))
+        assert str(e.value).startswith(f"{ck}: --resume: ") and word in str(e.value), e.value
+    more = load_scene(default_scene(), SMALL + ["render.spp=99"])
+    assert render(more, backend="opencl", spp=3, progress=False, resume=str(ck)).film.spp == 3
+    (tmp_path / "junk.npz").write_bytes(b"not a checkpoint")
+    with pytest.raises(SceneError, match="not a volmc checkpoint"):
+        render(scene, backend="opencl", spp=3, progress=False, resume=str(tmp_path / "junk.npz"))
+
+
+def test_sigkill_after_a_checkpoint_then_resume(tmp_path):
+    """volmc render --checkpoint killed by SIGKILL after its first checkpoints, then
+    --resume: the EXR equals an uninterrupted render's bit for bit. Resuming with another
+    seed or scene key fails with one line and exit status 2, before rendering."""
+    scene = str(default_scene())
+    common = [scene, "-D", "medium.density.resolution=32", "-D", "camera.resolution=[48, 40]",
+              "--spp", "6000", "--quiet"]
+    ck = tmp_path / "ck.npz"
+    p = _cli(["render", *common, "-o", "killed.exr", "--checkpoint", str(ck),
+              "--checkpoint-every", "0"], tmp_path)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 300:
+        if ck.exists() and _header(ck)["spp"] >= 64:
+            break
+        assert p.poll() is None, p.stderr.read()
+        time.sleep(0.02)
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    done = _header(ck)["spp"]
+    assert 64 <= done < 6000, done   # killed mid-render, after some checkpoints
+    assert not (tmp_path / "killed.exr").exists()
+    r = _cli(["render", *common, "-o", "resumed.exr", "--resume", str(ck)], tmp_path)
+    assert r.wait() == 0, r.stderr.read()
+    u = _cli(["render", *common, "-o", "whole.exr"], tmp_path)
+    assert u.wait() == 0, u.stderr.read()
+    a, meta = read_exr(tmp_path / "resumed.exr")
+    b, _ = read_exr(tmp_path / "whole.exr")
+    assert meta["spp"] == 6000
+    np.testing.assert_array_equal(a, b)
+    for extra, word in [(["--seed", "3"], "seed"), (["-D", "medium.albedo=0.5"], "scene")]:
+        bad = _cli(["render", *common, *extra, "-o", "bad.exr", "--resume", str(ck)], tmp_path)
+        err = bad.stderr.read()
+        assert bad.wait() == 2
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"volmc: error: {ck}: --resume: ")
+        assert word in lines[0] and "Traceback" not in err
+        assert not (tmp_path / "bad.exr").exists()

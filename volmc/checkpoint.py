@@ -1,0 +1,122 @@
+"""Checkpoints of a render in progress, and resuming from them.
+
+A checkpoint holds what a render has accumulated -- the film's per-pixel sums of sample
+values and of their squares, the samples per pixel done (the finished global sample range
+[0, spp) of every pixel), the counters and the rendering time so far -- and what it is a
+render *of*: the resolved scene (its TOML as ``serialize.to_toml`` writes it, so overrides
+count), a SHA-256 of each grid the scene holds (density and emission), the seed, the
+backend and the sampler. Resuming refuses, with the one-line error, a checkpoint of any
+other scene, grid, seed, backend or sampler, since its samples would not be the ones the
+requested render draws.
+
+Checkpoints are written only between batches, and batches follow the fixed schedule of
+``render.batch_schedule``, so a resumed render adds the same batches in the same order as
+an uninterrupted one: the image is the same bit for bit. Writes are atomic (a temporary
+file in the same directory, then ``os.replace``), so a render killed at any moment, even by
+SIGKILL, leaves the previous checkpoint intact and loses at most one interval of work.
+
+File format: a NumPy ``.npz`` archive (whatever the file's name) with arrays ``sum`` and
+``sum_sq`` (float64 [height, width, 3]), ``counters`` (int64 [N_COUNTERS], in
+``params.COUNTER_NAMES`` order) and ``header``, a JSON string: format version, spp done,
+seconds, and the identity above.
+"""
+
+import hashlib
+import json
+import os
+import tempfile
+
+import numpy as np
+
+from .film import Film
+from .params import COUNTER_NAMES
+from .scene.errors import SceneError
+
+#: Bumped when the layout changes; older files are refused with a message saying so.
+FORMAT_VERSION = 1
+
+#: What must match for a checkpoint to be resumed, with the words the error uses.
+IDENTITY = (("seed", "seed"), ("sampler", "render.sampler"), ("backend", "backend"),
+            ("grids", "grids"), ("scene_toml", "scene"))
+
+
+def grid_hashes(scene):
+    """{name: SHA-256 hex} of the density and emission grids the scene holds (exact bytes,
+    shape and dtype), so a grid file changed on disk is noticed."""
+    out = {}
+    for name, arr in (("density", scene.grid), ("emission", scene.emission_grid)):
+        if arr is not None:
+            a = np.ascontiguousarray(arr)
+            h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
+            h.update(memoryview(a).cast("B"))
+            out[name] = h.hexdigest()
+    return out
+
+
+def identity(scene, backend):
+    """The identity record of a render of ``scene`` on ``backend`` (a backend name). The
+    scene's render.spp is left out: a render may resume towards more samples."""
+    import dataclasses
+    from .scene.serialize import to_toml
+    spec = dataclasses.replace(scene.spec, render=dataclasses.replace(scene.spec.render, spp=1))
+    return {"scene_toml": to_toml(spec), "grids": grid_hashes(scene),
+            "seed": str(scene.render.seed), "backend": backend,
+            "sampler": scene.render.sampler}
+
+
+def save(path, film, counters, seconds, ident):
+    """Atomically write a checkpoint: ``film`` (its sums and spp), ``counters`` (dict by
+    COUNTER_NAMES), ``seconds`` of rendering so far and the identity record."""
+    header = {"format": FORMAT_VERSION, "spp": int(film.spp), "seconds": float(seconds),
+              "width": film.width, "height": film.height, **ident}
+    cnt = np.array([counters.get(n, 0) for n in COUNTER_NAMES], np.int64)
+    d = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".volmc-checkpoint-", dir=d)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, sum=film.sum, sum_sq=film.sum_sq, counters=cnt,
+                     header=np.array(json.dumps(header)))
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load(path, scene, backend):
+    """(film, counters dict, seconds) of the checkpoint at ``path``, after checking it is a
+    checkpoint of a render of ``scene`` on ``backend`` (a backend name). Anything else --
+    no such file, not a checkpoint, another format version, another scene, grid, seed,
+    backend or sampler, another resolution -- raises SceneError(path, "--resume", ...)."""
+    def bad(what):
+        return SceneError(path, "--resume", what)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            header = json.loads(str(z["header"]))
+            s, sq, cnt = z["sum"], z["sum_sq"], z["counters"]
+    except FileNotFoundError:
+        raise bad("no such checkpoint file") from None
+    except (OSError, ValueError, KeyError) as e:
+        raise bad(f"not a volmc checkpoint ({type(e).__name__})") from None
+    if header.get("format") != FORMAT_VERSION:
+        raise bad(f"checkpoint format {header.get('format')}, this volmc reads "
+                  f"{FORMAT_VERSION}")
+    want = identity(scene, backend)
+    for key, words in IDENTITY:
+        if header.get(key) != want[key]:
+            if key == "scene_toml":
+                raise bad("the checkpoint is of a different scene (its resolved TOML differs; "
+                          "compare with -D overrides and the scene file)")
+            raise bad(f"the checkpoint has {words} {header.get(key)!r}, this render "
+                      f"{want[key]!r}" if key != "grids" else
+                      "the checkpoint's grids differ from the scene's (a grid file changed)")
+    w, h = scene.camera.resolution
+    if s.shape != (h, w, 3) or sq.shape != (h, w, 3) or len(cnt) != len(COUNTER_NAMES):
+        raise bad("the checkpoint's arrays do not match the scene's resolution")
+    film = Film(w, h)
+    film.sum[...] = s
+    film.sum_sq[...] = sq
+    film.spp = int(header["spp"])
+    return film, dict(zip(COUNTER_NAMES, (int(x) for x in cnt))), float(header["seconds"])
