@@ -52,16 +52,18 @@ def test_schedule_from_any_start_continues_the_schedule(n_pixels, spp):
 
 @pytest.mark.parametrize("backend", ["numba", "opencl"])
 def test_resumed_render_equals_uninterrupted(backend, tmp_path):
-    """A render of 3 spp checkpointed, then resumed to 8, gives the 8-spp render's image
-    and squared sums bit for bit, and its counters; so does resuming a checkpoint that
-    stopped inside a batch of the longer schedule (2 spp), up to summation order."""
+    """With one batch per chunk: a render of 3 spp checkpointed, then resumed to 8, gives
+    the 8-spp render's sums bit for bit, and its counters; so does resuming a checkpoint
+    that stopped inside a batch of the longer schedule (2 spp), up to summation order."""
     scene = load_scene(default_scene(), SMALL)
-    full = render(scene, backend=backend, spp=8, progress=False)
+    full = render(scene, backend=backend, spp=8, progress=False, chunk_samples=1)
     for done in (3, 2):
         ck = tmp_path / f"ck{done}.npz"
-        render(scene, backend=backend, spp=done, progress=False, checkpoint=str(ck))
+        render(scene, backend=backend, spp=done, progress=False, checkpoint=str(ck),
+               chunk_samples=1)
         assert _header(ck)["spp"] == done
-        res = render(scene, backend=backend, spp=8, progress=False, resume=str(ck))
+        res = render(scene, backend=backend, spp=8, progress=False, resume=str(ck),
+                     chunk_samples=1)
         assert res.film.spp == 8
         if done == 3:   # a batch boundary of the 8-spp schedule (1, 2, 4, 1)
             np.testing.assert_array_equal(res.film.sum, full.film.sum)

@@ -110,6 +110,13 @@ def build_parser():
     r.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
     r.add_argument("--stats", action="store_true",
                    help="print samples/s, path length, lookups and guard counters")
+    where = r.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, metavar="N",
+                       help="render on a new local Dask cluster of N worker processes "
+                            "(needs volmc[dask])")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="render on the running Dask scheduler at ADDRESS, e.g. "
+                            "tcp://10.0.0.1:8786 (its workers need volmc installed)")
     r.add_argument("--checkpoint", metavar="FILE",
                    help="write the accumulated samples to FILE (atomically) every "
                         "--checkpoint-every seconds and at the end")
@@ -265,6 +272,22 @@ def _check_writable(path, flag):
         raise SceneError("command line", flag, f"directory is not writable: {d}")
 
 
+def _dask_client(args):
+    """(client, cluster) for --workers or --scheduler; a one-line error without dask or
+    when the scheduler cannot be reached."""
+    flag = "--workers" if args.workers else "--scheduler"
+    try:
+        from .distributed import make_client
+        import distributed  # noqa: F401
+    except ImportError:
+        raise SceneError("command line", flag, "needs Dask: pip install 'volmc[dask]'") from None
+    try:
+        return make_client(args.workers, args.scheduler)
+    except (OSError, TimeoutError, ValueError) as e:
+        raise SceneError("command line", flag, f"cannot reach the Dask scheduler "
+                                               f"{args.scheduler!r}: {e}") from None
+
+
 def _announce_start():
     # Printed once the backend is ready and Ctrl-C keeps the samples rendered so far.
     print("volmc: started (Ctrl-C stops after the current batch and writes the partial image)",
@@ -317,11 +340,23 @@ def cmd_render(args):
     if args.resume:
         from .checkpoint import load
         load(args.resume, scene, args.backend)   # a wrong checkpoint fails before compiling
-    from .backends import make_backend
-    backend = make_backend(args.backend, scene, args.device)
-    res = render(scene, backend=backend, progress=False if args.quiet else None,
-                 on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
-                 checkpoint_every=args.checkpoint_every, resume=args.resume)
+    client = cluster = None
+    if args.workers or args.scheduler:
+        client, cluster = _dask_client(args)
+        backend = args.backend
+    else:
+        from .backends import make_backend
+        backend = make_backend(args.backend, scene, args.device)
+    try:
+        res = render(scene, backend=backend, progress=False if args.quiet else None,
+                     on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
+                     checkpoint_every=args.checkpoint_every, resume=args.resume,
+                     client=client, device=args.device)
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
     meta["scene_toml"] = to_toml(scene.spec)

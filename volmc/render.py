@@ -2,9 +2,13 @@
 
 Samples are indexed globally (sample s of pixel p always uses the same random numbers).
 Batch sizes follow a fixed schedule that depends only on the image size (1, 2, 4, ...
-samples per pixel, up to about BATCH_SAMPLES samples per batch), never on timing, so the
-floating-point summation order, and therefore the image, is bit-for-bit reproducible. The
-progress bar moves and Ctrl-C is honoured between batches.
+samples per pixel, up to about BATCH_SAMPLES samples per batch), never on timing, and
+batches are grouped into chunks of about CHUNK_SAMPLES samples, each summed into an empty
+film and then added to the render's film. So the floating-point summation order, and
+therefore the image, is bit-for-bit reproducible, whether the chunks run here, on a Dask
+cluster (distributed.py) or after a resume from a checkpoint. The progress bar moves, and
+Ctrl-C and checkpoints act, between chunks (about half a second of work at the default
+scene's speed).
 """
 
 import signal
@@ -38,6 +42,33 @@ def batch_schedule(n_pixels, spp, start=0):
         done += n
         size *= 2
     return out
+
+#: Samples a chunk groups: the batches of a chunk are summed into an empty film and the
+#: chunk's sums are added to the render's film in one step, on one machine or on a cluster
+#: (where a chunk is one task), so both add the same numbers in the same order.
+CHUNK_SAMPLES = 1 << 19
+
+
+def chunk_schedule(n_pixels, spp, start=0, chunk_samples=CHUNK_SAMPLES):
+    """The batches of [start, spp) grouped into chunks: a list of chunks, each a list of
+    (sample_start, n_samples) batches of ``batch_schedule``. Chunks are formed from sample
+    0 on -- consecutive batches until they hold at least ``chunk_samples`` samples (pixels
+    x samples per pixel) -- so a render resumed at a chunk boundary meets the chunks of an
+    uninterrupted one; a chunk ``start`` falls inside is cut to begin there."""
+    chunks, cur, size, s = [], [], 0, 0
+    for n in batch_schedule(n_pixels, spp):
+        if s + n > start:
+            cur.append((max(s, start), s + n - max(s, start)))
+        s += n
+        size += n * n_pixels
+        if size >= chunk_samples:
+            if cur:
+                chunks.append(cur)
+            cur, size = [], 0
+    if cur:
+        chunks.append(cur)
+    return chunks
+
 
 @dataclass
 class RenderResult:
@@ -113,7 +144,8 @@ class _StopFlag:
 
 
 def render(scene, backend="opencl", spp=None, progress=None, on_start=None, checkpoint=None,
-           checkpoint_every=60.0, resume=None):
+           checkpoint_every=60.0, resume=None, client=None, device=None,
+           chunk_samples=CHUNK_SAMPLES):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
@@ -122,48 +154,98 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     checkpoints to (checkpoint.py) between batches, every ``checkpoint_every`` seconds of
     wall time and at the end (also when interrupted). resume: a checkpoint to continue from;
     it must be of this scene, seed, sampler and backend (SceneError otherwise), and the
-    result equals an uninterrupted render bit for bit.
+    result equals an uninterrupted render bit for bit. client: a dask.distributed Client;
+    the batches then run as tasks on its workers (distributed.py; ``backend`` must be a
+    name, ``device`` the OpenCL device there) and the image is the same bit for bit.
+    chunk_samples: the chunk size of ``chunk_schedule``; progress, Ctrl-C and checkpoints
+    act between chunks.
     """
     from tqdm import tqdm
     from . import checkpoint as ckpt
     spp = scene.render.spp if spp is None else int(spp)
-    be = make_backend(backend, scene) if isinstance(backend, str) else backend
+    name = backend if isinstance(backend, str) else backend.name
     w, h = scene.camera.resolution
     film, prior, elapsed = Film(w, h), dict.fromkeys(COUNTER_NAMES, 0), 0.0
     if resume is not None:
-        film, prior, elapsed = ckpt.load(resume, scene, be.name)
-    ident = ckpt.identity(scene, be.name) if checkpoint is not None else None
-    be.warm_up()
+        film, prior, elapsed = ckpt.load(resume, scene, name)
+    ident = ckpt.identity(scene, name) if checkpoint is not None else None
+    chunks = chunk_schedule(w * h, spp, film.spp, chunk_samples)
+    if client is not None:
+        from .distributed import ClusterChunks
+        runner = ClusterChunks(client, scene, name, device, film, chunks)
+    else:
+        be = make_backend(backend, scene, device) if isinstance(backend, str) else backend
+        runner = LocalChunks(be, film, chunks)
+    runner.warm_up()
     if progress is None:
         progress = sys.stderr.isatty()
     bar = tqdm(total=spp, initial=min(film.spp, spp), unit="spp", disable=not progress,
                leave=False, file=sys.stderr)
 
     def counters():
-        totals = be.counter_totals()
-        return {name: prior[name] + int(totals[i]) for i, name in enumerate(COUNTER_NAMES)}
+        totals = runner.counter_totals()
+        return {n: prior[n] + int(totals[i]) for i, n in enumerate(COUNTER_NAMES)}
 
     last_save = time.monotonic()
     with _StopFlag() as flag:
         if on_start is not None:
             on_start()
-        for n in batch_schedule(w * h, spp, film.spp):
-            if flag.stop:
-                break
-            t = time.perf_counter()
-            be.render(film.spp, n, film)
-            elapsed += time.perf_counter() - t
-            film.spp += n
-            bar.update(n)
-            if checkpoint is not None and time.monotonic() - last_save >= checkpoint_every:
-                ckpt.save(checkpoint, film, counters(), elapsed, ident)
-                last_save = time.monotonic()
+        t = time.perf_counter()
+        try:
+            for n in runner:   # each chunk is in the film when the runner yields
+                film.spp += n
+                bar.update(n)
+                if checkpoint is not None and time.monotonic() - last_save >= checkpoint_every:
+                    ckpt.save(checkpoint, film, counters(), elapsed + time.perf_counter() - t,
+                              ident)
+                    last_save = time.monotonic()
+                if flag.stop:
+                    break
+        finally:
+            runner.close()
+        elapsed += time.perf_counter() - t
         stopped = flag.stop and film.spp < spp
     bar.close()
     if checkpoint is not None:
         ckpt.save(checkpoint, film, counters(), elapsed, ident)
-    return RenderResult(film, be.name, elapsed, stopped, counters(), be.techniques, spp,
+    return RenderResult(film, runner.name, elapsed, stopped, counters(), runner.techniques, spp,
                         scene.render.seed)
+
+
+class LocalChunks:
+    """The chunks of a render run in this process: iterating renders each chunk's batches
+    into an empty film, adds that film's sums to the render's film and yields the chunk's
+    samples per pixel."""
+
+    def __init__(self, backend, film, chunks):
+        self.be, self.film, self.chunks = backend, film, chunks
+        self.name, self.techniques = backend.name, backend.techniques
+
+    def warm_up(self):
+        self.be.warm_up()
+
+    def __iter__(self):
+        for chunk in self.chunks:
+            part = render_chunk(self.be, self.film.width, self.film.height, chunk)
+            self.film.sum += part.sum
+            self.film.sum_sq += part.sum_sq
+            yield part.spp
+
+    def counter_totals(self):
+        return self.be.counter_totals()
+
+    def close(self):
+        pass
+
+
+def render_chunk(backend, width, height, chunk):
+    """A Film holding the batches (sample_start, n_samples) of ``chunk`` rendered by
+    ``backend`` in order into an empty film (what a cluster task returns too)."""
+    part = Film(width, height)
+    for start, n in chunk:
+        backend.render(start, n, part)
+        part.spp += n
+    return part
 
 
 def mean_and_stderr(result):

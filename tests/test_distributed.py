@@ -1,0 +1,124 @@
+"""Rendering on a Dask cluster (volmc/distributed.py, ``render(client=...)``, ``volmc render
+--workers`` and ``--scheduler``): a local cluster on loopback renders the single-process
+image bit for bit, also when a worker is killed mid-render, and the CLI does too."""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+distributed = pytest.importorskip("distributed")
+
+from volmc.film import read_exr   # noqa: E402
+from volmc.render import batch_schedule, chunk_schedule, render   # noqa: E402
+from volmc.resources import default_scene   # noqa: E402
+from volmc.scene import load_scene   # noqa: E402
+
+SMALL = ["medium.density.resolution=32", "camera.resolution=[64, 48]", "render.max_depth=8"]
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A scheduler and 2 single-threaded worker processes on loopback."""
+    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                 dashboard_address=None, host="127.0.0.1")
+    client = distributed.Client(c)
+    yield c, client
+    client.close()
+    c.close()
+
+
+def test_chunks_tile_the_schedule():
+    """Chunks cover the batches of [start, spp) in order and contiguously, each (but the
+    last) holding at least the chunk size, and a chunk boundary of the full schedule starts
+    the same chunks."""
+    for n_pix, spp, start in [(3072, 1000, 0), (3072, 1000, 7), (65536, 40, 0), (1, 5, 2)]:
+        full = chunk_schedule(n_pix, spp, 0, 200_000)
+        chunks = chunk_schedule(n_pix, spp, start, 200_000)
+        flat = [r for c in chunks for r in c]
+        assert [n for _, n in flat] == batch_schedule(n_pix, spp, start)
+        s = start
+        for a, n in flat:
+            assert a == s
+            s += n
+        assert s == spp
+        assert all(sum(n for _, n in c) * n_pix >= 200_000 for c in full[:-1])
+        ends = np.cumsum([sum(n for _, n in c) for c in full])
+        for k, e in enumerate(ends[:-1]):
+            assert chunk_schedule(n_pix, spp, int(e), 200_000) == full[k + 1:]
+
+
+def test_cluster_render_equals_single_process(cluster):
+    """The same seed and spp on 2 workers: the film's sums, the counters and the image are
+    the single-process render's, bit for bit."""
+    _, client = cluster
+    scene = load_scene(default_scene(), SMALL)
+    a = render(scene, backend="opencl", spp=300, progress=False)
+    b = render(scene, backend="opencl", spp=300, progress=False, client=client)
+    np.testing.assert_array_equal(a.film.sum, b.film.sum)
+    np.testing.assert_array_equal(a.film.sum_sq, b.film.sum_sq)
+    assert a.counters == b.counters and b.film.spp == 300
+
+
+def test_killed_worker_leaves_the_image_exact(cluster):
+    """A worker process killed by SIGKILL while the render runs: its tasks are run again on
+    a worker (the nanny restarts the process), and the image is still the single-process
+    one, with every sample counted once."""
+    _, client = cluster
+    scene = load_scene(default_scene(), SMALL)
+    spp = 1200
+    a = render(scene, backend="opencl", spp=spp, progress=False)
+    pids = client.run(os.getpid)
+    victim = sorted(pids.values())[0]
+    killed = threading.Event()
+
+    def kill_soon():
+        time.sleep(1.0)
+        os.kill(victim, signal.SIGKILL)
+        killed.set()
+
+    b = render(scene, backend="opencl", spp=spp, progress=False, client=client,
+               on_start=threading.Thread(target=kill_soon).start)
+    assert killed.is_set()
+    np.testing.assert_array_equal(a.film.sum, b.film.sum)
+    np.testing.assert_array_equal(a.film.sum_sq, b.film.sum_sq)
+    assert a.counters == b.counters and b.film.spp == spp
+    client.wait_for_workers(2, timeout=120)
+    assert victim not in client.run(os.getpid).values()   # it was killed and replaced
+
+
+def _cli(args, cwd):
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(__file__)),
+                                         env.get("PYTHONPATH", "")])
+    return subprocess.run([sys.executable, "-m", "volmc.cli", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=900)
+
+
+def test_cli_workers_and_scheduler(cluster, tmp_path):
+    """volmc render --workers 2 (a new local cluster) and --scheduler ADDRESS (the running
+    one) write the EXR of a single-process render, bit for bit; an unreachable scheduler is
+    a one-line error with exit status 2."""
+    c, _ = cluster
+    common = ["render", str(default_scene()), "--quiet", "--spp", "40"]
+    for d in SMALL:
+        common += ["-D", d]
+    runs = {"one.exr": [], "workers.exr": ["--workers", "2"],
+            "scheduler.exr": ["--scheduler", c.scheduler_address]}
+    for out, extra in runs.items():
+        r = _cli(common + ["-o", out] + extra, tmp_path)
+        assert r.returncode == 0, r.stderr
+    one, meta = read_exr(tmp_path / "one.exr")
+    for out in ("workers.exr", "scheduler.exr"):
+        img, m = read_exr(tmp_path / out)
+        np.testing.assert_array_equal(img, one)
+        assert m["backend"] == "opencl on dask" and m["spp"] == 40
+    r = _cli(common + ["-o", "x.exr", "--scheduler", "tcp://127.0.0.1:9"], tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert lines[0].startswith("volmc: error: command line: --scheduler: ")

@@ -1,0 +1,103 @@
+"""Rendering on a Dask cluster (``volmc render --workers N`` or ``--scheduler ADDRESS``).
+
+Dask (``dask[distributed]``, the optional extra ``volmc[dask]``) does the scheduling; volmc
+only cuts the work and merges it. A task is one chunk of the render (``render.chunk_schedule``:
+consecutive batches, ranges of the global sample index on which the counter RNG and the
+samplers are keyed, about CHUNK_SAMPLES samples). The worker renders the chunk into an empty
+film (``render.render_chunk``) and returns its sums of sample values and of their squares
+(float64; 48 bytes per pixel) with the counts it made. The host adds the chunks to its film
+in schedule order, exactly as a local render adds its own chunks, so the image is the local
+render's bit for bit.
+
+A task is keyed by its chunk, and the host takes each chunk's result once, in order: a
+task whose worker dies is run again by Dask (the scheduler reassigns the tasks of a lost
+worker; ``retries`` covers exceptions), and no range is counted twice or lost. Workers
+build the scene's backend once per render (cached by a token in the worker process) from
+the scene the host scatters to them.
+
+Progress, Ctrl-C (stop after the batch being merged; outstanding tasks are cancelled) and
+checkpoints work as for a local render (render.py).
+"""
+
+import uuid
+
+import numpy as np
+
+from .params import COUNTER_NAMES
+
+#: Backends built in this (worker) process: {token: backend} of the render in progress.
+_WORKER_BACKENDS = {}
+
+
+def render_task(scene, token, backend, device, chunk):
+    """Runs on a worker: ``render.render_chunk`` of ``chunk`` with the backend of render
+    ``token`` (built on first use in this process). Returns (sum, sum_sq) float64
+    [h, w, 3] of the chunk and the counts int64 [N_COUNTERS] it made."""
+    from .backends import make_backend
+    from .render import render_chunk
+    be = _WORKER_BACKENDS.get(token)
+    if be is None:
+        _WORKER_BACKENDS.clear()   # one render at a time per worker process
+        be = make_backend(backend, scene, device)
+        be.warm_up()
+        _WORKER_BACKENDS[token] = be
+    before = np.asarray(be.counter_totals(), np.int64).copy()
+    w, h = scene.camera.resolution
+    part = render_chunk(be, w, h, chunk)
+    return part.sum, part.sum_sq, np.asarray(be.counter_totals(), np.int64) - before
+
+
+class ClusterChunks:
+    """The chunks of a render run as tasks on a Dask client's workers; iterating adds each
+    chunk's sums to the film in schedule order and yields its samples per pixel (the
+    protocol of render.LocalChunks)."""
+
+    def __init__(self, client, scene, backend, device, film, chunks):
+        from .backends.base import techniques
+        self.client, self.scene, self.film = client, scene, film
+        self.backend, self.device = backend, device
+        self.name = f"{backend} on dask"
+        self.techniques = techniques(scene)
+        self.tasks = chunks
+        self.token = uuid.uuid4().hex
+        self.counts = np.zeros(len(COUNTER_NAMES), np.int64)
+        self.futures = []
+
+    def warm_up(self):
+        """Sends the scene to every worker and submits every task (workers build their
+        backends as their first task starts)."""
+        scene = self.client.scatter(self.scene, broadcast=True)
+        self.futures = [
+            self.client.submit(render_task, scene, self.token, self.backend, self.device, r,
+                               key=f"volmc-{self.token}-{i}", retries=3, pure=False)
+            for i, r in enumerate(self.tasks)]
+
+    def __iter__(self):
+        for fut, chunk in zip(self.futures, self.tasks):
+            s, sq, counts = fut.result()
+            fut.release()   # the merged chunk's arrays can go
+            self.film.sum += s
+            self.film.sum_sq += sq
+            self.counts += counts
+            yield sum(n for _, n in chunk)
+
+    def counter_totals(self):
+        return self.counts
+
+    def close(self):
+        """Cancels the tasks not merged yet (after Ctrl-C, or at the end: a no-op)."""
+        pending = [f for f in self.futures if not f.done()]
+        if pending:
+            self.client.cancel(pending)
+
+
+def make_client(workers=None, scheduler=None):
+    """(client, cluster): a Dask client of a new local cluster of ``workers`` worker
+    processes (one thread each, no dashboard), or of the running scheduler at ``scheduler``
+    (e.g. "tcp://10.0.0.1:8786"; cluster None). Raises ImportError without dask."""
+    from distributed import Client, LocalCluster
+    if scheduler:
+        return Client(scheduler, timeout="30s"), None
+    cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                           dashboard_address=None)
+    return Client(cluster), cluster
