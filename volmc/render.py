@@ -16,6 +16,7 @@ import numpy as np
 
 from .backends import make_backend
 from .film import Film
+from .memory import check_memory
 from .params import COUNTER_NAMES
 
 #: Samples (pixels x samples per pixel) per batch once the schedule has ramped up: about a
@@ -107,16 +108,27 @@ class _StopFlag:
         return False
 
 
-def render(scene, backend="opencl", spp=None, progress=None, on_start=None):
+def render(scene, backend="opencl", spp=None, progress=None, on_start=None, band_rows=None):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
     when stderr is a terminal). on_start: called once the backend is compiled and the
-    Ctrl-C handler is installed, just before the first batch.
+    Ctrl-C handler is installed, just before the first batch. band_rows: rows of pixels
+    per launch of a backend made here (None: volmc.memory.band_rows).
+
+    Before any work, ``volmc.memory.check_memory`` raises SceneError (naming the key, the
+    memory needed and the memory there is) when the render would not fit; given a backend
+    already made, only the film is left to check.
     """
     from tqdm import tqdm
     spp = scene.render.spp if spp is None else int(spp)
-    be = make_backend(backend, scene) if isinstance(backend, str) else backend
+    if isinstance(backend, str):
+        check_memory(scene, backend, rows=band_rows)
+        be = make_backend(backend, scene, band_rows=band_rows)
+    else:
+        be = backend
+        check_memory(scene, be.name, getattr(be, "device", None),
+                     getattr(be, "band_rows", None), scene_data=False)
     be.warm_up()
     w, h = scene.camera.resolution
     film = Film(w, h)
