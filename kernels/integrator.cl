@@ -383,22 +383,26 @@ inline float3 trace_path(const Params *prm, global const Light *lights, const Me
     return L;
 }
 
-/* One work item per pixel: samples [sample_start, sample_start + n_samples). Writes the
- * batch's per-pixel mean and sum of squared deviations (Welford's update, so a float32
- * batch keeps the variance accurate even when it is tiny next to the mean); the host turns
- * them into float64 sums. A NaN, infinite or negative sample counts as 0 and is counted
- * as dropped, exactly as in the reference. */
+/* One work item per pixel of pixels [pix_start, pix_start + n_pix) (row-major indices: a
+ * band of rows, or every pixel): samples [sample_start, sample_start + n_samples). Writes
+ * the batch's per-pixel mean and sum of squared deviations (Welford's update, so a float32
+ * batch keeps the variance accurate even when it is tiny next to the mean) at the pixel's
+ * place in the launch, i = pix - pix_start, where its counters accumulate too; the host
+ * turns them into float64 sums. A pixel's samples depend on its index alone, so any split
+ * into bands gives the same image. A NaN, infinite or negative sample counts as 0 and is
+ * counted as dropped, exactly as in the reference. */
 kernel void render_batch(const Params prm, const Medium medium, global const Light *lights,
                          global const float *grid, global const float *maj,
                          global const float *mnr, global const float *emis,
                          global const float *table, global const int *bricks,
                          global const float *pool, global const int *nodes,
-                         global float *rec, int rec_capacity, uint sample_start,
-                         uint n_samples,
+                         global float *rec, int rec_capacity, uint pix_start, uint n_pix,
+                         uint sample_start, uint n_samples,
                          global float *out_mean, global float *out_m2,
                          global ulong *counters_out) {
-    int pix = get_global_id(0);
-    if (pix >= prm.width * prm.height) return;
+    uint i_pix = get_global_id(0);
+    if (i_pix >= n_pix) return;
+    int pix = (int)(pix_start + i_pix);
     int py = pix / prm.width;
     int px = pix - py * prm.width;
     /* Pixel pix owns rows [pix (K + 1), (pix + 1) (K + 1)) of the record (K = rec_capacity);
@@ -424,7 +428,7 @@ kernel void render_batch(const Params prm, const Medium medium, global const Lig
         mean += delta / (float)(i + 1);
         m2 += delta * (c - mean);
     }
-    vstore3(mean, pix, out_mean);
-    vstore3(m2, pix, out_m2);
-    for (int k = 0; k < N_COUNTERS; ++k) counters_out[(size_t)pix * N_COUNTERS + k] += cnt[k];
+    vstore3(mean, i_pix, out_mean);
+    vstore3(m2, i_pix, out_m2);
+    for (int k = 0; k < N_COUNTERS; ++k) counters_out[(size_t)i_pix * N_COUNTERS + k] += cnt[k];
 }

@@ -14,7 +14,7 @@ LAYERS = [
     ("volmc.techniques",),
     ("volmc.scene",),
     ("volmc.pack", "volmc.film"),
-    ("volmc.cl",),
+    ("volmc.cl", "volmc.memory"),
     ("volmc.backends",),
     ("volmc.render", "volmc.check"),
     ("volmc.bench", "volmc.peers", "volmc.cli", "volmc"),

@@ -330,6 +330,8 @@ def cmd_render(args):
     if args.backend == "opencl":
         from .cl.device import select_device
         select_device(args.device)   # a bad --device fails before anything is printed
+    from .memory import check_memory
+    check_memory(scene, args.backend, args.device)   # a render that cannot fit fails now
     if not args.quiet:
         w, h = scene.camera.resolution
         print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "

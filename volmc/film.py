@@ -94,10 +94,19 @@ def tonemap(image, exposure=0.0, operator="filmic"):
     return srgb_encode(x)
 
 
+#: Rows tonemapped at a time by write_png, so its float64 temporaries stay bounded.
+PNG_BAND_ROWS = 256
+
+
 def write_png(path, image, exposure=0.0, operator="filmic"):
-    """Write a tonemapped 8-bit sRGB PNG preview of a linear image."""
+    """Write a tonemapped 8-bit sRGB PNG preview of a linear image (tonemapped in bands of
+    PNG_BAND_ROWS rows: the same pixels, with temporaries of one band)."""
     from matplotlib import image as mpimg
-    rgb = (tonemap(image, exposure, operator) * 255.0 + 0.5).astype(np.uint8)
+    rgb = np.empty(np.shape(image), np.uint8)
+    for y in range(0, rgb.shape[0], PNG_BAND_ROWS):
+        band = image[y:y + PNG_BAND_ROWS]
+        rgb[y:y + PNG_BAND_ROWS] = (tonemap(band, exposure, operator) * 255.0 + 0.5) \
+            .astype(np.uint8)
     mpimg.imsave(str(path), rgb)
 
 

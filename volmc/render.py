@@ -20,6 +20,7 @@ import numpy as np
 
 from .backends import make_backend
 from .film import Film
+from .memory import check_memory
 from .params import COUNTER_NAMES
 
 #: Samples (pixels x samples per pixel) per batch once the schedule has ramped up: about a
@@ -145,7 +146,7 @@ class _StopFlag:
 
 def render(scene, backend="opencl", spp=None, progress=None, on_start=None, checkpoint=None,
            checkpoint_every=60.0, resume=None, client=None, device=None,
-           chunk_samples=CHUNK_SAMPLES):
+           chunk_samples=CHUNK_SAMPLES, band_rows=None):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
@@ -158,12 +159,25 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     the batches then run as tasks on its workers (distributed.py; ``backend`` must be a
     name, ``device`` the OpenCL device there) and the image is the same bit for bit.
     chunk_samples: the chunk size of ``chunk_schedule``; progress, Ctrl-C and checkpoints
-    act between chunks.
+    act between chunks. band_rows: rows of pixels per launch of a backend made here (None:
+    volmc.memory.band_rows).
+
+    Before any work, ``volmc.memory.check_memory`` raises SceneError (naming the key, the
+    memory needed and the memory there is) when the render would not fit; given a backend
+    already made, or rendering on a cluster (whose workers hold the scene), only the film
+    is left to check here.
     """
     from tqdm import tqdm
     from . import checkpoint as ckpt
     spp = scene.render.spp if spp is None else int(spp)
     name = backend if isinstance(backend, str) else backend.name
+    if client is not None:
+        check_memory(scene, name, device, band_rows, scene_data=False)
+    elif isinstance(backend, str):
+        check_memory(scene, backend, device, band_rows)
+    else:
+        check_memory(scene, backend.name, getattr(backend, "device", None),
+                     getattr(backend, "band_rows", None), scene_data=False)
     w, h = scene.camera.resolution
     film, prior, elapsed = Film(w, h), dict.fromkeys(COUNTER_NAMES, 0), 0.0
     if resume is not None:
@@ -174,7 +188,8 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
         from .distributed import ClusterChunks
         runner = ClusterChunks(client, scene, name, device, film, chunks)
     else:
-        be = make_backend(backend, scene, device) if isinstance(backend, str) else backend
+        be = (make_backend(backend, scene, device, band_rows=band_rows)
+              if isinstance(backend, str) else backend)
         runner = LocalChunks(be, film, chunks)
     runner.warm_up()
     if progress is None:

@@ -120,7 +120,7 @@ def test_case20_numba_guard_survives_fastmath():
         for pix in range(w * h):
             pk = be.packed
             fm_pixel(pk.params, pk.lights, pk.medium, pk.grid, pk.maj, pk.mnr, pk.emis,
-                     pk.table, pk.bricks, pk.pool, pk.nodes, be.rec[0], pix, 0, spp, s, q, cnt)
+                     pk.table, pk.bricks, pk.pool, pk.nodes, be.rec[0], pix, 0, spp, s, q, cnt[pix])
         return s / spp, q, cnt.sum(axis=0)
 
     from volmc.params import C_DROPPED

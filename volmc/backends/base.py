@@ -31,7 +31,7 @@ class RenderBackend(abc.ABC):
     @abc.abstractmethod
     def render(self, sample_start, n_samples, film):
         """Add samples [sample_start, sample_start + n_samples) of every pixel to ``film``
-        (its per-pixel sums and sums of squares)."""
+        (its per-pixel sums and sums of squares), launch by launch over bands of rows."""
 
     @abc.abstractmethod
     def counter_totals(self):
@@ -53,16 +53,24 @@ def new_segment_record(n_pix, capacity, real):
     return rec
 
 
-def make_backend(name, scene, device=None, record=0):
+def bands(width, height, rows):
+    """(first pixel, pixels) of each launch when an image is rendered in bands of ``rows``
+    rows of pixels (row-major pixel indices)."""
+    for y in range(0, height, rows):
+        yield y * width, min(rows, height - y) * width
+
+
+def make_backend(name, scene, device=None, record=0, band_rows=None):
     """A render backend by name: "opencl" on ``device`` (None: the default device), or
     "numba"; ``record`` > 0 records up to that many transmittance segments per pixel
-    (``segment_record``)."""
+    (``segment_record``); ``band_rows``: rows of pixels per launch (None: as many as
+    ``volmc.memory.band_rows`` allows; the image is the same whatever the bands)."""
     if name == "numba":
         from .numba import NumbaBackend
-        return NumbaBackend(scene, record=record)
+        return NumbaBackend(scene, record=record, band_rows=band_rows)
     if name == "opencl":
         from .opencl import OpenCLBackend
-        return OpenCLBackend(scene, device=device, record=record)
+        return OpenCLBackend(scene, device=device, record=record, band_rows=band_rows)
     raise ValueError(f"unknown backend {name!r} (available: {', '.join(BACKENDS)})")
 
 

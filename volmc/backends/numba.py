@@ -3,10 +3,11 @@
 import numpy as np
 
 from ..constants import RECORD_COLUMNS
+from ..memory import band_rows as choose_band_rows
 from ..pack import pack_scene
 from ..params import N_COUNTERS
 from ..reference.integrator import render_batch
-from .base import RenderBackend, new_segment_record, techniques
+from .base import RenderBackend, bands, new_segment_record, techniques
 
 
 class NumbaBackend(RenderBackend):
@@ -14,34 +15,45 @@ class NumbaBackend(RenderBackend):
 
     name = "numba"
 
-    def __init__(self, scene, record=0):
-        """record: transmittance segments to record per pixel (0: none)."""
+    def __init__(self, scene, record=0, band_rows=None):
+        """record: transmittance segments to record per pixel (0: none); band_rows: rows of
+        pixels per launch (None: volmc.memory.band_rows)."""
         self.scene = scene
         self.packed = pack_scene(scene, np.float64)
         w, h = scene.camera.resolution
-        self.counters = np.zeros((w * h, N_COUNTERS), np.int64)
+        self.band_rows = choose_band_rows(w, h, self.name) if band_rows is None else \
+            max(1, min(int(band_rows), h))
+        # Per-pixel counters of one band, summed into the totals after each launch.
+        self.counters = np.zeros((self.band_rows * w, N_COUNTERS), np.int64)
+        self.totals = np.zeros(N_COUNTERS, np.int64)
         self.techniques = techniques(scene)
         self.record = record
         # render_batch tells a record from the placeholder by its K + 1 > 1 rows.
         self.rec = (new_segment_record(w * h, record, np.float64) if record > 0
                     else np.zeros((1, 1, RECORD_COLUMNS)))
 
-    def _launch(self, sample_start, n_samples, film_sum, film_sq, counters, rec):
+    def _launch(self, pix_start, n_pix, sample_start, n_samples, film_sum, film_sq, counters,
+                rec):
         pk = self.packed
         render_batch(pk.params, pk.lights, pk.medium, pk.grid, pk.maj, pk.mnr, pk.emis,
-                     pk.table, pk.bricks, pk.pool, pk.nodes, rec, sample_start, n_samples,
-                     film_sum, film_sq, counters)
+                     pk.table, pk.bricks, pk.pool, pk.nodes, rec, pix_start, n_pix,
+                     sample_start, n_samples, film_sum, film_sq, counters)
 
     def warm_up(self):
         film = np.zeros((1, 1, 3))
-        self._launch(0, 0, film, film.copy(), np.zeros((1, N_COUNTERS), np.int64),
+        self._launch(0, 1, 0, 0, film, film.copy(), np.zeros((1, N_COUNTERS), np.int64),
                      self.rec[:1])
 
     def render(self, sample_start, n_samples, film):
-        self._launch(sample_start, n_samples, film.sum, film.sum_sq, self.counters, self.rec)
+        for pix_start, n_pix in bands(film.width, film.height, self.band_rows):
+            cnt = self.counters[:n_pix]
+            self._launch(pix_start, n_pix, sample_start, n_samples, film.sum, film.sum_sq,
+                         cnt, self.rec)
+            self.totals += cnt.sum(axis=0)
+            cnt[:] = 0
 
     def counter_totals(self):
-        return self.counters.sum(axis=0)
+        return self.totals.copy()
 
     def segment_record(self):
         return self.rec.copy() if self.record > 0 else None

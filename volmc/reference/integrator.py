@@ -485,9 +485,10 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
 
 @njit(cache=True)
 def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rec,
-                 pix, sample_start, n_samples, film_sum, film_sq, counters):
+                 pix, sample_start, n_samples, film_sum, film_sq, cnt):
     """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film;
-    ``rec``: the pixel's segment record [K + 1, 9] or the [1, 9] placeholder."""
+    ``rec``: the pixel's segment record [K + 1, 9] or the [1, 9] placeholder; ``cnt``: the
+    pixel's counters [N_COUNTERS], accumulated in place."""
     prm = params[0]
     med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes, rec)
     py = pix // prm.width
@@ -495,7 +496,6 @@ def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     seed = (np.uint64(prm.seed_hi) << np.uint64(32)) | np.uint64(prm.seed_lo)
     rng = np.empty(RNG_STATE_SIZE, np.uint32)
     rng_s = np.empty(RNG_STATE_SIZE, np.uint32)
-    cnt = counters[pix]
     sr = 0.0
     sg = 0.0
     sb = 0.0
@@ -525,8 +525,9 @@ def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
 
 @njit(cache=True, parallel=True)
 def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rec,
-                 sample_start, n_samples, film_sum, film_sq, counters):
-    """Add samples [sample_start, sample_start + n_samples) of every pixel to the film.
+                 pix_start, n_pix, sample_start, n_samples, film_sum, film_sq, counters):
+    """Add samples [sample_start, sample_start + n_samples) of pixels [pix_start, pix_start +
+    n_pix) (row-major pixel indices; a band of rows, or every pixel) to the film.
 
     params: one-element array of ``params_dtype(float64)``; lights: array of
     ``light_dtype(float64)``; medium: one-element array of ``medium_dtype(float64)``; grid:
@@ -537,19 +538,20 @@ def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     2x3 placeholders without emission); bricks, pool: a brick grid's index table int32
     [bz, by, bx] and pool [n_slots, 8, 8, 8] (placeholders unless the density is bricks);
     nodes: an octree's int32 first-child indices [n_nodes] (reference/octree.py; a
-    placeholder without one); rec: the segment record [n_pix, K + 1, 9] (record_segment in
+    placeholder without one); rec: the segment record [width * height, K + 1, 9] (record_segment in
     medium.py; row 0 of each pixel holds its count and the capacity K), or a [1, 1, 9]
     placeholder when not recording;
     film_sum, film_sq:
     float64 [height, width, 3] running sums of sample values and of their squares;
-    counters: int64 [height * width, N_COUNTERS], accumulated in place.
-    Pixels are independent, so the loop over them runs in parallel.
+    counters: int64 [n_pix, N_COUNTERS], the launch's pixels (row i: pixel pix_start + i),
+    accumulated in place. A pixel's samples depend on its index alone, so any split into
+    bands gives the same image. Pixels are independent, so the loop runs in parallel.
     """
-    n_pix = film_sum.shape[0] * film_sum.shape[1]
-    for pix in prange(n_pix):
+    for i in prange(n_pix):
+        pix = pix_start + i
         rp = rec[pix] if rec.shape[1] > 1 else rec[0]
         render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rp,
-                     pix, sample_start, n_samples, film_sum, film_sq, counters)
+                     pix, sample_start, n_samples, film_sum, film_sq, counters[i])
 
 
 def new_counters(width, height):

@@ -1,0 +1,210 @@
+"""Memory limits checked before any work (volmc/memory.py), and banded renders."""
+
+import re
+import time
+import tracemalloc
+import types
+
+import numpy as np
+import pytest
+
+from volmc import memory
+from volmc.cli import main
+from volmc.film import Film, write_exr, write_png
+from volmc.resources import default_scene
+from volmc.scene import load_scene, scene_from_dict
+from volmc.scene.errors import SceneError
+from volmc.scene.serialize import dict_to_toml
+
+from test_cli import TINY   # a 10x8 homogeneous absorber: loads in milliseconds
+
+FIGURE = r"[\d.]+ (?:[KMGT]iB|B)"
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    return load_scene(default_scene())
+
+
+@pytest.fixture(scope="module")
+def cloud256():
+    return load_scene(default_scene(), ["medium.density.resolution=256"])
+
+
+def test_parse_size():
+    assert memory.parse_size("100M") == 100 << 20
+    assert memory.parse_size("2g") == 2 << 30
+    assert memory.parse_size("1.5GiB") == 3 << 29
+    assert memory.parse_size("12345") == 12345
+    for bad in ("", "lots", "-5M", "0", "nanG"):
+        with pytest.raises(SceneError, match="VOLMC_MEMORY_LIMIT"):
+            memory.parse_size(bad)
+
+
+def test_host_available(monkeypatch):
+    monkeypatch.delenv(memory.ENV_VAR, raising=False)
+    n, source = memory.host_available()
+    assert n > 0 and source in ("MemAvailable", "free pages")
+    monkeypatch.setenv(memory.ENV_VAR, "3G")
+    assert memory.host_available() == (3 << 30, memory.ENV_VAR)
+
+
+def test_huge_film_fails_at_once_from_the_cli(tmp_path, monkeypatch, capsys):
+    """camera.resolution = [40000, 40000] (legal) fails before anything is allocated, in well
+    under a second, with the one-line error naming the key and both figures; exit 2."""
+    monkeypatch.setenv(memory.ENV_VAR, "16G")   # the same on a machine with more memory
+    p = tmp_path / "big.toml"
+    p.write_text(dict_to_toml(TINY))
+    out = tmp_path / "big.exr"
+    main(["render", str(p), "-o", str(out), "--quiet", "--spp", "1"])   # warm imports
+    capsys.readouterr()
+    tracemalloc.start()
+    t = time.perf_counter()
+    status = main(["render", str(p), "-o", str(tmp_path / "x.exr"),
+                   "-D", "camera.resolution=[40000, 40000]"])
+    seconds = time.perf_counter() - t
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    err = capsys.readouterr().err
+    assert status == 2
+    assert seconds < 0.5, seconds
+    assert peak < 50 << 20, peak   # the film (190 GiB) was never allocated
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert re.fullmatch(rf"volmc: error: {re.escape(str(p))}: camera\.resolution: a "
+                        rf"40000x40000 film needs {FIGURE} of host memory \(the render "
+                        rf"{FIGURE} in all\), 16\.0 GiB available \(VOLMC_MEMORY_LIMIT\)",
+                        lines[0]), lines[0]
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_huge_film_real_figures():
+    """Without the override the figure is the machine's: 40000^2 needs far more than any
+    test machine has (190 GiB)."""
+    scene = scene_from_dict(TINY, overrides=["camera.resolution=[40000, 40000]"])
+    est = memory.estimate(scene, "opencl")
+    film = est.by_key()["camera.resolution"]
+    assert film.host > 150 << 30
+    n, _ = memory.host_available()
+    if n is not None and n < film.host:
+        with pytest.raises(SceneError, match=r"camera\.resolution: a 40000x40000 film"):
+            memory.check_memory(scene, "numba")
+
+
+def test_grid_too_large_fails_naming_the_density(tmp_path, monkeypatch, capsys, cloud256):
+    """A 256^3 cloud (64 MiB loaded, 64 MiB more on the device, 128 MiB more for the
+    float64 reference) against a 100M machine: medium.density, exit 2, from the CLI and
+    from the library's render()."""
+    monkeypatch.setenv(memory.ENV_VAR, "100M")
+    status = main(["render", str(default_scene()), "-o", str(tmp_path / "c.exr"),
+                   "-D", "medium.density.resolution=256"])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert re.fullmatch(rf"volmc: error: .*cloud\.toml: medium\.density: the density grid "
+                        rf"needs {FIGURE} of host memory \(the render {FIGURE} in all\), "
+                        r"100\.0 MiB available \(VOLMC_MEMORY_LIMIT\)\n", err), err
+    assert not (tmp_path / "c.exr").exists()
+    from volmc.render import render
+    for backend in ("opencl", "numba"):
+        with pytest.raises(SceneError, match=r"medium\.density: the density grid needs"):
+            render(cloud256, backend=backend, progress=False)
+
+
+def test_library_render_raises_for_a_huge_film(monkeypatch):
+    from volmc.render import render
+    monkeypatch.setenv(memory.ENV_VAR, "16G")
+    scene = scene_from_dict(TINY, overrides=["camera.resolution=[40000, 40000]"])
+    t = time.perf_counter()
+    with pytest.raises(SceneError, match=r"camera\.resolution: a 40000x40000 film needs"):
+        render(scene, backend="numba", progress=False)
+    assert time.perf_counter() - t < 0.5
+
+
+def test_device_limits_are_checked(cloud):
+    """A device buffer above max_mem_alloc_size, or device memory above global_mem_size
+    (a GPU: its memory is not the host's), fails naming the key."""
+    import pyopencl as cl
+    small = types.SimpleNamespace(global_mem_size=1 << 40, max_mem_alloc_size=4 << 20,
+                                  type=cl.device_type.GPU, name="Small GPU")
+    with pytest.raises(SceneError, match=r"medium\.density: the density grid needs a device "
+                                         r"buffer of 8\.0 MiB, Small GPU allows 4\.0 MiB per "
+                                         r"buffer \(max_mem_alloc_size\)"):
+        memory.check_memory(cloud, "opencl", small)
+    tiny = types.SimpleNamespace(global_mem_size=6 << 20, max_mem_alloc_size=1 << 30,
+                                 type=cl.device_type.GPU, name="Tiny GPU")
+    with pytest.raises(SceneError, match=r"medium\.density: the density grid needs 8\.0 MiB "
+                                         r"of device memory .* on Tiny GPU"):
+        memory.check_memory(cloud, "opencl", tiny)
+
+
+def test_ordinary_scenes_pass(cloud):
+    for backend in ("opencl", "numba"):
+        est = memory.check_memory(cloud, backend)
+        assert est.band_rows == 256   # one launch covers the image
+        keys = est.by_key()
+        assert keys["medium.density"].host >= 128 ** 3 * 4
+    est = memory.estimate(cloud, "numba")
+    # The loaded float32 grid and the reference's float64 copy.
+    assert est.by_key()["medium.density"].host == 128 ** 3 * (4 + 8)
+    assert est.by_key()["medium.density"].device == 0
+    est = memory.estimate(cloud, "opencl")
+    assert est.by_key()["medium.density"].device == 128 ** 3 * 4
+
+
+def test_film_estimate_matches_what_numpy_allocates(tmp_path):
+    """The film figure (sums, and the peak of writing EXR, variance EXR and PNG) is within a
+    factor 2 of the bytes numpy allocates for them (tracemalloc)."""
+    w, h = 512, 384
+    scene = scene_from_dict(TINY, overrides=[f"camera.resolution=[{w}, {h}]"])
+    estimated = memory.estimate(scene, "numba", film=True, scene_data=False).components[0]
+    assert estimated.key == "camera.resolution"
+    rng = np.random.default_rng(1)
+    tracemalloc.start()
+    film = Film(w, h)
+    film.sum[:] = rng.random((h, w, 3))
+    film.sum_sq[:] = 2.0 * film.sum * film.sum
+    film.spp = 4
+    held = tracemalloc.get_traced_memory()[0]
+    peak = 0
+    for write in (lambda: write_exr(tmp_path / "a.exr", film.mean()),
+                  lambda: write_exr(tmp_path / "a.var.exr", film.variance_of_mean()),
+                  lambda: write_png(tmp_path / "a.png", film.mean())):
+        tracemalloc.reset_peak()
+        write()
+        peak = max(peak, tracemalloc.get_traced_memory()[1])
+    tracemalloc.stop()
+    assert held >= w * h * 48
+    assert 0.5 < estimated.host / peak < 2.0, (estimated.host, peak)
+
+
+def test_band_rows_follow_the_memory(monkeypatch):
+    assert memory.band_rows(256, 256, "opencl", available=16 << 30) == 256
+    # 1/8 of 8 MiB over 240 bytes a pixel: 4369 pixels, 17 rows of 256.
+    assert memory.band_rows(256, 256, "opencl", available=8 << 20) == 17
+    assert memory.band_rows(256, 256, "numba", available=8 << 20) == 256 // 3
+    assert memory.band_rows(40000, 40000, "opencl", available=64 << 30) == \
+        memory.LAUNCH_BUDGET // 240 // 40000
+    assert memory.band_rows(10, 10, "opencl", available=1) == 1
+    # One counter buffer never exceeds max_mem_alloc_size.
+    assert memory.band_rows(100, 1000, "opencl", available=1 << 40, max_alloc=48 * 100 * 5) == 5
+    monkeypatch.setenv(memory.ENV_VAR, "8M")
+    assert memory.band_rows(256, 256, "opencl") == 17
+
+
+@pytest.mark.parametrize("backend", ["opencl", "numba"])
+def test_banded_render_equals_unbanded(backend):
+    """Bands of 7 rows (the last one short) give the image of one launch bit for bit, and
+    the same counters: each pixel's samples are keyed by its index and the sample's."""
+    from volmc.render import render
+    scene = load_scene(default_scene(), ["camera.resolution=[24, 20]", "render.spp=6",
+                                         "medium.density.resolution=32"])
+    whole = render(scene, backend=backend, progress=False)
+    banded = render(scene, backend=backend, progress=False, band_rows=7)
+    assert banded.extra == whole.extra
+    assert np.array_equal(banded.film.sum, whole.film.sum)
+    assert np.array_equal(banded.film.sum_sq, whole.film.sum_sq)
+    assert banded.counters == whole.counters and whole.counters["lookups"] > 0
+    one_row = render(scene, backend=backend, progress=False, band_rows=1, spp=3)
+    part = render(scene, backend=backend, progress=False, spp=3)
+    assert np.array_equal(one_row.film.sum, part.film.sum)
+    assert one_row.counters == part.counters

@@ -1,0 +1,312 @@
+"""Memory limits, checked before any work: what a render will allocate against what there is.
+
+``estimate(scene, backend)`` lists, per component, the bytes a render of a loaded scene
+allocates on the host and on the OpenCL device: the film (float64 sums and squares, and the
+peak of writing the EXR, variance EXR and PNG at the end), the density grid as the backend
+holds it (the scene's float32 copy, the packed copy in the backend's precision, the device
+buffer or brick pool), the emission field, the majorant structure (grid or octree, with its
+build), and the per-launch buffers of one band of pixels (Film counters per pixel, the
+kernel's batch mean and M2, and the host's float64 temporaries). ``check_memory`` compares
+the sums with the host memory available (``host_available``: $VOLMC_MEMORY_LIMIT, else
+/proc/meminfo MemAvailable, else os.sysconf) and, for OpenCL, with the device's
+global_mem_size and max_mem_alloc_size (one buffer may not exceed it), and raises the
+one-line SceneError naming the key of the largest component.
+
+The figures count what exists at the same time: the scene's loaded grids are counted as
+needed and as available (they are already held), an OpenCL device of type CPU (PoCL)
+allocates its buffers in host memory, so they count against the host as well.
+
+Per-launch buffers grow with the pixels of a launch, so a large image is rendered in bands
+of rows (``band_rows``): at most LAUNCH_BUDGET bytes (and 1/LAUNCH_FRACTION of the memory
+available) per launch. Samples are keyed by pixel index and sample index, so the image is
+the same bit for bit however it is banded.
+"""
+
+import math
+import os
+from dataclasses import dataclass
+
+from .params import N_COUNTERS
+from .scene.errors import SceneError
+
+#: Environment variable overriding the host memory available (bytes, or a K/M/G/T suffix).
+ENV_VAR = "VOLMC_MEMORY_LIMIT"
+#: Per-launch buffers of one band at most this many bytes...
+LAUNCH_BUDGET = 256 << 20
+#: ... and at most this fraction of the memory available.
+LAUNCH_FRACTION = 8
+
+#: Film: float64 sums and sums of squares, 3 channels each.
+FILM_BYTES_PER_PIXEL = 2 * 3 * 8
+#: Peak above the film of writing its outputs (volmc render): the mean image (float64) with
+#: its float32 EXR copies (37 B/pixel), the variance of the mean with its temporaries
+#: (74 B/pixel with --variance) or the PNG (the mean, its 8-bit copy and matplotlib's RGBA:
+#: about 64 B/pixel). Measured with tracemalloc on a 512^2 film (tests/test_memory.py).
+OUTPUT_BYTES_PER_PIXEL = 80
+#: Per pixel of a launch: the per-pixel counters (int64 or uint64).
+COUNTER_BYTES_PER_PIXEL = N_COUNTERS * 8
+#: OpenCL, per pixel of a launch: batch mean and M2 (float32 x 3 each) on the device and
+#: their host copies, and the host's float64 temporaries of the accumulation (about 4).
+CL_BATCH_BYTES_PER_PIXEL = 2 * 3 * 4
+CL_TEMP_BYTES_PER_PIXEL = 4 * 3 * 8
+
+_SUFFIXES = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+
+
+@dataclass
+class Component:
+    """One thing a render allocates: the scene ``key`` responsible, a description, bytes on
+    the host and on the device, and the largest single device buffer."""
+    key: str
+    what: str
+    host: int = 0
+    device: int = 0
+    buffer: int = 0
+
+
+@dataclass
+class Estimate:
+    """The components of a render and the band of rows each launch covers."""
+    components: list
+    band_rows: int
+    height: int
+    device_is_host: bool = True
+
+    @property
+    def host(self):
+        """Host bytes in all (with the device's on a CPU device)."""
+        return sum(c.host + (c.device if self.device_is_host else 0) for c in self.components)
+
+    @property
+    def device(self):
+        return sum(c.device for c in self.components)
+
+    def by_key(self):
+        """{key: Component with the bytes of every component of that key summed}."""
+        out = {}
+        for c in self.components:
+            s = out.setdefault(c.key, Component(c.key, c.what))
+            s.what = c.what   # the last: what the backend holds
+            s.host += c.host
+            s.device += c.device
+            s.buffer = max(s.buffer, c.buffer)
+        return out
+
+
+def parse_size(text, where=ENV_VAR):
+    """Bytes of ``text``: an integer with an optional K, M, G or T suffix (powers of 1024,
+    an optional trailing "B" or "iB")."""
+    t = str(text).strip().upper().replace("IB", "").rstrip("B") if str(text).strip() else ""
+    num, suffix = t, ""
+    if t and t[-1] in _SUFFIXES:
+        num, suffix = t[:-1], t[-1]
+    try:
+        v = float(num)
+    except ValueError:
+        v = float("nan")
+    if not (v == v and 0 < v < float("inf")):
+        raise SceneError("environment", where, f"expected bytes with an optional K, M, G or T "
+                                               f"suffix (e.g. 100M), got {text!r}")
+    return int(v * _SUFFIXES[suffix])
+
+
+def host_available():
+    """(bytes of host memory available, where the figure comes from), or (None, why)."""
+    env = os.environ.get(ENV_VAR)
+    if env:
+        return parse_size(env), ENV_VAR
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024, "MemAvailable"
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"), "free pages"
+    except (ValueError, OSError, AttributeError):
+        return None, "unknown"
+
+
+def device_limits(device):
+    """(global_mem_size, max_mem_alloc_size, is a CPU device, name) of a pyopencl Device."""
+    import pyopencl as cl
+    return (int(device.global_mem_size), int(device.max_mem_alloc_size),
+            bool(device.type & cl.device_type.CPU), device.name.strip())
+
+
+def fmt_bytes(n):
+    """1.5 GiB, 20.3 MiB, 12 KiB, 100 B."""
+    for unit, shift in (("TiB", 40), ("GiB", 30), ("MiB", 20), ("KiB", 10)):
+        if n >= 1 << shift:
+            return f"{n / (1 << shift):.1f} {unit}"
+    return f"{int(n)} B"
+
+
+def _emission_key(scene):
+    e = scene.medium.emission
+    return "medium.emission.field" if e.radiance is not None else "medium.emission.temperature"
+
+
+def launch_bytes_per_pixel(backend):
+    """(host, device) bytes per pixel of one launch of ``backend``."""
+    if backend == "numba":
+        return COUNTER_BYTES_PER_PIXEL, 0
+    return (COUNTER_BYTES_PER_PIXEL + CL_BATCH_BYTES_PER_PIXEL + CL_TEMP_BYTES_PER_PIXEL,
+            COUNTER_BYTES_PER_PIXEL + CL_BATCH_BYTES_PER_PIXEL)
+
+
+def band_rows(width, height, backend, available=None, max_alloc=None):
+    """Rows of pixels per launch: all of them unless the launch buffers of the whole image
+    would exceed LAUNCH_BUDGET, 1/LAUNCH_FRACTION of ``available`` bytes or, per device
+    buffer, ``max_alloc``; at least one row."""
+    if available is None:
+        available = host_available()[0]
+    host, device = launch_bytes_per_pixel(backend)
+    budget = LAUNCH_BUDGET
+    if available is not None:
+        budget = min(budget, available // LAUNCH_FRACTION)
+    pixels = budget // (host + device)
+    if max_alloc is not None and device:
+        pixels = min(pixels, max_alloc // COUNTER_BYTES_PER_PIXEL)   # the largest buffer
+    return int(max(1, min(height, pixels // max(width, 1))))
+
+
+def _density_components(scene, backend):
+    from .reference.majorant import auto_resolution
+    from .reference.octree import octree_depth
+    from .scene.bricks import BrickGrid, stores_bricks
+    real = 8 if backend == "numba" else 4
+    cl = backend != "numba"
+    g = scene.grid
+    out = []
+    if g is None:
+        return out
+    nz, ny, nx = g.shape
+    voxels = nz * ny * nx
+    held = g.nbytes if isinstance(g, BrickGrid) else g.size * g.itemsize
+    out.append(Component("medium.density", "the loaded density grid", host=held))
+    if stores_bricks(scene):
+        n_bricks = math.ceil(nx / 8) * math.ceil(ny / 8) * math.ceil(nz / 8)
+        if isinstance(g, BrickGrid):
+            slots, made = g.pool.shape[0], 0
+        else:   # from the dense grid in pack_scene: at most every brick occupied
+            slots = n_bricks + 1
+            made = 4 * n_bricks + slots * 512 * 4
+        pool = slots * 512 * real
+        out.append(Component("medium.density", "the density bricks",
+                             host=made + (pool if real == 8 else 0),
+                             device=(4 * n_bricks + pool) if cl else 0,
+                             buffer=pool if cl else 0))
+    else:
+        dense = voxels * real
+        copied = isinstance(g, BrickGrid) or real == 8   # float32 stays shared with OpenCL
+        out.append(Component("medium.density", "the density grid",
+                             host=dense if copied else 0, device=dense if cl else 0,
+                             buffer=dense if cl else 0))
+    m = scene.render.majorant
+    if m == "grid":
+        res = scene.render.majorant_resolution
+        cz, cy, cx = tuple(reversed(res)) if res else auto_resolution(g.shape)
+        cells = cz * cy * cx
+        # build_majorant_grid: float32 maxima and minima, the first axis's partial
+        # reduction (two [nz, ny, cx] arrays), the packed copies in the backend's precision.
+        build = 2 * cells * 4 + 2 * nz * ny * cx * 4 + (2 * cells * 8 if real == 8 else 0)
+        out.append(Component("render.majorant_resolution", "the majorant grid", host=build,
+                             device=2 * cells * 4 if cl else 0,
+                             buffer=cells * 4 if cl else 0))
+    elif m == "octree":
+        n = 2 ** octree_depth(g.shape)
+        cells = n ** 3
+        nodes = cells * 8 // 7 + 1
+        # Finest level, its pyramid (8/7), per-node bounds and children, the frontier's
+        # int64 coordinates, the packed copies; the first axis's partial reduction.
+        build = (2 * cells * 4 * 8 // 7 + nodes * (4 + 4 + 4 + 24) + 2 * nz * ny * n * 4
+                 + (2 * nodes * 8 if real == 8 else 0))
+        out.append(Component("render.majorant", "the majorant octree", host=build,
+                             device=nodes * 12 if cl else 0, buffer=nodes * 4 if cl else 0))
+    return out
+
+
+def _emission_components(scene, backend):
+    e = scene.emission_grid
+    if e is None:
+        return []
+    real = 8 if backend == "numba" else 4
+    cl = backend != "numba"
+    key = _emission_key(scene)
+    return [Component(key, "the loaded emission grid", host=e.size * e.itemsize),
+            Component(key, "the emission grid", host=e.size * 8 if real == 8 else 0,
+                      device=e.size * 4 if cl else 0, buffer=e.size * 4 if cl else 0)]
+
+
+def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
+             device_is_host=True, film=True, scene_data=True):
+    """The ``Estimate`` of a render of ``scene`` with ``backend`` ("opencl" or "numba") in
+    bands of ``rows`` rows (None: ``band_rows`` for ``available`` and ``max_alloc``).
+    film, scene_data: include the film, and the grids and majorant structure (a render
+    given a backend already built has allocated the latter)."""
+    w, h = scene.camera.resolution
+    if rows is None:
+        rows = band_rows(w, h, backend, available, max_alloc)
+    rows = max(1, min(int(rows), h))
+    comps = []
+    if film:
+        comps.append(Component("camera.resolution", f"a {w}x{h} film",
+                               host=w * h * (FILM_BYTES_PER_PIXEL + OUTPUT_BYTES_PER_PIXEL)))
+    if scene_data:
+        comps += _density_components(scene, backend)
+        comps += _emission_components(scene, backend)
+    host, device = launch_bytes_per_pixel(backend)
+    px = rows * w
+    comps.append(Component("camera.resolution",
+                           f"the launch buffers of {rows} row{'s' if rows > 1 else ''}",
+                           host=px * host, device=px * device,
+                           buffer=px * COUNTER_BYTES_PER_PIXEL if device else 0))
+    return Estimate(comps, rows, h, device_is_host)
+
+
+def check_memory(scene, backend="opencl", device=None, rows=None, film=True,
+                 scene_data=True):
+    """Raise SceneError(scene file, key, what) when a render of ``scene`` would not fit:
+    the host's memory, or for "opencl" the device's global memory or its largest buffer.
+    The key is that of the largest component. ``device``: a pyopencl Device or a --device
+    spec (None: the default). Returns the Estimate."""
+    available, source = host_available()
+    max_alloc, glob, is_cpu, name = None, None, True, ""
+    if backend == "opencl":
+        from .cl.device import select_device
+        dev = select_device(device) if device is None or isinstance(device, str) else device
+        glob, max_alloc, is_cpu, name = device_limits(dev)
+    held = 0
+    if available is not None and source != ENV_VAR:
+        # Already loaded, so not in MemAvailable; counted as needed below.
+        held = sum(c.host for c in _density_components(scene, backend)[:1]
+                   + _emission_components(scene, backend)[:1]) if scene_data else 0
+    est = estimate(scene, backend, rows, None if available is None else available + held,
+                   max_alloc, is_cpu, film, scene_data)
+    keys = est.by_key()
+    w, h = scene.camera.resolution
+
+    def fail(where, need, have, how):
+        # The largest component on that side names the key.
+        side = (lambda c: c.host + (c.device if is_cpu else 0)) if where == "host" else \
+            (lambda c: c.device)
+        top = max(keys.values(), key=side)
+        what = f"a {w}x{h} film" if top.key == "camera.resolution" else top.what
+        raise SceneError(scene.file, top.key,
+                         f"{what} needs {fmt_bytes(side(top))} of {where} memory (the render "
+                         f"{fmt_bytes(need)} in all), {fmt_bytes(have)} {how}")
+
+    if available is not None and est.host > available + held:
+        fail("host", est.host, available + held, f"available ({source})")
+    if backend == "opencl" and est.device > glob:
+        fail("device", est.device, glob, f"on {name} (global_mem_size)")
+    if max_alloc is not None:
+        big = max(est.components, key=lambda c: c.buffer)
+        if big.buffer > max_alloc:
+            raise SceneError(scene.file, big.key,
+                             f"{big.what} needs a device buffer of {fmt_bytes(big.buffer)}, "
+                             f"{name} allows {fmt_bytes(max_alloc)} per buffer "
+                             "(max_mem_alloc_size)")
+    return est
