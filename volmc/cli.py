@@ -262,14 +262,16 @@ def build_parser():
     return p
 
 
-def _check_writable(path, flag):
+def _check_writable(path, flag, where="command line"):
+    """Raise SceneError(where, flag, ...) unless ``path`` names a file in a writable
+    directory."""
     if not path or path.endswith(("/", os.sep)) or os.path.isdir(path):
-        raise SceneError("command line", flag, f"expected a file path, got {path!r}")
+        raise SceneError(where, flag, f"expected a file path, got {path!r}")
     d = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(d):
-        raise SceneError("command line", flag, f"directory does not exist: {d}")
+        raise SceneError(where, flag, f"directory does not exist: {d}")
     if not os.access(d, os.W_OK):
-        raise SceneError("command line", flag, f"directory is not writable: {d}")
+        raise SceneError(where, flag, f"directory is not writable: {d}")
 
 
 def _dask_client(args):

@@ -1,11 +1,15 @@
 """The one error type for bad input: it carries the file and the key it is about."""
 
 
-class SceneError(Exception):
-    """Bad scene, grid or command-line value.
+class VolmcError(Exception):
+    """Bad input to volmc: a scene, grid or command-line value, or a Python API argument.
 
     ``str(err)`` is the one-line message ``<file>: <key>: <what is wrong>`` that the CLI
-    prints after ``volmc: error: `` before exiting with status 2.
+    prints after ``volmc: error: `` before exiting with status 2. ``file`` is the scene or
+    grid file (``"command line"`` for a flag, ``"<dict>"`` or the name given for a scene
+    built in Python, the function's name for an API argument such as ``volmc.render()``),
+    ``key`` the dotted scene key or argument name ("" when the whole file is at fault), and
+    ``message`` what is wrong. Exported as ``volmc.VolmcError``.
     """
 
     def __init__(self, file, key, message):
@@ -14,6 +18,11 @@ class SceneError(Exception):
         self.message = message
         text = f"{self.file}: {key}: {message}" if key else f"{self.file}: {message}"
         super().__init__(_one_line(text))
+
+
+class SceneError(VolmcError):
+    """Bad scene, grid or command-line value (every error volmc raises for bad input is one;
+    a subclass of VolmcError, so ``except VolmcError`` catches it too)."""
 
 
 def _one_line(text):

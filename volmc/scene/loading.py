@@ -8,6 +8,7 @@
 
 import os
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Optional
 
@@ -16,8 +17,8 @@ import numpy as np
 from .errors import SceneError
 from .bricks import BrickGrid
 from .grids import load_grid, validate_grid
-from .schema import (FLOAT32_MAX, GENERATORS, ConstantDensity, FileDensity, GeneratedDensity,
-                     SceneSpec, check_box, validate)
+from .schema import (FLOAT32_MAX, GENERATORS, ArrayDensity, ConstantDensity, FileDensity,
+                     GeneratedDensity, SceneSpec, check_box, validate)
 
 
 @dataclass(frozen=True)
@@ -107,33 +108,48 @@ def _is_index(part):
 
 
 def apply_overrides(raw, overrides, file):
-    """Apply ``-D`` overrides (list of strings) to a raw scene dictionary, in order."""
+    """Apply overrides to a raw scene dictionary, in order: ``-D`` strings
+    (``section.key=value``, the value parsed as TOML), or a mapping of dotted keys to values
+    taken as given (``{"render.spp": 16, "lights": [...]}``; a key may then name a whole
+    section)."""
+    if isinstance(overrides, Mapping):
+        for key, value in overrides.items():
+            if not isinstance(key, str) or not key or \
+                    any(not p.strip() for p in key.split(".")):
+                raise SceneError(file, repr(key), "expected a dotted key such as 'render.spp'")
+            _set_key(raw, [p.strip() for p in key.split(".")], value, file, key)
+        return raw
     for text in overrides:
         parts, value = parse_override(text, file)
-        node = raw
-        for depth, part in enumerate(parts[:-1]):
-            shown = ".".join(parts[:depth + 1])
-            if isinstance(node, list):
-                if not _is_index(part) or int(part) >= len(node):
-                    raise SceneError(file, f"-D {text}",
-                                     f"'{shown}': no element {part} (there are {len(node)})")
-                node = node[int(part)]
-            elif isinstance(node, dict):
-                if part not in node:
-                    node[part] = {}
-                node = node[part]
-            else:
-                raise SceneError(file, f"-D {text}", f"'{shown}' is not a table")
-        last = parts[-1]
-        if isinstance(node, list):
-            if not _is_index(last) or int(last) >= len(node):
-                raise SceneError(file, f"-D {text}", f"no element {last} (there are {len(node)})")
-            node[int(last)] = value
-        elif isinstance(node, dict):
-            node[last] = value
-        else:
-            raise SceneError(file, f"-D {text}", f"'{'.'.join(parts[:-1])}' is not a table")
+        _set_key(raw, parts, value, file, f"-D {text}")
     return raw
+
+
+def _set_key(raw, parts, value, file, label):
+    """Set the dotted key ``parts`` of ``raw`` to ``value``; errors name ``label``."""
+    node = raw
+    for depth, part in enumerate(parts[:-1]):
+        shown = ".".join(parts[:depth + 1])
+        if isinstance(node, list):
+            if not _is_index(part) or int(part) >= len(node):
+                raise SceneError(file, label,
+                                 f"'{shown}': no element {part} (there are {len(node)})")
+            node = node[int(part)]
+        elif isinstance(node, dict):
+            if part not in node:
+                node[part] = {}
+            node = node[part]
+        else:
+            raise SceneError(file, label, f"'{shown}' is not a table")
+    last = parts[-1]
+    if isinstance(node, list):
+        if not _is_index(last) or int(last) >= len(node):
+            raise SceneError(file, label, f"no element {last} (there are {len(node)})")
+        node[int(last)] = value
+    elif isinstance(node, dict):
+        node[last] = value
+    else:
+        raise SceneError(file, label, f"'{'.'.join(parts[:-1])}' is not a table")
 
 
 def _read_source(spec, src, key, vdb_density=None, cache=None):
@@ -164,6 +180,11 @@ def _read_source(spec, src, key, vdb_density=None, cache=None):
         if isinstance(out, tuple):   # several fields: density first
             out = out[GENERATORS[src.generator].index(src.channel)]
         return out, None
+    if isinstance(src, ArrayDensity):
+        # Validated here like a grid file; the scene keeps its own copy, so editing the
+        # caller's array later cannot invalidate the checks or the majorants.
+        grid = validate_grid(src.array, spec.file, key)
+        return (grid.copy() if np.shares_memory(grid, src.array) else grid), None
     raise TypeError(src)
 
 
@@ -264,17 +285,38 @@ def _complete(spec: SceneSpec):
 
 
 def load_scene(path, overrides=()):
-    """Read, override, validate and load a scene file. Raises SceneError on bad input."""
+    """Read, override, validate and load a scene file. Raises SceneError on bad input.
+    ``overrides``: ``-D`` strings or a mapping of dotted keys (``apply_overrides``)."""
     path = str(path)
     raw = read_toml(path)
-    apply_overrides(raw, list(overrides), path)
+    apply_overrides(raw, _listed(overrides), path)
     spec = validate(raw, path)
     return _complete(spec)
 
 
 def scene_from_dict(raw, file="<dict>", base_dir=".", overrides=()):
-    """Build a Scene from an in-memory dictionary (relative paths resolve against base_dir)."""
+    """Build a Scene from an in-memory dictionary (relative paths resolve against base_dir).
+    A grid source (``medium.density``, an emission field) may be a numpy array [z, y, x],
+    validated as a grid file is; arrays are not copied until validated."""
     import copy
-    raw = apply_overrides(copy.deepcopy(raw), list(overrides), file)
+    memo = {id(a): a for a in _arrays(raw)}   # deepcopy the tables, not the grids
+    raw = apply_overrides(copy.deepcopy(raw, memo), _listed(overrides), file)
     spec = validate(raw, file, file_dir=os.path.abspath(base_dir))
     return _complete(spec)
+
+
+def _listed(overrides):
+    """Overrides as apply_overrides takes them: a mapping as is, else a list of strings."""
+    return overrides if isinstance(overrides, Mapping) else list(overrides)
+
+
+def _arrays(node):
+    """The numpy arrays anywhere in a nested dict/list."""
+    if isinstance(node, np.ndarray):
+        yield node
+    elif isinstance(node, dict):
+        for v in node.values():
+            yield from _arrays(v)
+    elif isinstance(node, (list, tuple)):
+        for v in node:
+            yield from _arrays(v)

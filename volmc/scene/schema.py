@@ -69,7 +69,18 @@ class GeneratedDensity:
     channel: str = "density"
 
 
-Density = Union[ConstantDensity, FileDensity, GeneratedDensity]
+@dataclass(frozen=True, eq=False)
+class ArrayDensity:
+    """Grid given as a numpy array [z, y, x] (a scene built in Python); validated when the
+    scene is loaded, as a grid file is (loading.py)."""
+    array: object
+
+    def __repr__(self):
+        return f"ArrayDensity(shape={getattr(self.array, 'shape', None)}, " \
+               f"dtype={getattr(self.array, 'dtype', None)})"
+
+
+Density = Union[ConstantDensity, FileDensity, GeneratedDensity, ArrayDensity]
 
 
 @dataclass(frozen=True)
@@ -339,8 +350,12 @@ def _camera(c, raw):
 def _source(c, v, key, file_dir, channel="density"):
     """A grid source at ``key``: a number (constant), { file, grid } or { generator,
     resolution, seed, channel }. ``channel`` is the field the key asks of a generator by
-    default."""
+    default. A numpy array is a grid given directly (``ArrayDensity``)."""
     import os
+
+    import numpy as np
+    if isinstance(v, np.ndarray):
+        return ArrayDensity(v)
     if isinstance(v, dict):
         if "file" in v and "generator" in v:
             c.fail(key, "give either 'file' or 'generator', not both")

@@ -4,8 +4,8 @@
 and renders store the fully resolved scene in their EXR metadata for reproducibility.
 """
 
-from .schema import (ConstantDensity, DirectionalLight, EnvironmentLight, FileDensity,
-                     GeneratedDensity, PointLight, SceneSpec)
+from .schema import (ArrayDensity, ConstantDensity, DirectionalLight, EnvironmentLight,
+                     FileDensity, GeneratedDensity, PointLight, SceneSpec)
 
 
 def to_dict(spec: SceneSpec) -> dict:
@@ -62,6 +62,8 @@ def _source(d):
     if isinstance(d, GeneratedDensity):
         return {"generator": d.generator, "resolution": d.resolution, "seed": d.seed,
                 "channel": d.channel}
+    if isinstance(d, ArrayDensity):   # the array itself: validate() takes it back
+        return d.array
     raise TypeError(d)
 
 

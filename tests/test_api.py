@@ -1,0 +1,261 @@
+"""The Python API (volmc/api.py, exported from volmc): loading with overrides, scenes built
+in Python with numpy grids, rendering, saving, transmittance on the caller's rays, errors."""
+
+import io
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from stats import ALPHA, z_bound
+
+import volmc
+from volmc.film import read_exr
+from volmc.resources import scenes_dir
+
+#: The default scene, shrunk: 8x8 pixels, 4 spp, a 16^3 cloud.
+SMALL = {"camera.resolution": [8, 8], "render.spp": 4, "medium.density.resolution": 16}
+
+BOX = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
+
+
+def _base(density, spp=256):
+    """A small scene with all three light types around a box of medium ``density``."""
+    return {"camera": {"eye": [0.3, 0.2, 3.0], "target": [0, 0, 0], "fov": 50,
+                       "resolution": [8, 8]},
+            "medium": {"bounds": BOX, "density": density, "scale": 3.0,
+                       "albedo": [0.9, 0.6, 0.3], "phase": {"type": "hg", "g": 0.4}},
+            "lights": [{"type": "environment", "radiance": 0.4},
+                       {"type": "directional", "direction": [-1, -1, -0.5], "irradiance": 2.0},
+                       {"type": "point", "position": [0.5, 1.5, 0.5], "intensity": 1.5}],
+            "render": {"spp": spp}}
+
+
+def test_import_is_light():
+    """``import volmc`` imports neither Numba nor pyopencl nor the renderer."""
+    code = ("import sys, volmc; heavy = [m for m in ('numba', 'pyopencl', 'volmc.render', "
+            "'matplotlib') if m in sys.modules]; print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_render_stays_the_function():
+    """volmc.render is the API function even after the driver module volmc.render loads."""
+    from volmc.render import batch_schedule  # noqa: F401  (imports the module)
+    assert callable(volmc.render) and volmc.render is volmc.api.render
+    assert sys.modules["volmc.render"].batch_schedule is batch_schedule
+
+
+def test_load_with_dict_and_list_overrides():
+    a = volmc.load_scene(overrides=SMALL)
+    b = volmc.load_scene(scenes_dir() / "cloud.toml",
+                         ["camera.resolution=[8, 8]", "render.spp=4",
+                          "medium.density.resolution=16"])
+    for s in (a, b):
+        assert s.camera.resolution == (8, 8) and s.render.spp == 4
+        assert s.grid.shape == (16, 16, 16)
+    assert np.array_equal(a.grid, b.grid) and a.spec == b.spec
+    c = volmc.load_scene(overrides={"lights": [{"type": "environment", "radiance": 2}],
+                                    "medium.albedo": (0.5, np.float32(0.25), 1),
+                                    "camera.resolution": np.array([4, 2]), **{
+                                        "medium.density.resolution": 8}})
+    assert len(c.lights) == 1 and c.lights[0].radiance == (2.0, 2.0, 2.0)
+    assert c.medium.albedo == (0.5, 0.25, 1.0) and c.camera.resolution == (4, 2)
+
+
+def test_scene_from_dict_and_dataclasses(tmp_path):
+    """A dict (tuples allowed), the same scene as dataclasses, and a numpy grid given as the
+    density all validate to the same scene as the equivalent file."""
+    from volmc.scene import (ArrayDensity, Camera, EnvironmentLight, FileDensity, Medium,
+                             Render, SceneSpec)
+    grid = np.random.default_rng(1).random((3, 4, 5)).astype(np.float32)
+    np.save(tmp_path / "g.npy", grid)
+    raw = {"camera": {"resolution": (6, 4)},
+           "medium": {"bounds": BOX, "density": {"file": "g.npy"}},
+           "lights": [{"type": "environment", "radiance": 1.0}], "render": {"spp": 2}}
+    a = volmc.scene_from_dict(raw, base_dir=tmp_path)
+    spec = SceneSpec("<python>", Camera(resolution=(6, 4)),
+                     Medium(bounds=tuple(map(tuple, BOX)),
+                            density=FileDensity("g.npy", str(tmp_path / "g.npy"))),
+                     (EnvironmentLight((1.0, 1.0, 1.0)),), Render(spp=2))
+    b = volmc.scene_from_dict(spec)
+    c = volmc.scene_from_dict(dict(raw, medium={"bounds": BOX, "density": grid.astype(float)}))
+    d = volmc.scene_from_dict(dict(raw, medium={"bounds": BOX,
+                                                "density": grid}), overrides={"render.spp": 2})
+    for s in (a, b, c, d):
+        assert s.camera.resolution == (6, 4) and np.array_equal(s.grid, grid)
+        assert s.grid.dtype == np.float32 and s.grid.flags.c_contiguous
+    assert a.spec.camera == b.spec.camera and a.spec.render == b.spec.render
+    assert isinstance(c.medium.density, ArrayDensity)
+    grid[0, 0, 0] = 7.0   # the scene keeps its own copy
+    assert d.grid[0, 0, 0] != 7.0
+
+
+def test_render_image_variance_counters():
+    scene = volmc.load_scene(overrides=SMALL)
+    img = volmc.render(scene, progress=False)
+    assert img.image.shape == (8, 8, 3) and img.image.dtype == np.float32
+    assert img.variance.shape == (8, 8, 3) and img.variance.dtype == np.float32
+    assert np.all(np.isfinite(img.image)) and np.all(img.variance >= 0)
+    assert img.image.mean() > 0 and img.spp == 4 and img.seconds > 0 and not img.partial
+    assert img.counters["lookups"] > 0 and img.counters["over_majorant"] == 0
+    assert img.stats()["samples"] == 8 * 8 * 4
+    assert "8x8, 4 spp" in repr(img)
+
+
+def test_same_seed_same_image(backend):
+    """Same scene, spp and seed: the same image bit for bit; another seed: another image."""
+    scene = volmc.load_scene(overrides=SMALL)
+    a = volmc.render(scene, spp=3, seed=5, backend=backend, progress=False)
+    b = volmc.render(scene, spp=3, seed=5, backend=backend, progress=False)
+    c = volmc.render(scene, spp=3, seed=6, backend=backend, progress=False)
+    assert a.seed == 5 and a.spp == 3 and a.backend == backend
+    assert np.array_equal(a.image, b.image) and np.array_equal(a.variance, b.variance)
+    assert not np.array_equal(a.image, c.image)
+
+
+def test_numpy_grid_renders_like_the_file_and_the_homogeneous_medium(tmp_path):
+    """A numpy grid renders bit for bit like the same grid read from a .npy file (one code
+    path once loaded), and a constant one like the homogeneous medium of the same density
+    (robustness case 17: per-pixel two-sample z-test, Sidak over the pixels)."""
+    const = np.full((3, 4, 5), 0.5, np.float32)
+    np.save(tmp_path / "c.npy", const)
+    a = volmc.render(volmc.scene_from_dict(_base(const)), progress=False)
+    f = volmc.render(volmc.scene_from_dict(_base({"file": str(tmp_path / "c.npy")})),
+                     progress=False)
+    assert np.array_equal(a.image, f.image)
+    h = volmc.render(volmc.scene_from_dict(_base(0.5)), progress=False)
+    d = a.result.film.mean() - h.result.film.mean()
+    se = np.sqrt(a.result.film.variance_of_mean() + h.result.film.variance_of_mean())
+    assert np.abs(d / se).max() < z_bound(ALPHA, d.size)
+
+
+def test_save_exr_png_and_repr_png(tmp_path):
+    from matplotlib import image as mpimg
+    img = volmc.render(volmc.load_scene(overrides=SMALL), progress=False)
+    assert img.save(tmp_path / "a.exr") == str(tmp_path / "a.exr")
+    back, meta = read_exr(tmp_path / "a.exr")
+    assert np.array_equal(back, img.image)
+    assert int(meta["spp"]) == 4 and meta["backend"] == "opencl" and "scene_toml" in meta
+    img.save(tmp_path / "a.png")
+    png = mpimg.imread(tmp_path / "a.png")
+    assert png.shape[:2] == (8, 8)
+    data = img._repr_png_()
+    assert data.startswith(b"\x89PNG\r\n\x1a\n")
+    assert np.array_equal(mpimg.imread(io.BytesIO(data)), png)
+    with pytest.raises(volmc.VolmcError, match="expected a path ending in .exr or .png"):
+        img.save(tmp_path / "a.jpg")
+    with pytest.raises(volmc.VolmcError, match="directory does not exist"):
+        img.save(tmp_path / "missing" / "a.exr")
+
+
+def test_save_exr_of_a_numpy_grid_scene(tmp_path):
+    """A scene with a numpy grid has no TOML form: the EXR is written without it."""
+    scene = volmc.scene_from_dict(_base(np.full((2, 2, 2), 0.5), spp=2))
+    img = volmc.render(scene, progress=False)
+    img.save(tmp_path / "g.exr")
+    back, meta = read_exr(tmp_path / "g.exr")
+    assert np.array_equal(back, img.image) and "scene_toml" not in meta
+
+
+@pytest.mark.parametrize("estimator", ["auto", "ratio", "track_length", "analytic"])
+def test_transmittance_homogeneous_is_exact(backend, estimator):
+    """Homogeneous segments are analytic: every estimate is exp(-sigma L), for rays from
+    outside (clipped to the box), from inside, cut by t_max, and missing (T = 1). The box is
+    translated and scaled (the scene frame is undone)."""
+    lo, hi = [10.0, -2.0, 4.0], [14.0, 2.0, 8.0]
+    medium = {"bounds": [lo, hi], "density": 0.5, "scale": 2.0}   # sigma = 1 per unit
+    o = [[12.0, 0.0, -50.0], [12.0, 0.0, 6.0], [11.0, 1.0, 6.0], [0.0, 0.0, 0.0]]
+    d = [[0.0, 0.0, 2.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]
+    t_max = [np.inf, np.inf, 1.5, np.inf]
+    r = volmc.estimate_transmittance(medium, o, d, t_max, estimator=estimator, n=8,
+                                     backend=backend, seed=3)
+    length = np.array([4.0, 2.0, 1.5, 0.0])
+    tol = 1e-12 if backend == "numba" else 1e-6
+    assert np.allclose(r.estimates, np.exp(-length), rtol=tol, atol=0)
+    assert np.all(r.stderr <= tol) and r.n == 8 and r.estimator == estimator
+    assert np.allclose(r.t_enter[:3], [54.0, 0.0, 0.0])
+    assert np.allclose(r.t_exit[:3], [58.0, 2.0, 1.5]) and np.isnan(r.t_enter[3])
+
+
+def test_transmittance_on_a_grid_matches_the_optical_depth(backend):
+    """On a random 6^3 grid with its grid majorant, the mean of n ratio-tracking and auto
+    estimates per ray agrees with exp(-exact optical depth) (z-test per ray and estimator,
+    Sidak over all of them; n large enough for the normal approximation of these skewed
+    estimates); rays that miss give 1 exactly; lookups are counted."""
+    from volmc.reference.optical_depth import optical_depth_exact
+    rng = np.random.default_rng(4)
+    grid = rng.random((6, 6, 6)) * 2.0
+    scene = volmc.scene_from_dict({"camera": {}, "medium": {"bounds": BOX, "density": grid,
+                                                            "scale": 1.5}})
+    k = 12
+    o = rng.normal(size=(k, 3)) * 3.0
+    target = rng.uniform(-0.8, 0.8, size=(k, 3))
+    d = target - o
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    g64 = scene.grid.astype(np.float64)
+    names = ("ratio", "auto")
+    bound = z_bound(ALPHA, k * len(names))
+    for name in names:
+        r = volmc.estimate_transmittance(scene, o, d, estimator=name, n=4096, backend=backend,
+                                         seed=11)
+        assert r.counters["capped"] == 0 and r.counters["over_majorant"] == 0
+        assert np.all(r.lookups > 0) and np.all(r.stderr > 0)
+        # The segment the result reports, inside the box: its exact optical depth.
+        assert np.all(r.t_enter > 0) and np.all(r.t_exit > r.t_enter)
+        exact = np.array([math.exp(-optical_depth_exact(
+            g64, tuple(BOX[0]), tuple(BOX[1]), 1.5, tuple(o[i]), tuple(d[i]),
+            r.t_enter[i], r.t_exit[i])) for i in range(k)])
+        z = (r.estimates - exact) / r.stderr
+        assert np.abs(z).max() < bound, (name, z)
+    miss = volmc.estimate_transmittance(scene, [[5.0, 5.0, 5.0]], [[1.0, 0.0, 0.0]],
+                                        backend=backend)
+    assert miss.estimates[0] == 1.0 and miss.lookups[0] == 0
+
+
+def test_transmittance_same_seed_same_estimates():
+    scene = volmc.load_scene(overrides=SMALL)
+    args = ([[0.0, 0.0, 4.0]], [[0.0, 0.0, -1.0]])
+    a = volmc.estimate_transmittance(scene, *args, estimator="ratio", n=16, seed=2)
+    b = volmc.estimate_transmittance(scene, *args, estimator="ratio", n=16, seed=2)
+    assert np.array_equal(a.estimates, b.estimates) and 0.0 <= a.estimates[0] < 1.0
+
+
+def test_errors_are_volmc_errors_with_the_cli_message(tmp_path):
+    from volmc.scene import SceneError
+    assert issubclass(SceneError, volmc.VolmcError)
+    cloud = str(scenes_dir() / "cloud.toml")
+    with pytest.raises(volmc.VolmcError) as e:
+        volmc.load_scene(cloud, {"render.spq": 4})
+    assert str(e.value) == f"{cloud}: render.spq: unknown key (did you mean 'spp'?)"
+    assert (e.value.file, e.value.key) == (cloud, "render.spq")
+    with pytest.raises(volmc.VolmcError) as e:
+        volmc.load_scene(cloud, ["render.spq=4"])
+    assert str(e.value) == f"{cloud}: render.spq: unknown key (did you mean 'spp'?)"
+    bad = np.ones((2, 2, 2))
+    bad[0, 1, 0] = np.nan
+    with pytest.raises(volmc.VolmcError) as e:
+        volmc.scene_from_dict(_base(bad))
+    assert str(e.value) == "<dict>: medium.density: grid contains 1 NaN and 0 infinite values"
+    for grid, msg in ((np.ones((2, 2)), "grid must be 3-D [z, y, x], got shape (2, 2)"),
+                      (-np.ones((1, 1, 2)), "grid contains 2 negative values (minimum -1)")):
+        with pytest.raises(volmc.VolmcError, match=r"^<dict>: medium.density: " +
+                           msg.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")
+                           .replace("]", r"\]")):
+            volmc.scene_from_dict(_base(grid))
+    scene = volmc.load_scene(overrides=SMALL)
+    for kwargs, text in (({"spp": 0}, "volmc.render(): spp: must be in [1, 4294967295], got 0"),
+                         ({"backend": "cuda"}, "volmc.render(): backend: must be one of"),
+                         ({"seed": -1}, "volmc.render(): seed: must be in")):
+        with pytest.raises(volmc.VolmcError, match=r"^" + text.replace("(", r"\(")
+                           .replace(")", r"\)").replace("[", r"\[").replace("]", r"\]")):
+            volmc.render(scene, progress=False, **kwargs)
+    with pytest.raises(volmc.VolmcError, match="unknown estimator 'nope'"):
+        volmc.estimate_transmittance(scene, [0, 0, 4], [0, 0, -1], estimator="nope")
+    with pytest.raises(volmc.VolmcError, match="directions: must not be the zero vector"):
+        volmc.estimate_transmittance(scene, [0, 0, 4], [0, 0, 0])
+    with pytest.raises(volmc.VolmcError, match="t_max: must be >= 0"):
+        volmc.estimate_transmittance(scene, [0, 0, 4], [0, 0, -1], -1.0)

@@ -1,0 +1,415 @@
+"""The Python API: load or build a scene, render it, estimate transmittance on your own rays.
+
+Everything here is exported from ``volmc`` (``volmc.load_scene``, ``volmc.render``, ...) and
+is a thin layer over what the command line runs: the same loader and validation
+(volmc/scene/), the same render driver (volmc/render.py), the same estimator runners
+(volmc/bench/transmittance_runner.py). Bad input raises ``volmc.VolmcError`` with the
+one-line ``<file>: <key>: <what is wrong>`` message the CLI prints.
+
+Units: lengths are world units, extinction ``scale * density`` is per world unit, radiance
+is linear RGB (the scene's units), times are seconds.
+
+Heavy modules (Numba, pyopencl, matplotlib) are imported inside the functions, so
+``import volmc`` stays light.
+"""
+
+import os
+from dataclasses import dataclass, field
+
+__all__ = ["load_scene", "scene_from_dict", "render", "estimate_transmittance", "VolmcError",
+           "RenderedImage", "TransmittanceResult"]
+
+def __getattr__(name):
+    # VolmcError lives in volmc/scene/errors.py; importing the scene package at once would
+    # import Numba (its grids), so it is looked up on first use.
+    if name == "VolmcError":
+        from .scene.errors import VolmcError
+        return VolmcError
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _error(file, key, message):
+    """The SceneError (a VolmcError) for ``file``, ``key`` and ``message``, to raise."""
+    from .scene.errors import SceneError as _SceneError
+    return _SceneError(file, key, message)
+
+
+#: Keys whose value may be a numpy array (a grid given directly); other arrays become lists.
+_GRID_KEYS = ("medium.density", "medium.emission.field", "medium.emission.temperature")
+
+
+def _plain(value, path=""):
+    """``value`` with numpy scalars as Python numbers, tuples and arrays as lists (the types
+    TOML gives the validator), except numpy arrays at a grid key, which are kept as grids."""
+    import numpy as np
+    if isinstance(value, np.ndarray):
+        return value if path in _GRID_KEYS else value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, dict):
+        return {k: _plain(v, f"{path}.{k}" if path else str(k)) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, f"{path}.{i}") for i, v in enumerate(value)]
+    return value
+
+
+def _overrides(overrides):
+    """Overrides for the loader: a dict of dotted keys (values made plain), a list of ``-D``
+    strings, or one string."""
+    if overrides is None:
+        return ()
+    if isinstance(overrides, dict):
+        return {k: _plain(v, k) for k, v in overrides.items()}
+    if isinstance(overrides, str):
+        return [overrides]
+    return list(overrides)
+
+
+def load_scene(path=None, overrides=None):
+    """Load a scene file (TOML, docs/scene_format.md) and return a ``volmc.scene.Scene``.
+
+    path: the ``.toml`` file; None loads the bundled default scene (the procedural cloud,
+    ``scenes/cloud.toml``). Relative paths inside the file are relative to it.
+    overrides: scene keys to change before validation, either a dict of dotted keys to
+    Python values, ``{"render.spp": 16, "camera.resolution": [64, 64], "lights.0.radiance":
+    0.5}`` (a numpy array as ``medium.density`` replaces the grid), or the CLI's ``-D``
+    strings, ``["render.spp=16"]`` (values parsed as TOML). Array elements are addressed by
+    a 0-based index.
+
+    The Scene is immutable: ``scene.camera``, ``scene.medium``, ``scene.lights`` and
+    ``scene.render`` are the validated dataclasses of volmc/scene/schema.py, ``scene.grid``
+    the float32 density grid [z, y, x] (None when homogeneous). Raises VolmcError.
+    """
+    from .resources import default_scene
+    from .scene import load_scene as _load
+    return _load(str(default_scene()) if path is None else os.fspath(path),
+                 _overrides(overrides))
+
+
+def scene_from_dict(scene, base_dir=".", overrides=None, name="<dict>"):
+    """Build a scene in Python and return a ``volmc.scene.Scene``.
+
+    scene: a dict with the structure of the TOML file (``{"camera": {...}, "medium": {...},
+    "lights": [{...}], "render": {...}}``), or a ``volmc.scene.SceneSpec`` built from the
+    dataclasses of volmc/scene/schema.py (``Camera``, ``Medium``, ``ConstantDensity``, ...,
+    ``ArrayDensity``). Either way it is validated exactly as a file is. Tuples and numpy
+    values are accepted where the TOML has arrays and numbers.
+    ``medium.density`` (and an emission ``field`` or ``temperature``) may be a numpy array
+    [z, y, x] (x fastest, voxel centres as for grid files), checked like a grid file: 3-D,
+    non-empty, real, finite and non-negative. The scene keeps a float32 copy.
+    base_dir: the directory relative grid-file paths are resolved against.
+    overrides: as for ``load_scene``. name: the "file" errors name. Raises VolmcError.
+    """
+    from .scene import scene_from_dict as _from_dict
+    from .scene.schema import SceneSpec
+    if isinstance(scene, SceneSpec):
+        from .scene.serialize import to_dict
+        scene = to_dict(scene)
+    if not isinstance(scene, dict):
+        raise _error(name, "", f"expected a dict or a SceneSpec, got {type(scene).__name__}")
+    return _from_dict(_plain(scene), file=name, base_dir=base_dir,
+                      overrides=_overrides(overrides))
+
+
+def _as_scene(scene, where):
+    """A Scene from a Scene, a scene file path, a dict or a SceneSpec."""
+    from .scene import Scene
+    if isinstance(scene, Scene):
+        return scene
+    if isinstance(scene, (str, os.PathLike)):
+        return load_scene(scene)
+    if isinstance(scene, dict) or type(scene).__name__ == "SceneSpec":
+        return scene_from_dict(scene)
+    raise _error(where, "scene", f"expected a Scene, a path or a dict, got "
+                                     f"{type(scene).__name__}")
+
+
+def _integer(v, where, key, lo, hi):
+    import numbers
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise _error(where, key, f"expected an integer, got {type(v).__name__} {v!r}")
+    if not lo <= int(v) <= hi:
+        raise _error(where, key, f"must be in [{lo}, {hi}], got {v}")
+    return int(v)
+
+
+def _backend_name(backend, device, where):
+    from .backends import BACKENDS
+    if backend not in BACKENDS:
+        raise _error(where, "backend", f"must be one of {', '.join(map(repr, BACKENDS))}, "
+                                           f"got {backend!r}")
+    if backend == "opencl":
+        from .cl.device import select_device
+        select_device(device)   # a bad device fails here, as one line
+    elif device is not None:
+        raise _error(where, "device", "a device applies to the opencl backend only")
+    return backend
+
+
+def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=True):
+    """Render a scene; returns a ``RenderedImage`` (``.image``, ``.variance``, ``.save()``).
+
+    scene: a Scene (``load_scene``, ``scene_from_dict``), a scene file path or a scene dict.
+    spp: samples per pixel (default: the scene's ``render.spp``). seed: in [0, 2^64)
+    (default: ``render.seed``). The same scene, spp and seed give the same image, bit for
+    bit, on a backend. backend: "opencl" (the kernels) or "numba" (the float64 reference).
+    device: OpenCL device, a pyopencl Device or a spec string as for ``--device`` ("pocl",
+    "0:1"; default ``$VOLMC_CL_DEVICE``, else the first PoCL device). progress: show a tqdm
+    bar on stderr. An interrupt (Ctrl-C, or the notebook's stop button) stops after the
+    current batch and returns the samples so far with ``partial`` True. Raises VolmcError.
+    """
+    from .backends import make_backend
+    from .render import render as _render
+    where = "volmc.render()"
+    scene = _as_scene(scene, where)
+    keys = {}
+    if spp is not None:
+        keys["spp"] = _integer(spp, where, "spp", 1, 2**32 - 1)
+    if seed is not None:
+        keys["seed"] = _integer(seed, where, "seed", 0, 2**64 - 1)
+    if keys:
+        scene = scene.with_render(**keys)
+    be = make_backend(_backend_name(backend, device, where), scene, device)
+    return RenderedImage(_render(scene, backend=be, progress=bool(progress)), scene)
+
+
+class RenderedImage:
+    """A finished (or interrupted) render.
+
+    image: linear RGB radiance, float32 [height, width, 3], row 0 at the top.
+    variance: per-pixel variance of the mean (of ``image``), float32 [height, width, 3];
+    inf with fewer than 2 samples per pixel. The standard error is ``sqrt(variance)``.
+    counters: dict of the render's totals (``lookups``, ``scatter_events``, ``shadow_rays``,
+    ``capped``, ``dropped``, ``over_majorant``). seconds: render time (s, without
+    compilation). spp: samples per pixel rendered; seed; backend; partial: True if
+    interrupted; scene: the Scene rendered; result: the driver's ``volmc.render.RenderResult``
+    (its ``film`` holds the float64 sums). ``stats()``: samples/s and per-sample counts.
+    ``save(path)`` writes an EXR or PNG; in Jupyter the object shows as a tonemapped PNG.
+    """
+
+    def __init__(self, result, scene):
+        import numpy as np
+        self.result = result
+        self.scene = scene
+        self.image = result.film.mean().astype(np.float32)
+        self.variance = result.film.variance_of_mean().astype(np.float32)
+        self.counters = dict(result.counters)
+        self.seconds = result.seconds
+        self.spp = result.film.spp
+        self.seed = result.seed
+        self.backend = result.backend
+        self.partial = result.partial
+
+    def stats(self):
+        """samples, samples_per_second, mean_path_length, lookups_per_sample, ... (dict)."""
+        return self.result.stats()
+
+    def metadata(self):
+        """The EXR metadata ``volmc render`` writes (spp, seed, backend, time, counters, the
+        scene as TOML when it has no array grid)."""
+        meta = self.result.metadata()
+        meta["scene"] = self.scene.file
+        try:
+            from .scene.serialize import to_toml
+            meta["scene_toml"] = to_toml(self.scene.spec)
+        except TypeError:   # a numpy grid has no TOML form
+            pass
+        return meta
+
+    def save(self, path, exposure=0.0, tonemap="filmic"):
+        """Write the image: ``.exr`` (float32 RGB with metadata, as ``volmc render``) or
+        ``.png`` (tonemapped 8-bit sRGB: ``exposure`` in stops, ``tonemap`` "filmic" or
+        "clamp"), chosen by the extension. Returns the path. Raises VolmcError."""
+        from .cli import _check_writable
+        from .film import write_exr, write_png
+        where = "RenderedImage.save()"
+        path = os.fspath(path)
+        _check_writable(path, "path", where)
+        suffix = os.path.splitext(path)[1].lower()
+        if suffix == ".exr":
+            write_exr(path, self.image, self.metadata())
+        elif suffix == ".png":
+            if tonemap not in ("filmic", "clamp"):
+                raise _error(where, "tonemap", f"must be 'filmic' or 'clamp', got "
+                                                   f"{tonemap!r}")
+            write_png(path, self.image, exposure, tonemap)
+        else:
+            raise _error(where, "path", f"expected a path ending in .exr or .png, got "
+                                            f"{path!r}")
+        return path
+
+    def png_bytes(self, exposure=0.0, tonemap="filmic"):
+        """The tonemapped 8-bit sRGB PNG of the image, as bytes."""
+        import io
+
+        import numpy as np
+        from matplotlib import image as mpimg
+        from .film import tonemap as _tonemap
+        rgb = (_tonemap(self.image, exposure, tonemap) * 255.0 + 0.5).astype(np.uint8)
+        buf = io.BytesIO()
+        mpimg.imsave(buf, rgb, format="png")
+        return buf.getvalue()
+
+    def _repr_png_(self):
+        return self.png_bytes()
+
+    def __repr__(self):
+        h, w = self.image.shape[:2]
+        state = ", partial" if self.partial else ""
+        return (f"<RenderedImage {w}x{h}, {self.spp} spp, seed {self.seed}, {self.backend}, "
+                f"{self.seconds:.2f} s{state}>")
+
+
+@dataclass
+class TransmittanceResult:
+    """Transmittance estimates along k rays (``estimate_transmittance``).
+
+    estimates: float64 [k] (or [k, 3] RGB for a medium with colour-dependent extinction),
+    per ray the mean of ``n`` independent estimates of T = exp(-optical depth).
+    stderr: the standard error of each mean (sample standard deviation / sqrt(n); nan when
+    n = 1; 0 for a ray that misses the medium, whose T is exactly 1).
+    lookups: float64 [k], mean density lookups per estimate (the estimator's cost).
+    t_enter, t_exit: float64 [k], the world-unit distances along each (normalised) ray
+    where the estimated segment starts and ends (the ray clipped to the medium box and to
+    t_max); nan for a ray with no segment in the box. estimator, n, backend: as asked. counters: totals over all
+    estimates (``capped``: walks cut by the step cap; ``over_majorant``: lookups above the
+    majorant, both 0 for an unbiased estimate).
+    """
+    estimates: object
+    stderr: object
+    lookups: object
+    t_enter: object
+    t_exit: object
+    estimator: str
+    n: int
+    backend: str
+    counters: dict = field(default_factory=dict)
+
+
+def _medium_scene(medium, where):
+    """A Scene from a Scene, path, scene dict or a ``[medium]`` table alone."""
+    if isinstance(medium, dict) and "medium" not in medium:
+        return scene_from_dict({"camera": {}, "medium": medium}, name="<medium>")
+    return _as_scene(medium, where)
+
+
+def _rays(origins, directions, t_max, where):
+    """Broadcast float64 origins [k, 3], unit directions [k, 3] and t_max [k], checked."""
+    import numpy as np
+    try:
+        o = np.atleast_2d(np.asarray(origins, np.float64))
+        d = np.atleast_2d(np.asarray(directions, np.float64))
+        t = np.atleast_1d(np.asarray(t_max, np.float64))
+    except (TypeError, ValueError) as e:
+        raise _error(where, "rays", f"expected arrays of numbers: {e}") from None
+    for a, key in ((o, "origins"), (d, "directions")):
+        if a.ndim != 2 or a.shape[1] != 3:
+            raise _error(where, key, f"expected shape [k, 3], got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise _error(where, key, "must be finite")
+    if t.ndim != 1:
+        raise _error(where, "t_max", f"expected a number or shape [k], got {t.shape}")
+    if np.any(np.isnan(t)) or np.any(t < 0):
+        raise _error(where, "t_max", "must be >= 0 (inf allowed)")
+    try:
+        k = np.broadcast_shapes((len(o),), (len(d),), (len(t),))[0]
+    except ValueError:
+        raise _error(where, "rays", f"origins, directions and t_max disagree on the "
+                                        f"number of rays ({len(o)}, {len(d)}, {len(t)})") \
+            from None
+    norm = np.linalg.norm(d, axis=1, keepdims=True)
+    if np.any(norm == 0):
+        raise _error(where, "directions", "must not be the zero vector")
+    o, d, t = (np.broadcast_to(x, (k,) + x.shape[1:]) for x in (o, d / norm, t))
+    return o, d, t
+
+
+def _clip(o, d, t_max, lo, hi):
+    """(t_enter, t_exit) of rays o + t d (t >= 0) in the box [lo, hi], cut at t_max; the slab
+    test of reference/integrator.ray_box, vectorised (a ray parallel to a slab and outside it
+    misses)."""
+    import numpy as np
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        ta, tb = (lo - o) * inv, (hi - o) * inv
+    par = d == 0.0
+    inside = (o >= lo) & (o <= hi)
+    t_lo = np.where(par, np.where(inside, -np.inf, np.inf), np.minimum(ta, tb))
+    t_hi = np.where(par, np.where(inside, np.inf, -np.inf), np.maximum(ta, tb))
+    t0 = np.maximum(t_lo.max(axis=1), 0.0)
+    t1 = np.minimum(t_hi.min(axis=1), t_max)
+    return t0, np.maximum(t1, t0)
+
+
+def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("inf"),
+                           estimator="auto", n=64, backend="opencl", seed=0, device=None):
+    """Estimate the transmittance along your own rays with any registered estimator.
+
+    scene_or_medium: a Scene (its medium and its majorant structure: ``render.majorant``,
+    ``render.majorant_resolution``), a scene file path or dict, or a ``[medium]`` table
+    alone, e.g. ``{"bounds": [[-1, -1, -1], [1, 1, 1]], "density": 2.0}`` (homogeneous) or
+    ``{"bounds": ..., "density": numpy_grid, "scale": 10.0}`` (grid majorant by default).
+    origins [k, 3], directions [k, 3] (normalised here; not zero), t_max: a number or [k]
+    (world units along the normalised ray; inf allowed): rays in world coordinates, broadcast
+    against each other. Each ray is clipped to the medium box and to [0, t_max], as the
+    renderer clips its rays, and estimated in the renderer's scene frame (pack.scene_frame).
+    estimator: a name in ``volmc.techniques.ESTIMATORS`` ("auto": volmc's choice for a
+    fixed ray; "analytic" is exact only in a homogeneous medium). n: estimates per ray.
+    backend: "opencl" or "numba"; seed: in [0, 2^64) (same seed, same estimates); device: as
+    for ``render``. Homogeneous media, and homogeneous majorant cells, are traversed exactly.
+
+    Returns a ``TransmittanceResult`` (estimates, stderr, lookups, t_enter, t_exit, ...).
+    Raises VolmcError.
+    """
+    import numpy as np
+    from .bench.transmittance_runner import estimator as make_runner
+    from .pack import pack_scene, scene_frame
+    from .params import COUNTER_NAMES, C_LOOKUPS
+    from .scene.bricks import stores_bricks
+    from .techniques import ESTIMATORS
+    where = "volmc.estimate_transmittance()"
+    scene = _medium_scene(scene_or_medium, where)
+    if estimator not in ESTIMATORS:
+        raise _error(where, "estimator", f"unknown estimator {estimator!r} (have "
+                                             f"{', '.join(ESTIMATORS)})")
+    est = ESTIMATORS[estimator]
+    chromatic = scene.medium.chromatic
+    if chromatic and not est.chromatic:
+        raise _error(where, "estimator", f"'{estimator}' estimates grey transmittance only; "
+                                             "medium.scale differs per channel")
+    n = _integer(n, where, "n", 1, 2**31 - 1)
+    seed = _integer(seed, where, "seed", 0, 2**64 - 1)
+    backend = _backend_name(backend, device, where)
+    o, d, t_max = _rays(origins, directions, t_max, where)
+    if stores_bricks(scene):   # the runners read dense grids
+        scene = scene.with_render(grid_storage="dense")
+    pk = pack_scene(scene, np.float64)
+    m = pk.medium[0]
+    centre, unit = scene_frame(scene)
+    lo, hi = np.asarray(m["bmin"], np.float64), np.asarray(m["bmax"], np.float64)
+    o_local = (o - np.asarray(centre)) / unit
+    t0, t1 = _clip(o_local, d, t_max / unit, lo, hi)
+    hit = t1 > t0
+    t0, t1 = np.where(hit, t0, np.nan), np.where(hit, t1, np.nan)
+    k = len(o)
+    shape = (k, 3) if chromatic else (k,)
+    mean, stderr = np.ones(shape), np.zeros(shape)
+    lookups = np.zeros(k)
+    counters = {name: 0 for name in COUNTER_NAMES}
+    if hit.any():
+        # Each segment starts at its entry point (kept inside the box), as the renderer's
+        # entry re-basing does: float32 sees short distances from nearby numbers.
+        start = np.clip(o_local[hit] + t0[hit, None] * d[hit], lo, hi)
+        rays = np.zeros((int(hit.sum()), 9))
+        rays[:, :3], rays[:, 3:6], rays[:, 7] = start, d[hit], (t1 - t0)[hit]
+        runner = make_runner(backend, estimator, device, chromatic=chromatic)
+        out, cnt = runner.run(pk.medium, pk.grid, rays, None, n, seed, 0, maj=pk.maj,
+                              mnr=pk.mnr, nodes=pk.nodes)
+        out = out.reshape((len(rays), n) + shape[1:])
+        mean[hit] = out.mean(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            stderr[hit] = out.std(axis=1, ddof=1) / np.sqrt(n) if n > 1 else np.nan
+        lookups[hit] = cnt[:, C_LOOKUPS].reshape(len(rays), n).mean(axis=1)
+        counters = {name: int(cnt[:, i].sum()) for i, name in enumerate(COUNTER_NAMES)}
+    return TransmittanceResult(mean, stderr, lookups, t0 * unit, t1 * unit, estimator, n,
+                               backend, counters)
