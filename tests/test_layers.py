@@ -13,10 +13,10 @@ LAYERS = [
     ("volmc.reference",),
     ("volmc.techniques",),
     ("volmc.scene",),
-    ("volmc.pack", "volmc.film"),
+    ("volmc.pack", "volmc.film", "volmc.checkpoint"),
     ("volmc.cl", "volmc.memory"),
     ("volmc.backends",),
-    ("volmc.render", "volmc.check"),
+    ("volmc.render", "volmc.check", "volmc.distributed"),
     ("volmc.bench", "volmc.peers", "volmc.cli", "volmc"),
 ]
 ROOT = Path(volmc.__file__).parent
