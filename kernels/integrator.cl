@@ -265,7 +265,7 @@ static inline float3 sample_equiangular_lights(const Params *prm, global const L
         float dist;
         float3 wl = direction_to(p, c, &dist);
         if (!(dist > 0.0f)) continue;
-        spec sig = medium_chroma(med) * extinction(med, p, INFINITY, counters);
+        spec sig = medium_chroma(med) * extinction(med, p, NO_LIMIT, counters);
         float3 sig_s = vec3(m->albedo) * sig;
         if (fmax(sig_s.x, fmax(sig_s.y, sig_s.z)) <= 0.0f) continue;
         counters[C_SHADOW] += 1;

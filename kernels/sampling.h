@@ -5,11 +5,12 @@
 #define VOLMC_SAMPLING_H
 
 #include "params.h" /* INV_4PI, TWO_PI (volmc/constants.py) */
+#include "guards.h" /* NO_LIMIT */
 
 static inline float sample_exponential(float u, float a, float *pdf) {
     if (a <= 0.0f) {
         *pdf = 0.0f;
-        return INFINITY;
+        return NO_LIMIT; /* no collision; math.inf in the Numba twin (volmc/constants.py) */
     }
     float t = -log1p(-u) / a;
     *pdf = a * (1.0f - u); /* a e^{-a t} at the sampled t, without an exp */
