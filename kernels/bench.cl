@@ -6,7 +6,7 @@
 #include "grid.h"
 
 /* 32-bit integer hash (a PCG output permutation): cheap, so the ceiling is the lookups'. */
-inline uint bench_hash(uint x) {
+static inline uint bench_hash(uint x) {
     uint s = x * 747796405u + 2891336453u;
     uint w = ((s >> ((s >> 28u) + 4u)) ^ s) * 277803737u;
     return (w >> 22u) ^ w;

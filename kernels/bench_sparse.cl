@@ -11,19 +11,19 @@
  *           points half a voxel apart (coherent, as tracking reads). */
 #include "grid.h"
 
-inline uint sb_hash(uint x) {
+static inline uint sb_hash(uint x) {
     uint s = x * 747796405u + 2891336453u;
     uint w = ((s >> ((s >> 28u) + 4u)) ^ s) * 277803737u;
     return (w >> 22u) ^ w;
 }
 
-inline float sb_unit(uint *st) {
+static inline float sb_unit(uint *st) {
     *st = sb_hash(*st);
     return (float)(*st >> 8) * 0x1p-24f;
 }
 
-inline float sparse_lookup_fast_path(global const int *table, global const float *pool,
-                                     int3 dims, float3 bmin, float3 inv_extent, float3 p) {
+static inline float sparse_lookup_fast_path(global const int *table, global const float *pool,
+                                            int3 dims, float3 bmin, float3 inv_extent, float3 p) {
     float3 x = (p - bmin) * inv_extent * convert_float3(dims) - 0.5f;
     x = clamp(x, (float3)(0.0f), convert_float3(dims - 1));
     int3 i0 = min(convert_int3_rtz(x), dims - 1);
@@ -60,9 +60,9 @@ inline float sparse_lookup_fast_path(global const int *table, global const float
     return lerp_ab(lerp_ab(c00, c10, f.y), lerp_ab(c01, c11, f.y), f.z);
 }
 
-inline float sb_lookup(global const float *grid, global const int *table,
-                       global const float *pool, int3 dims, float3 bmin, float3 inv_extent,
-                       float3 p) {
+static inline float sb_lookup(global const float *grid, global const int *table,
+                              global const float *pool, int3 dims, float3 bmin, float3 inv_extent,
+                              float3 p) {
 #if LOOKUP_KIND == 0
     return grid_lookup(grid, dims, bmin, inv_extent, p);
 #elif LOOKUP_KIND == 1
@@ -73,7 +73,7 @@ inline float sb_lookup(global const float *grid, global const int *table,
 }
 
 /* A point in brick (x, y, z) = bricks[3 k ...] of a random k, as voxel coordinates. */
-inline float3 sb_brick_point(global const int *bricks, uint n_bricks, int3 dims, uint *st) {
+static inline float3 sb_brick_point(global const int *bricks, uint n_bricks, int3 dims, uint *st) {
     *st = sb_hash(*st);
     uint k = *st % n_bricks;
     float3 v = (float3)(bricks[3 * k], bricks[3 * k + 1], bricks[3 * k + 2]) * 8.0f;

@@ -11,8 +11,8 @@ typedef struct {
 } Dda;
 
 /* res_zyx = (cz, cy, cx) cells tiling [bmin, bmax]; the segment is already clipped. */
-inline void dda_init(Dda *state, float3 o, float3 d, float t0, float t1, float3 bmin, float3 bmax,
-                     int3 res_zyx) {
+static inline void dda_init(Dda *state, float3 o, float3 d, float t0, float t1, float3 bmin,
+                            float3 bmax, int3 res_zyx) {
     float oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
     float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
     int n[3] = {res_zyx.z, res_zyx.y, res_zyx.x};
@@ -43,7 +43,7 @@ inline void dda_init(Dda *state, float3 o, float3 d, float t0, float t1, float3 
 }
 
 /* Returns 0 when the walk is over; else writes the segment and its cell (ix, iy, iz). */
-inline int dda_next(Dda *state, float *t_enter, float *t_exit, int3 *cell) {
+static inline int dda_next(Dda *state, float *t_enter, float *t_exit, int3 *cell) {
     if (state->done) return 0;
     int a = 0;
     if (state->tnext[1] < state->tnext[a]) a = 1;
@@ -69,7 +69,7 @@ inline int dda_next(Dda *state, float *t_enter, float *t_exit, int3 *cell) {
 }
 
 /* Flat index of a cell (ix, iy, iz) in a [cz][cy][cx] array. */
-inline int dda_cell_index(int3 cell, int3 res_zyx) {
+static inline int dda_cell_index(int3 cell, int3 res_zyx) {
     return (cell.z * res_zyx.y + cell.y) * res_zyx.z + cell.x;
 }
 

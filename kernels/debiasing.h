@@ -14,7 +14,7 @@
 
 /* TELESCOPE_* and JACKKNIFE_* come from the generated params.h (volmc/constants.py). */
 
-inline int telescoping_levels(float v, int n, int max_steps, bool *capped) {
+static inline int telescoping_levels(float v, int n, int max_steps, bool *capped) {
     int k = 0;
     float q = TELESCOPE_CONTINUE; /* P(K >= k + 1) */
     while (v <= q && k < TELESCOPE_MAX_LEVEL) {
@@ -30,7 +30,7 @@ inline int telescoping_levels(float v, int n, int max_steps, bool *capped) {
 }
 
 /* v, or 0 in each channel that is not finite. */
-inline spec finite_or_zero3(spec v) {
+static inline spec finite_or_zero3(spec v) {
 #if FEATURE_CHROMATIC
     return (float3)(finite_bits(v.x) ? v.x : 0.0f, finite_bits(v.y) ? v.y : 0.0f,
                     finite_bits(v.z) ? v.z : 0.0f);
@@ -39,9 +39,9 @@ inline spec finite_or_zero3(spec v) {
 #endif
 }
 
-inline spec telescoping_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
-                                float mbar, float mu_c, Rng *rng, ulong *counters,
-                                int max_steps) {
+static inline spec telescoping_segment(const MediumData *med, float3 o, float3 d, float t0,
+                                       float t1, float mbar, float mu_c, Rng *rng, ulong *counters,
+                                       int max_steps) {
     float L = t1 - t0;
     if (segment_degenerate(L, mbar, counters, max_steps, 1)) return 1.0f;
     spec kc = medium_chroma(med);
@@ -81,7 +81,7 @@ inline spec telescoping_segment(const MediumData *med, float3 o, float3 d, float
 }
 
 /* The jackknife estimate of one channel, whose combs are k xs (k its chroma). */
-inline float jackknife_channel(const float *xs, float k) {
+static inline float jackknife_channel(const float *xs, float k) {
     int g = JACKKNIFE_GROUPS;
     float total = 0.0f;
     for (int i = 0; i < g; ++i) total += k * xs[i];
@@ -94,9 +94,9 @@ inline float jackknife_channel(const float *xs, float k) {
     return finite_bits(est) ? est : 0.0f;
 }
 
-inline spec jackknife_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
-                              float mbar, float mu_c, Rng *rng, ulong *counters,
-                              int max_steps) {
+static inline spec jackknife_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
+                                     float mbar, float mu_c, Rng *rng, ulong *counters,
+                                     int max_steps) {
     float L = t1 - t0;
     int g = JACKKNIFE_GROUPS;
     if (segment_degenerate(L, mbar, counters, max_steps, g)) return 1.0f;

@@ -24,9 +24,9 @@
 #include "debiasing.h"
 #endif
 
-inline spec biased_raymarch_segment(const MediumData *med, float3 o, float3 d, float t0,
-                                    float t1, float mbar, float mu_c, Rng *rng,
-                                    ulong *counters, int max_steps) {
+static inline spec biased_raymarch_segment(const MediumData *med, float3 o, float3 d, float t0,
+                                           float t1, float mbar, float mu_c, Rng *rng,
+                                           ulong *counters, int max_steps) {
     float L = fmax(t1 - t0, 0.0f);
     if (mbar <= 0.0f || L <= 0.0f) return 1.0f;
     int n = max(1, (int)ceil(RAYMARCH_SAMPLES_PER_MFP * mbar * L));
@@ -38,9 +38,9 @@ inline spec biased_raymarch_segment(const MediumData *med, float3 o, float3 d, f
                  optical_depth_comb(med, o, d, t0, L, n, rng_next(rng), mbar, counters)));
 }
 
-inline spec segment_estimate(int kind, const MediumData *med, float3 o, float3 d, float t0,
-                             float t1, float s_maj, float s_min, Rng *rng, ulong *counters,
-                             int max_steps) {
+static inline spec segment_estimate(int kind, const MediumData *med, float3 o, float3 d, float t0,
+                                    float t1, float s_maj, float s_min, Rng *rng, ulong *counters,
+                                    int max_steps) {
     if (kind == SEGMENT_BIASED_RAYMARCH)
         return biased_raymarch_segment(med, o, d, t0, t1, s_maj, s_min, rng, counters,
                                        max_steps);
@@ -62,9 +62,9 @@ inline spec segment_estimate(int kind, const MediumData *med, float3 o, float3 d
 }
 
 /* RGB in chromatic builds, with transmittance roulette on the largest channel (spec_roulette). */
-inline spec transmittance_by_segments(const MediumData *med, float3 o, float3 d, float t0,
-                                      float t1, int kind, Rng *rng, ulong *counters,
-                                      int max_steps) {
+static inline spec transmittance_by_segments(const MediumData *med, float3 o, float3 d, float t0,
+                                             float t1, int kind, Rng *rng, ulong *counters,
+                                             int max_steps) {
     o = o + t0 * d;
     MajorantIter it;
     majorant_iter_init(&it, med, o, d, 0.0f, t1 - t0);
@@ -86,13 +86,13 @@ inline spec transmittance_by_segments(const MediumData *med, float3 o, float3 d,
 #define TRANSMITTANCE_ARGS const MediumData *med, float3 o, float3 d, float t0, float t1, \
     Rng *rng, ulong *counters, int max_steps
 
-inline spec transmittance_analytic(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_analytic(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_ANALYTIC, rng, counters,
                                      max_steps);
 }
 
 /* The tracking estimators return spec too. */
-inline spec tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
+static inline spec tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
     float t;
     spec T;
     float3 E;
@@ -101,65 +101,65 @@ inline spec tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
     return T;
 }
 
-inline spec transmittance_track_length(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_track_length(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_LENGTH);
 }
 
-inline spec transmittance_ratio_tracking(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_ratio_tracking(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_RATIO);
 }
 
-inline spec transmittance_residual_ratio(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_residual_ratio(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps,
                                  TRACK_RESIDUAL_RATIO);
 }
 
-inline spec transmittance_next_flight(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_next_flight(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps,
                                  TRACK_NEXT_FLIGHT);
 }
 
 #if defined(VOLMC_POWER_SERIES) && defined(VOLMC_DEBIASING)
 /* render.transmittance = "auto" (twins in estimators.py, which say why). */
-inline int auto_alone_kind(const MediumData *med) {
+static inline int auto_alone_kind(const MediumData *med) {
     return (FEATURE_CHROMATIC ? med->m.spectral != SPECTRAL_GREY : 0) ? SEGMENT_TELESCOPING
                                                                       : SEGMENT_UNBIASED_RAYMARCH;
 }
 
-inline spec transmittance_auto(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_auto(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, auto_alone_kind(med), rng, counters,
                                      max_steps);
 }
 #endif
 
-inline spec transmittance_auto_shadow(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_auto_shadow(TRANSMITTANCE_ARGS) {
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_AUTO);
 }
 
-inline spec transmittance_biased_raymarch(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_biased_raymarch(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_BIASED_RAYMARCH, rng,
                                      counters, max_steps);
 }
 
 #ifdef VOLMC_POWER_SERIES
-inline spec transmittance_power_series(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_power_series(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_POWER_SERIES, rng, counters,
                                      max_steps);
 }
 
-inline spec transmittance_unbiased_raymarch(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_unbiased_raymarch(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_UNBIASED_RAYMARCH, rng,
                                      counters, max_steps);
 }
 #endif
 
 #ifdef VOLMC_DEBIASING
-inline spec transmittance_telescoping(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_telescoping(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_TELESCOPING, rng, counters,
                                      max_steps);
 }
 
-inline spec transmittance_jackknife(TRANSMITTANCE_ARGS) {
+static inline spec transmittance_jackknife(TRANSMITTANCE_ARGS) {
     return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_JACKKNIFE, rng, counters,
                                      max_steps);
 }

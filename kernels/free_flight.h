@@ -8,9 +8,9 @@
  * the flight's weight w (spectral tracking; 1 when grey) and the emission gathered per unit
  * beta. The caller adds beta * E and multiplies beta by w; with a hero channel (>= 0) beta
  * is the path's decision-probability ratios and w their update (see tracking.py). */
-inline int free_flight(const MediumData *med, float3 o, float3 d, float t0, float t1,
-                       int use_control, float3 beta, int hero, Rng *rng, ulong *counters,
-                       int max_steps, float *t_out, spec *w_out, float3 *E_out) {
+static inline int free_flight(const MediumData *med, float3 o, float3 d, float t0, float t1,
+                              int use_control, float3 beta, int hero, Rng *rng, ulong *counters,
+                              int max_steps, float *t_out, spec *w_out, float3 *E_out) {
     return track(med, o, d, t0, t1, TRACK_FREE_FLIGHT, use_control, beta, hero, rng, counters,
                  max_steps, t_out, w_out, E_out);
 }

@@ -5,10 +5,10 @@
 #define VOLMC_GRID_H
 
 /* Same operation order as the reference: a (1 - t) + b t. */
-inline float lerp_ab(float a, float b, float t) { return a * (1.0f - t) + b * t; }
+static inline float lerp_ab(float a, float b, float t) { return a * (1.0f - t) + b * t; }
 
-inline float grid_lookup(global const float *grid, int3 dims, float3 bmin, float3 inv_extent,
-                         float3 p) {
+static inline float grid_lookup(global const float *grid, int3 dims, float3 bmin,
+                                float3 inv_extent, float3 p) {
     float3 x = (p - bmin) * inv_extent * convert_float3(dims) - 0.5f;
     x = clamp(x, (float3)(0.0f), convert_float3(dims - 1));
     /* x >= 0 after the clamp, so truncation is floor (and far cheaper than floor() on PoCL). */
@@ -40,8 +40,8 @@ inline float grid_lookup(global const float *grid, int3 dims, float3 bmin, float
  * the Numba twin does) measured 5-10 % slower on PoCL for random points and no faster along
  * rays (volmc/bench/sparse.py). Table indices are int (fewer than 2^31 bricks); pool offsets
  * are size_t, so the pool may exceed 2^31 voxels. */
-inline float sparse_lookup(global const int *table, global const float *pool, int3 dims,
-                           float3 bmin, float3 inv_extent, float3 p) {
+static inline float sparse_lookup(global const int *table, global const float *pool, int3 dims,
+                                  float3 bmin, float3 inv_extent, float3 p) {
     float3 x = (p - bmin) * inv_extent * convert_float3(dims) - 0.5f;
     x = clamp(x, (float3)(0.0f), convert_float3(dims - 1));
     int3 i0 = min(convert_int3_rtz(x), dims - 1);

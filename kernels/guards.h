@@ -15,10 +15,10 @@
 #define NO_LIMIT FLT_MAX
 
 /* 1 unless x is NaN or +-Inf (all exponent bits set). */
-inline int finite_bits(float x) { return (as_uint(x) & 0x7f800000u) != 0x7f800000u; }
+static inline int finite_bits(float x) { return (as_uint(x) & 0x7f800000u) != 0x7f800000u; }
 
 /* 1 if the sample may be accumulated. Negative zero is kept (it is a zero). */
-inline int sample_ok(float3 c, int signed_samples) {
+static inline int sample_ok(float3 c, int signed_samples) {
     if (!(finite_bits(c.x) && finite_bits(c.y) && finite_bits(c.z))) return 0;
     return signed_samples || !(c.x < 0.0f || c.y < 0.0f || c.z < 0.0f);
 }

@@ -22,11 +22,11 @@
 #include "free_flight.h"
 #include "estimators.h"
 
-inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2]); }
+static inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 
 /* Returns t_enter, writes t_exit; no hit when t_enter >= t_exit. Zero direction components
  * (including -0.0) are handled without 0 * inf. */
-inline float ray_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t_exit) {
+static inline float ray_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t_exit) {
     float t0 = -FLT_MAX, t1 = FLT_MAX;  /* "no limit": see NO_LIMIT in guards.h */
     float oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
     float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
@@ -57,8 +57,8 @@ inline float ray_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t_exit
  * would bury the path). Returns the origin to use; writes the local segment [*t0, *t1] (no
  * medium when *t1 <= *t0) and the distance *shift the origin moved along d. Twin of
  * enter_box in integrator.py. */
-inline float3 enter_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t0, float *t1,
-                        float *shift) {
+static inline float3 enter_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t0, float *t1,
+                               float *shift) {
     float te = ray_box(o, d, bmin, bmax, t1);
     *shift = 0.0f;
     if (!(te > 0.0f && *t1 > te)) {
@@ -89,12 +89,13 @@ inline float3 enter_box(float3 o, float3 d, float3 bmin, float3 bmax, float *t0,
 }
 
 /* x with the components where beta is 0 set to 0 (twin in integrator.py). */
-inline float3 keep_carried(float3 beta, float3 x) {
+static inline float3 keep_carried(float3 beta, float3 x) {
     return (float3)(beta.x != 0.0f ? x.x : 0.0f, beta.y != 0.0f ? x.y : 0.0f,
                     beta.z != 0.0f ? x.z : 0.0f);
 }
 
-inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, float3 *dir) {
+static inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2,
+                                float3 *dir) {
     float sx = (2.0f * ((float)px + u1) / (float)prm->width - 1.0f) * prm->half_height * prm->aspect;
     float sy = (1.0f - 2.0f * ((float)py + u2) / (float)prm->height) * prm->half_height;
     float3 f = vec3(prm->forward), r = vec3(prm->right), u = vec3(prm->up), e = vec3(prm->eye);
@@ -106,8 +107,9 @@ inline float3 camera_ray(const Params *prm, int px, int py, float u1, float u2, 
     return e;
 }
 
-inline spec shadow_transmittance(const Params *prm, const MediumData *med, float3 o, float3 d,
-                                 float t_max, int view, Rng *rng_s, ulong *counters) {
+static inline spec shadow_transmittance(const Params *prm, const MediumData *med, float3 o,
+                                        float3 d, float t_max, int view, Rng *rng_s,
+                                        ulong *counters) {
     float t0, t1, shift;
     o = enter_box(o, d, vec3(med->m.bmin), vec3(med->m.bmax), &t0, &t1, &shift);
     t1 = fmin(t1, t_max - shift);
@@ -122,17 +124,18 @@ inline spec shadow_transmittance(const Params *prm, const MediumData *med, float
 
 /* Where a path's uniforms come from (render.sampler): twins of bounce_pair, path_pair_u24,
  * path_u2 and path_u1 in integrator.py, which describe them. */
-inline int bounce_pair(int b, int offset) {
+static inline int bounce_pair(int b, int offset) {
     return b >= SAMPLER_BOUNCES ? -1 : SAMPLER_FIRST_BOUNCE + b * SAMPLER_PAIRS_PER_BOUNCE + offset;
 }
 
-inline uint2 path_pair_u24(const Params *prm, uint pix, uint s, int pair, uint j, uint count) {
+static inline uint2 path_pair_u24(const Params *prm, uint pix, uint s, int pair, uint j,
+                                  uint count) {
     return sampler_pair(prm->sampler, prm->seed_lo, prm->seed_hi, pix, s * count + j,
                         (uint)pair, prm->spp * count);
 }
 
-inline float2 path_u2(const Params *prm, uint pix, uint s, int pair, uint j, uint count,
-                      Rng *rng) {
+static inline float2 path_u2(const Params *prm, uint pix, uint s, int pair, uint j, uint count,
+                             Rng *rng) {
     if (prm->sampler == SAMPLER_INDEPENDENT || pair < 0) {
         float u1 = rng_next(rng);
         return (float2)(u1, rng_next(rng));
@@ -140,8 +143,8 @@ inline float2 path_u2(const Params *prm, uint pix, uint s, int pair, uint j, uin
     return convert_float2(path_pair_u24(prm, pix, s, pair, j, count)) * UNIFORM_SCALE;
 }
 
-inline float path_u1(const Params *prm, uint pix, uint s, int pair, int axis, uint j,
-                     uint count, Rng *rng) {
+static inline float path_u1(const Params *prm, uint pix, uint s, int pair, int axis, uint j,
+                            uint count, Rng *rng) {
     if (prm->sampler == SAMPLER_INDEPENDENT || pair < 0) return rng_next(rng);
     uint2 a = path_pair_u24(prm, pix, s, pair, j, count);
     return (float)(axis == 1 ? a.y : a.x) * UNIFORM_SCALE;
@@ -153,7 +156,7 @@ inline float path_u1(const Params *prm, uint pix, uint s, int pair, int axis, ui
 #define EQUIANGULAR_ALONE 1
 #define EQUIANGULAR_MIS 2
 
-inline int equiangular_mode(const Params *prm, const Medium *m) {
+static inline int equiangular_mode(const Params *prm, const Medium *m) {
     if (!prm->equiangular) return EQUIANGULAR_OFF;
     return m->density_kind == DENSITY_CONSTANT && m->spectral == SPECTRAL_GREY
                ? EQUIANGULAR_MIS
@@ -161,7 +164,7 @@ inline int equiangular_mode(const Params *prm, const Medium *m) {
 }
 
 /* Returns the unit direction from p to c, writes the distance (0 when p = c). */
-inline float3 direction_to(float3 p, float3 c, float *dist) {
+static inline float3 direction_to(float3 p, float3 c, float *dist) {
     float3 v = c - p;
     *dist = sqrt(dot(v, v));
     return *dist > 0.0f ? v / *dist : v;
@@ -169,7 +172,7 @@ inline float3 direction_to(float3 p, float3 c, float *dist) {
 
 /* Returns the ray parameter h of c's foot on the ray o + t d, writes c's distance D from the
  * ray's line. */
-inline float foot_on_ray(float3 c, float3 o, float3 d, float *D) {
+static inline float foot_on_ray(float3 c, float3 o, float3 d, float *D) {
     float3 v = c - o;
     float h = dot(v, d);
     float3 w = v - h * d;
@@ -178,14 +181,14 @@ inline float foot_on_ray(float3 c, float3 o, float3 d, float *D) {
 }
 
 /* sigma e^{-sigma (t - t0)}: free flight's collision density in a homogeneous grey medium. */
-inline float free_flight_pdf(const Medium *m, float t0, float t) {
+static inline float free_flight_pdf(const Medium *m, float t0, float t) {
     float s = m->scale * m->density;
     return s * exp(-s * (t - t0));
 }
 
 /* MIS weight of next-event estimation towards point light c (twin in integrator.py). */
-inline float point_light_nee_weight(const Params *prm, const Medium *m, int ea, float3 c,
-                                    float3 o, float3 d, float t0, float t1, float t) {
+static inline float point_light_nee_weight(const Params *prm, const Medium *m, int ea, float3 c,
+                                           float3 o, float3 d, float t0, float t1, float t) {
     if (ea == EQUIANGULAR_OFF) return 1.0f;
     float D;
     float h = foot_on_ray(c, o, d, &D);
@@ -196,9 +199,10 @@ inline float point_light_nee_weight(const Params *prm, const Medium *m, int ea, 
 
 /* Direct light at o + t d towards -d per unit throughput, with render.light_samples shadow
  * rays per light (twin of sample_direct in integrator.py). */
-inline float3 sample_direct(const Params *prm, global const Light *lights, const MediumData *med,
-                            int ea, float3 o, float3 d, float t0, float t1, float t, uint pix,
-                            uint s, int b, Rng *rng, Rng *rng_s, ulong *counters) {
+static inline float3 sample_direct(const Params *prm, global const Light *lights,
+                                   const MediumData *med, int ea, float3 o, float3 d, float t0,
+                                   float t1, float t, uint pix, uint s, int b, Rng *rng,
+                                   Rng *rng_s, ulong *counters) {
     const Medium *m = &med->m;
     float3 p = o + t * d;
     int n = prm->light_samples;
@@ -240,10 +244,10 @@ inline float3 sample_direct(const Params *prm, global const Light *lights, const
 /* Light from every point light scattered once inside [t0, t1] of the ray o + t d, by
  * equiangular sampling (twin of sample_equiangular_lights in integrator.py, which derives
  * it). */
-inline float3 sample_equiangular_lights(const Params *prm, global const Light *lights,
-                                        const MediumData *med, int ea, float3 o, float3 d,
-                                        float t0, float t1, uint pix, uint s, int b,
-                                        Rng *rng, Rng *rng_s, ulong *counters) {
+static inline float3 sample_equiangular_lights(const Params *prm, global const Light *lights,
+                                               const MediumData *med, int ea, float3 o, float3 d,
+                                               float t0, float t1, uint pix, uint s, int b,
+                                               Rng *rng, Rng *rng_s, ulong *counters) {
     const Medium *m = &med->m;
     float3 L = (float3)(0.0f);
     for (int i = 0; i < prm->n_lights; ++i) {
@@ -261,7 +265,7 @@ inline float3 sample_equiangular_lights(const Params *prm, global const Light *l
         float dist;
         float3 wl = direction_to(p, c, &dist);
         if (!(dist > 0.0f)) continue;
-        spec sig = medium_chroma(med) * extinction(med, p, INFINITY, counters);
+        spec sig = medium_chroma(med) * extinction(med, p, NO_LIMIT, counters);
         float3 sig_s = vec3(m->albedo) * sig;
         if (fmax(sig_s.x, fmax(sig_s.y, sig_s.z)) <= 0.0f) continue;
         counters[C_SHADOW] += 1;
@@ -276,13 +280,14 @@ inline float3 sample_equiangular_lights(const Params *prm, global const Light *l
 }
 
 /* Russian roulette's survival probability (render.rr; twin in integrator.py). */
-inline float survival_probability(const Params *prm, float3 beta_w, float3 albedo) {
+static inline float survival_probability(const Params *prm, float3 beta_w, float3 albedo) {
     float3 x = prm->rr == RR_ALBEDO ? beta_w * albedo : beta_w;
     return fmin(fmax(x.x, fmax(x.y, x.z)), RR_MAX_SURVIVAL);
 }
 
-inline float3 trace_path(const Params *prm, global const Light *lights, const MediumData *med,
-                         int px, int py, uint s, Rng *rng, Rng *rng_s, ulong *counters) {
+static inline float3 trace_path(const Params *prm, global const Light *lights,
+                                const MediumData *med, int px, int py, uint s, Rng *rng,
+                                Rng *rng_s, ulong *counters) {
     const Medium *m = &med->m;
     float3 bmin = vec3(m->bmin), bmax = vec3(m->bmax);
     float3 albedo = vec3(m->albedo);

@@ -31,9 +31,9 @@ typedef struct {
     global float *rec;
 } MediumData;
 
-inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
+static inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 
-inline float profile_density(int kind, const float prof[5], float x) {
+static inline float profile_density(int kind, const float prof[5], float x) {
     float a = prof[0], b = prof[1], c = prof[2], s = prof[3], L = prof[4];
     if (kind == DENSITY_RAMP) return a + (b - a) * x / L;
     if (kind == DENSITY_GAUSS_BUMP) {
@@ -47,7 +47,7 @@ inline float profile_density(int kind, const float prof[5], float x) {
     return a * (1.0f + b * cos(TWO_PI * c * x / L + s));
 }
 
-inline float medium_density(const MediumData *med, float3 p) {
+static inline float medium_density(const MediumData *med, float3 p) {
     const Medium *m = &med->m;
     int kind = m->density_kind;
     if (kind == DENSITY_GRID)
@@ -60,7 +60,7 @@ inline float medium_density(const MediumData *med, float3 p) {
     return profile_density(kind, m->profile, p.x);
 }
 
-inline float extinction(const MediumData *med, float3 p, float sigma_maj, ulong *counters) {
+static inline float extinction(const MediumData *med, float3 p, float sigma_maj, ulong *counters) {
     float mu = med->m.scale * medium_density(med, p);
     counters[C_LOOKUPS] += 1;
     if (mu > sigma_maj) counters[C_OVER_MAJORANT] += 1;
@@ -68,7 +68,7 @@ inline float extinction(const MediumData *med, float3 p, float sigma_maj, ulong 
 }
 
 /* Extinction per channel relative to extinction(): 1 in grey builds (folded away). */
-inline spec medium_chroma(const MediumData *med) {
+static inline spec medium_chroma(const MediumData *med) {
 #if FEATURE_CHROMATIC
     return vec3(med->m.chroma);
 #else
@@ -77,7 +77,7 @@ inline spec medium_chroma(const MediumData *med) {
 }
 
 /* Emitted radiance Le at p, RGB (twin of emitted_radiance in medium.py). */
-inline float3 emitted_radiance(const MediumData *med, float3 p) {
+static inline float3 emitted_radiance(const MediumData *med, float3 p) {
     const Medium *m = &med->m;
     float3 e = vec3(m->emission_rgb);
     float f = grid_lookup(med->emis, (int3)(m->emission_dims[0], m->emission_dims[1],
@@ -91,8 +91,8 @@ inline float3 emitted_radiance(const MediumData *med, float3 p) {
     return e * (a * (1.0f - w) + b * w);
 }
 
-inline float optical_depth_comb(const MediumData *med, float3 o, float3 d, float t0, float L,
-                                int n, float u, float sigma_maj, ulong *counters) {
+static inline float optical_depth_comb(const MediumData *med, float3 o, float3 d, float t0,
+                                       float L, int n, float u, float sigma_maj, ulong *counters) {
     float h = L / (float)n;
     float s = 0.0f;
     for (int j = 0; j < n; ++j)
@@ -100,8 +100,8 @@ inline float optical_depth_comb(const MediumData *med, float3 o, float3 d, float
     return s * h;
 }
 
-inline bool segment_degenerate(float L, float mbar, ulong *counters, int max_steps,
-                               int min_steps) {
+static inline bool segment_degenerate(float L, float mbar, ulong *counters, int max_steps,
+                                      int min_steps) {
     if (!(L > 0.0f) || !(mbar > 0.0f)) return true;
     if (max_steps < min_steps) {
         counters[C_CAPPED] += 1;
@@ -112,8 +112,8 @@ inline bool segment_degenerate(float L, float mbar, ulong *counters, int max_ste
 
 /* Twin of record_segment in medium.py, which describes the record. A build without
  * FEATURE_RECORD compiles it to nothing, so a normal render pays nothing for it. */
-inline void record_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
-                           int kind) {
+static inline void record_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
+                                  int kind) {
     if (!FEATURE_RECORD || med->rec == 0) return;
     global float *rec = med->rec;
     int n = convert_int_rtz(rec[0]);
@@ -138,8 +138,8 @@ typedef struct {
     int done;
 } MajorantIter;
 
-inline void majorant_iter_init(MajorantIter *it, const MediumData *med, float3 o, float3 d,
-                               float t0, float t1) {
+static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, float3 o, float3 d,
+                                      float t0, float t1) {
     const Medium *m = &med->m;
     it->done = !(t1 > t0);
     it->t0 = t0;
@@ -153,7 +153,7 @@ inline void majorant_iter_init(MajorantIter *it, const MediumData *med, float3 o
 
 /* Returns 0 at the end; else writes the next non-empty segment. The grid's cells and the
  * octree's leaves run one loop: each walk yields a piece and its index into maj and mnr. */
-inline int majorant_next(MajorantIter *it, const MediumData *med, Segment *seg) {
+static inline int majorant_next(MajorantIter *it, const MediumData *med, Segment *seg) {
     const Medium *m = &med->m;
     int grid = FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID;
     int octree = FEATURE_MAJORANT_OCTREE && m->majorant_kind == MAJORANT_OCTREE;

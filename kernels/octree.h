@@ -12,8 +12,8 @@ typedef struct {
 } OctreeWalk;
 
 /* The segment is already clipped to the box [bmin, bmax]; depth: the octree's depth D. */
-inline void octree_init(OctreeWalk *state, float3 o, float3 d, float t0, float t1, float3 bmin,
-                        float3 bmax, int depth) {
+static inline void octree_init(OctreeWalk *state, float3 o, float3 d, float t0, float t1,
+                               float3 bmin, float3 bmax, int depth) {
     float oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
     float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
     int n = 1 << depth;
@@ -30,8 +30,8 @@ inline void octree_init(OctreeWalk *state, float3 o, float3 d, float t0, float t
 }
 
 /* Returns 0 when the walk is over; else writes the segment and its leaf's node index. */
-inline int octree_next(OctreeWalk *state, global const int *children, float3 bmin, float3 bmax,
-                       int depth, float *t_enter, float *t_exit, int *node) {
+static inline int octree_next(OctreeWalk *state, global const int *children, float3 bmin,
+                              float3 bmax, int depth, float *t_enter, float *t_exit, int *node) {
     if (state->done) return 0;
     float lo3[3] = {bmin.x, bmin.y, bmin.z}, hi3[3] = {bmax.x, bmax.y, bmax.z};
     int k = 0, level = 0;

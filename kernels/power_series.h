@@ -12,16 +12,16 @@
 
 /* URM_*, CMF_GOAL and CMF_FIT_* come from the generated params.h (volmc/constants.py). */
 
-inline int cmf_lookup_budget(float lam) {
+static inline int cmf_lookup_budget(float lam) {
     return (int)ceil(cbrt((CMF_FIT_0 + lam) * (CMF_FIT_1 + lam) * (CMF_FIT_2 + lam)));
 }
 
-inline int urm_comb_size(float lam) {
+static inline int urm_comb_size(float lam) {
     return max(1, (int)floor((float)cmf_lookup_budget(lam) / (1.0f + URM_MEAN_ORDER) + 0.5f));
 }
 
 /* Log-domain pmf: exp(-lam) alone underflows in float32 from lam ~ 104 on. */
-inline int cmf_deterministic_terms(float lam, int limit) {
+static inline int cmf_deterministic_terms(float lam, int limit) {
     float log_p = -lam;
     float cmf = exp(log_p);
     float log_lam = lam > 0.0f ? log(lam) : 0.0f;
@@ -34,14 +34,14 @@ inline int cmf_deterministic_terms(float lam, int limit) {
     return q + 1;
 }
 
-inline float urm_order_ratio(int k) {
+static inline float urm_order_ratio(int k) {
     if (k == 1) return 1.0f - URM_P_ZERO;
     if (k <= URM_K) return 1.0f;
     return fmin(1.0f, URM_C / (float)k);
 }
 
 /* Elementary symmetric means updated online (convex blends: no overflow, no cancellation). */
-inline float urm_series(float x0, const float *ys, int n) {
+static inline float urm_series(float x0, const float *ys, int n) {
     float e[URM_MAX_ORDER + 1];
     e[0] = 1.0f;
     for (int k = 1; k <= n; ++k) e[k] = 0.0f;
@@ -62,9 +62,9 @@ inline float urm_series(float x0, const float *ys, int n) {
     return finite_bits(est) ? est : 0.0f;  /* guards.h: survives fast-math */
 }
 
-inline float unbiased_raymarch_segment(const MediumData *med, float3 o, float3 d, float t0,
-                                       float t1, float mbar, float mu_c, Rng *rng,
-                                       ulong *counters, int max_steps) {
+static inline float unbiased_raymarch_segment(const MediumData *med, float3 o, float3 d, float t0,
+                                              float t1, float mbar, float mu_c, Rng *rng,
+                                              ulong *counters, int max_steps) {
     float L = t1 - t0;
     if (segment_degenerate(L, mbar, counters, max_steps, 1)) return 1.0f;
     int m = urm_comb_size(mbar * L); /* mu_c unused: the control is the online comb x0 */
@@ -100,9 +100,9 @@ inline float unbiased_raymarch_segment(const MediumData *med, float3 o, float3 d
     return urm_series(x0, ys, n);
 }
 
-inline float power_series_segment(const MediumData *med, float3 o, float3 d, float t0,
-                                  float t1, float mbar, float mu_c, Rng *rng, ulong *counters,
-                                  int max_steps) {
+static inline float power_series_segment(const MediumData *med, float3 o, float3 d, float t0,
+                                         float t1, float mbar, float mu_c, Rng *rng,
+                                         ulong *counters, int max_steps) {
     float L = t1 - t0;
     if (segment_degenerate(L, mbar, counters, max_steps, 1)) return 1.0f;
     float tau_bar = mbar * L;

@@ -31,7 +31,7 @@ typedef struct {
         (c2) = n2_;                                               \
     } while (0)
 
-inline uint4 philox4x32_10(uint4 c, uint2 k) {
+static inline uint4 philox4x32_10(uint4 c, uint2 k) {
     uint c0 = c.x, c1 = c.y, c2 = c.z, c3 = c.w, k0 = k.x, k1 = k.y;
     PHILOX_ROUND(c0, c1, c2, c3, k0, k1);
 #pragma unroll
@@ -43,7 +43,7 @@ inline uint4 philox4x32_10(uint4 c, uint2 k) {
     return (uint4)(c0, c1, c2, c3);
 }
 
-inline void rng_init(Rng *rng, ulong seed, uint pixel, uint sample, uint stream) {
+static inline void rng_init(Rng *rng, ulong seed, uint pixel, uint sample, uint stream) {
     rng->key[0] = (uint)(seed & 0xFFFFFFFFul);
     rng->key[1] = (uint)(seed >> 32);
     rng->ctr[0] = pixel;
@@ -54,14 +54,14 @@ inline void rng_init(Rng *rng, ulong seed, uint pixel, uint sample, uint stream)
 }
 
 /* The next draw returns u24 * 2^-24 (twin in rng.py, which says why). */
-inline void rng_preset(Rng *rng, uint u24) {
+static inline void rng_preset(Rng *rng, uint u24) {
     rng->preset = 1u;
     rng->word = u24 << 8;
 }
 
-inline void rng_drop_preset(Rng *rng) { rng->preset = 0u; }
+static inline void rng_drop_preset(Rng *rng) { rng->preset = 0u; }
 
-inline uint rng_next_u32(Rng *rng) {
+static inline uint rng_next_u32(Rng *rng) {
     if (rng->preset) {
         rng->preset = 0u;
         return rng->word;
@@ -77,7 +77,7 @@ inline uint rng_next_u32(Rng *rng) {
     return lane < 2u ? (lane == 0u ? b.x : b.y) : (lane == 2u ? b.z : b.w);
 }
 
-inline float rng_next(Rng *rng) {
+static inline float rng_next(Rng *rng) {
     return (float)(rng_next_u32(rng) >> 8) * UNIFORM_SCALE;
 }
 

@@ -8,7 +8,7 @@
 #include "params.h" /* OWEN_*, HASH_*, PERM_*, SAMPLER_*, STREAM_SAMPLER (volmc/constants.py) */
 #include "rng.h"
 
-inline uint reverse_bits32(uint x) {
+static inline uint reverse_bits32(uint x) {
     x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
     x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
     x = ((x >> 4) & 0x0F0F0F0Fu) | ((x & 0x0F0F0F0Fu) << 4);
@@ -18,7 +18,7 @@ inline uint reverse_bits32(uint x) {
 
 /* dim 0: van der Corput; any other dim: dimension 1 (polynomial x + 1: the Pascal matrix
  * mod 2, applied as a superset sum over the bit positions; sampler.py derives it). */
-inline uint sobol_u32(uint index, int dim) {
+static inline uint sobol_u32(uint index, int dim) {
     if (dim == 0) return reverse_bits32(index);
     uint i = index;
     i ^= (i >> 1) & 0x55555555u;
@@ -31,7 +31,7 @@ inline uint sobol_u32(uint index, int dim) {
 
 /* Nested uniform scramble: in the bit-reversed word every step flips a bit only as a function of
  * the bits below it (see sampler.py). rotate() rotates left: by 16, 24 = right by 16, 8. */
-inline uint owen_scramble(uint x, uint seed) {
+static inline uint owen_scramble(uint x, uint seed) {
     uint t = seed * OWEN_SEED_MUL;
     x = reverse_bits32(x);
     x += seed;
@@ -45,13 +45,13 @@ inline uint owen_scramble(uint x, uint seed) {
     return reverse_bits32(x);
 }
 
-inline uint2 sobol_pair(uint index, uint seed_shuffle, uint seed_x, uint seed_y) {
+static inline uint2 sobol_pair(uint index, uint seed_shuffle, uint seed_x, uint seed_y) {
     uint i = owen_scramble(index, seed_shuffle);
     return (uint2)(owen_scramble(sobol_u32(i, 0), seed_x) >> 8,
                    owen_scramble(sobol_u32(i, 1), seed_y) >> 8);
 }
 
-inline uint hash_u32(uint x, uint seed) {
+static inline uint hash_u32(uint x, uint seed) {
     x ^= seed;
     x ^= x >> 16;
     x *= HASH_M0;
@@ -62,7 +62,7 @@ inline uint hash_u32(uint x, uint seed) {
 }
 
 /* Random permutation of [0, n): a bijective hash of the low bits, cycle walking, a rotation. */
-inline uint permute_index(uint i, uint n, uint seed) {
+static inline uint permute_index(uint i, uint n, uint seed) {
     uint w = n - 1u;
     w |= w >> 1;
     w |= w >> 2;
@@ -88,13 +88,13 @@ inline uint permute_index(uint i, uint n, uint seed) {
 }
 
 /* A u24 in stratum f of cells (cells <= 2^24), placed by the uniform word u32. */
-inline uint u24_in_stratum(uint f, uint cells, uint u32) {
+static inline uint u24_in_stratum(uint f, uint cells, uint u32) {
     ulong lo = ((ulong)f * 0x1000000ul + cells - 1u) / cells;
     ulong hi = ((ulong)(f + 1u) * 0x1000000ul + cells - 1u) / cells;
     return (uint)(lo + (((ulong)(u32 >> 8) * (hi - lo)) >> 24));
 }
 
-inline uint2 stratified_pair(uint index, uint n, uint seed_perm, uint seed_x, uint seed_y) {
+static inline uint2 stratified_pair(uint index, uint n, uint seed_perm, uint seed_x, uint seed_y) {
     uint nn = clamp(n, 1u, (uint)SAMPLER_MAX_N);
     uint m = (uint)sqrt((float)nn);
     while (m * m < nn) ++m;
@@ -109,8 +109,8 @@ inline uint2 stratified_pair(uint index, uint n, uint seed_perm, uint seed_x, ui
                    u24_in_stratum(fy, cells, hash_u32(c, seed_y)));
 }
 
-inline uint2 sampler_pair(int kind, uint key0, uint key1, uint pixel, uint index, uint pair,
-                          uint n) {
+static inline uint2 sampler_pair(int kind, uint key0, uint key1, uint pixel, uint index, uint pair,
+                                 uint n) {
     uint2 key = (uint2)(key0, key1);
     if (kind == SAMPLER_SOBOL) {
         uint4 w = philox4x32_10((uint4)(pair, pixel, 0u, STREAM_SAMPLER), key);

@@ -10,14 +10,14 @@
 
 #if FEATURE_CHROMATIC
 typedef float3 spec;
-inline float spec_max(float3 a) { return fmax(a.x, fmax(a.y, a.z)); }
-inline float3 spec_rgb(float3 a) { return a; }
-inline float spec_first(float3 a) { return a.x; }
+static inline float spec_max(float3 a) { return fmax(a.x, fmax(a.y, a.z)); }
+static inline float3 spec_rgb(float3 a) { return a; }
+static inline float spec_first(float3 a) { return a.x; }
 #else
 typedef float spec;
-inline float spec_max(float a) { return a; }
-inline float3 spec_rgb(float a) { return (float3)(a); }
-inline float spec_first(float a) { return a; }
+static inline float spec_max(float a) { return a; }
+static inline float3 spec_rgb(float a) { return (float3)(a); }
+static inline float spec_first(float a) { return a; }
 #endif
 
 #endif

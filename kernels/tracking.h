@@ -11,7 +11,7 @@
 #include "medium.h"
 
 /* Guard "transmittance roulette": returns 0 when the walk ends (T is then 0). */
-inline int transmittance_roulette(float *T, Rng *rng) {
+static inline int transmittance_roulette(float *T, Rng *rng) {
     float a = fabs(*T);
     if (!(a < TR_RR_THRESHOLD)) return 1;
     if (a == 0.0f || rng_next(rng) * TR_RR_THRESHOLD >= a) {
@@ -24,7 +24,7 @@ inline int transmittance_roulette(float *T, Rng *rng) {
 
 /* Guard "transmittance roulette" on a spec weight (twin of spec_roulette in tracking.py):
  * by its largest |component|; grey builds play the scalar roulette. */
-inline int spec_roulette(spec *T, Rng *rng) {
+static inline int spec_roulette(spec *T, Rng *rng) {
 #if FEATURE_CHROMATIC
     float a = spec_max(fabs(*T));
     if (!(a < TR_RR_THRESHOLD)) return 1;
@@ -40,14 +40,15 @@ inline int spec_roulette(spec *T, Rng *rng) {
 }
 
 /* What one tentative collision adds to the emission estimate (twin in tracking.py). */
-inline float3 emission_term(const MediumData *med, float3 p, float mu, float s_maj, float3 W) {
+static inline float3 emission_term(const MediumData *med, float3 p, float mu, float s_maj,
+                                   float3 W) {
     float3 k = spec_rgb(medium_chroma(med));
     float3 sa = (1.0f - vec3(med->m.albedo)) * k * (mu / s_maj);
     return sa * emitted_radiance(med, p) * W;
 }
 
 /* Hero MIS: balance-heuristic weights R / mean(R) (twin in tracking.py). */
-inline float3 mis_weights(float3 R) {
+static inline float3 mis_weights(float3 R) {
     float s = (R.x + R.y + R.z) / 3.0f;
     if (!(s > 0.0f)) return (float3)(0.0f);
     return R / s;
@@ -56,7 +57,7 @@ inline float3 mis_weights(float3 R) {
 #if FEATURE_CHROMATIC
 /* Spectral tracking's choice at a tentative collision (twin in tracking.py): returns 1 if
  * real; writes the weight factor. */
-inline int spectral_choice(float3 W, float3 k, float mu, float s_maj, float u, float3 *f) {
+static inline int spectral_choice(float3 W, float3 k, float mu, float s_maj, float u, float3 *f) {
     float a = spec_max(W * k * mu);
     float3 n = s_maj - k * mu;
     float b = spec_max(W * n);
@@ -75,7 +76,7 @@ inline int spectral_choice(float3 W, float3 k, float mu, float s_maj, float u, f
 
 /* render.transmittance = "auto": the technique for one majorant segment of extinction bounds
  * [s_min, s_maj] and length L (twin in tracking.py, where the rule and its measurements are). */
-inline int auto_segment_technique(float s_maj, float s_min, float L) {
+static inline int auto_segment_technique(float s_maj, float s_min, float L) {
     return (s_maj - s_min) * L <= AUTO_THIN_DEPTH ? TRACK_RESIDUAL_RATIO : TRACK_LENGTH;
 }
 
@@ -84,12 +85,11 @@ inline int auto_segment_technique(float s_maj, float s_min, float L) {
  * (free flight, per unit beta) to *E_out. */
 /* Always inlined: each call site passes a constant technique, so the compiler keeps only that
  * technique's code in the loop. */
-inline __attribute__((always_inline)) int track(const MediumData *med, float3 o, float3 d,
-                                                float t0, float t1, int technique,
-                                                int use_control, float3 beta, int hero,
-                                                Rng *rng,
-                                                ulong *counters, int max_steps, float *t_out,
-                                                spec *T_out, float3 *E_out) {
+static inline __attribute__((always_inline)) int track(const MediumData *med, float3 o, float3 d,
+                                                       float t0, float t1, int technique,
+                                                       int use_control, float3 beta, int hero,
+                                                       Rng *rng, ulong *counters, int max_steps,
+                                                       float *t_out, spec *T_out, float3 *E_out) {
     /* Plain constants 0 in builds without the feature: they lead any condition they join,
      * since clang warns of a logical operator whose right operand is constant. */
     const int spectral = FEATURE_CHROMATIC ? med->m.spectral != SPECTRAL_GREY : 0;

@@ -25,12 +25,13 @@ ARGUMENTS_DIFFER = {"grid_lookup", "philox4x32_10", "sample_ok"}
 
 
 def _kernel_signatures():
-    """{name: [parameter names]} of every inline function of kernels/*.h and integrator.cl."""
+    """{name: [parameter names]} of every (static) inline function of kernels/*.h and
+    integrator.cl."""
     out = {}
     for path in sorted(kernels_dir().glob("*.h")) + [kernels_dir() / "integrator.cl"]:
         text = path.read_text()
-        for m in re.finditer(r"^inline\s+(?:__attribute__\(\(\w+\)\)\s+)?[\w\s\*]+?\b(\w+)"
-                             r"\s*\(([^)]*)\)", text, re.M):
+        for m in re.finditer(r"^(?:static\s+)?inline\s+(?:__attribute__\(\(\w+\)\)\s+)?"
+                             r"[\w\s\*]+?\b(\w+)\s*\(([^)]*)\)", text, re.M):
             args = m.group(2).replace(
                 "TRANSMITTANCE_ARGS", "const MediumData *med, float3 o, float3 d, float t0, "
                 "float t1, Rng *rng, ulong *counters, int max_steps")

@@ -17,6 +17,17 @@ from .base import RenderBackend, bands, new_segment_record, techniques
 DEFAULT_LOCAL_SIZE = 1
 
 
+def render_options(feature_set, transmittance, options=()):
+    """Build options of kernels/integrator.cl: the feature switches of ``feature_set``, the
+    estimator functions of registry entry ``transmittance`` (VIEW_ESTIMATOR only where it
+    differs from SHADOW_ESTIMATOR) and its build options, then ``options``."""
+    est = ESTIMATORS[transmittance]
+    return (define_flags(feature_set) + [f"-DSHADOW_ESTIMATOR={est.shadow_kernel}"]
+            + ([f"-DVIEW_ESTIMATOR={est.view_kernel}"]
+               if est.view_kernel != est.shadow_kernel else [])
+            + list(est.build_options) + list(options))
+
+
 class OpenCLBackend(RenderBackend):
     """Renders a scene with kernels/integrator.cl on one OpenCL device."""
 
@@ -40,11 +51,7 @@ class OpenCLBackend(RenderBackend):
             raise ValueError(f"a build without {', '.join(sorted(needed - self.features))} "
                              "cannot render this scene")
         pk = pack_scene(scene, np.float32)
-        est = ESTIMATORS[scene.render.transmittance]
-        self.options = (define_flags(self.features) + [f"-DSHADOW_ESTIMATOR={est.shadow_kernel}"]
-                        + ([f"-DVIEW_ESTIMATOR={est.view_kernel}"]
-                           if est.view_kernel != est.shadow_kernel else [])
-                        + list(est.build_options) + list(options))
+        self.options = render_options(self.features, scene.render.transmittance, options)
         self.local_size = local_size
         w, h = scene.camera.resolution
         if pk.grid.size >= 2**31 or pk.emis.size >= 2**31:

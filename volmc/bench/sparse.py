@@ -190,6 +190,11 @@ def bench_sums(kind, grid, table, pool, dims, bmin, bmax, bricks, mode, n_items,
 
 # --- OpenCL ----------------------------------------------------------------------------------
 
+def lookup_options(kind):
+    """Build options of kernels/bench_sparse.cl for lookup ``kind`` (an index of LOOKUPS)."""
+    return (f"-DLOOKUP_KIND={kind}",)
+
+
 class OpenCLSparseBench:
     """kernels/bench_sparse.cl built for each lookup kind, with the grid uploaded once."""
 
@@ -197,7 +202,7 @@ class OpenCLSparseBench:
         from ..cl.context import cl_context
         self.clc = cl_context(device)
         self.kernels = [self.clc.kernel(self.clc.program("bench_sparse.cl",
-                                                         (f"-DLOOKUP_KIND={k}",))[0],
+                                                         lookup_options(k))[0],
                                         "sparse_bench") for k in range(len(LOOKUPS))]
         nz, ny, nx = grid.shape
         self.dims = np.array([nx, ny, nz, 0], np.int32)

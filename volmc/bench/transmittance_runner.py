@@ -75,6 +75,16 @@ class NumbaEstimator:
         return (out if self.chromatic else out[:, 0].copy()), cnt
 
 
+def estimator_options(name, chromatic=False, shadow=False):
+    """Build options of kernels/estimators.cl for estimator ``name`` (its shadow-ray function
+    if ``shadow``). The benchmark's media are grey and emit nothing: the build says so, as a
+    render build of a grey scene does, so the timed loop is the production one."""
+    est = ESTIMATORS[name]
+    fn = est.shadow_kernel if shadow else est.kernel
+    return ([f"-DESTIMATOR={fn}", f"-DFEATURE_CHROMATIC={int(chromatic)}",
+             "-DFEATURE_EMISSION=0"] + list(est.build_options))
+
+
 class OpenCLEstimator:
     """One estimator compiled into kernels/estimators.cl on the default (or given) device."""
 
@@ -85,12 +95,8 @@ class OpenCLEstimator:
         self.est = ESTIMATORS[name]
         self.chromatic = chromatic
         self.clc = cl_context(device)
-        # The benchmark's media are grey and emit nothing: the build says so, as a render
-        # build of a grey scene does, so the timed loop is the production one.
-        fn = self.est.shadow_kernel if shadow else self.est.kernel
-        opts = ([f"-DESTIMATOR={fn}", f"-DFEATURE_CHROMATIC={int(chromatic)}",
-                 "-DFEATURE_EMISSION=0"] + list(self.est.build_options))
-        self.program, _ = self.clc.program("estimators.cl", opts)
+        self.program, _ = self.clc.program("estimators.cl",
+                                           estimator_options(name, chromatic, shadow))
         self.kernel = self.clc.kernel(self.program, "estimate_batch")
 
     def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,

@@ -1,0 +1,289 @@
+"""GPU portability of the kernels, checked without a GPU (issue 14, item 5).
+
+The kernels run on PoCL here but are meant to run unchanged on GPU OpenCL drivers. This
+compiles every program the project builds, with the option sets the renderer, the
+benchmarks and the tests build it with, by clang's OpenCL C 1.2 front end for two GPU
+targets:
+
+- NVIDIA: ``clang-19 -x cl -cl-std=CL1.2 -target nvptx64-nvidia-nvcl``
+- AMD: ``clang-19 -x cl -cl-std=CL1.2 -target amdgcn-amd-amdhsa -nogpulib``
+
+Each compile runs the full code generator to target assembly (``-S``: PTX, GCN), not just
+the front end, so back-end diagnostics (stack frames) and the code the driver would see are
+covered; ``-nogpulib`` only leaves the device library (ocml) unlinked, so OpenCL builtins
+stay external calls, which a driver resolves. The sources are those ``volmc.cl.build.assemble``
+gives, with the generated params.h and features.h, written to a temporary folder.
+
+What is checked, per program and target:
+
+- no errors and no warnings under ``-Wall`` (``-Wno-unused-function`` aside: the assembled
+  unit carries the whole kernel library as static inline functions, and each program calls
+  only part of it);
+- no double precision: ``-Xclang -cl-ext=-cl_khr_fp64`` turns the extension off, so any use
+  of ``double`` is an error and an unsuffixed literal a warning (GPUs need not support fp64);
+- private memory: at most PRIVATE_BUDGET = 16 KiB per work item. ``-Wframe-larger-than``
+  flags any function's frame above it (the AMDGPU back end diagnoses it; NVPTX does not),
+  and the assembly is read: each AMD kernel's ``.amdhsa_private_segment_fixed_size`` (its
+  scratch with its callees) and, for NVIDIA, the sum of every ``__local_depot`` of the
+  module (an upper bound of any call chain). The kernels need at most 1.5 KiB; 16 KiB is far
+  below the hardware limits (512 KiB of local memory per thread on NVIDIA) yet stops a
+  per-work-item array of thousands of floats, which would spill to slow memory and starve
+  occupancy on any GPU;
+
+and per program once (the call graph is the target's business only after inlining):
+
+- no recursion (OpenCL C forbids it; clang does not diagnose it and may even turn it into a
+  loop): the call graph of the unoptimised LLVM IR (``-O0 -emit-llvm -S``, every call
+  still a call) must be acyclic;
+- no call to a kernel function without a definition: a C99 ``inline`` function without
+  ``static`` has no external definition, so where a GPU compiler does not inline it the
+  link fails. This found every kernel function declared plain ``inline`` (clang -O2 left
+  trace_path, power_series_segment, unbiased_raymarch_segment and sampler_pair as calls to
+  undefined symbols); they are all ``static inline`` now.
+
+The -cl-fast-relaxed-math build also found two uses of INFINITY, undefined under finite
+math (-Wnan-infinity-disabled); the kernels use NO_LIMIT (FLT_MAX) there now.
+
+The test skips when clang-19 is absent (``.ci/run`` installs it from Debian).
+"""
+
+import itertools
+import os
+import re
+import shutil
+import subprocess
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+
+from volmc.backends.opencl import render_options
+from volmc.bench.fastmath import FAST_MATH
+from volmc.bench.sparse import LOOKUPS, lookup_options
+from volmc.bench.transmittance_runner import estimator_options
+from volmc.cl.build import BASE_OPTIONS, assemble
+from volmc.resources import kernels_dir
+from volmc.scene.features import FEATURES, TOOL_FEATURES
+from volmc.scene.schema import Render
+from volmc.techniques import ESTIMATORS
+
+CLANG = shutil.which("clang-19")
+needs_clang = pytest.mark.skipif(CLANG is None, reason="clang-19 is not installed (Debian: "
+                                 "apt-get install clang-19; .ci/run installs it)")
+
+TARGETS = {
+    "nvptx": ["-target", "nvptx64-nvidia-nvcl"],
+    "amdgcn": ["-target", "amdgcn-amd-amdhsa", "-nogpulib"],
+}
+#: Private memory per work item the kernels may use (bytes).
+PRIVATE_BUDGET = 16 * 1024
+FLAGS = (["-x", "cl"] + list(BASE_OPTIONS)
+         + ["-Wall", "-Wno-unused-function", "-Xclang", "-cl-ext=-cl_khr_fp64",
+            f"-Wframe-larger-than={PRIVATE_BUDGET}"])
+#: Compiles in flight (each one is a single-threaded clang process).
+WORKERS = max(1, min(4, os.cpu_count() or 1))
+
+
+def programs():
+    """[(label, kernels/ file, options)]: every build the code makes, without repeats.
+
+    integrator.cl (renders): every subset of the render FEATURES and the tool switch RECORD
+    with the default estimator; every registry estimator with all of them on (auto adds
+    VIEW_ESTIMATOR); the -cl-fast-relaxed-math build of `volmc bench fastmath` and test case
+    20. estimators.cl (estimator benchmark): every estimator grey and chromatic, and the
+    shadow-ray functions. bench_sparse.cl: every lookup kind. testing.cl,
+    testing_power_series.cl and bench.cl build without options."""
+    switches = sorted(FEATURES) + sorted(TOOL_FEATURES)
+    default = Render().transmittance
+    out = []
+    for n in range(len(switches) + 1):
+        for subset in itertools.combinations(switches, n):
+            out.append((f"{'+'.join(subset) or 'no features'}, {default}", "integrator.cl",
+                        render_options(subset, default)))
+    for name in ESTIMATORS:
+        out.append((f"all features, {name}", "integrator.cl", render_options(switches, name)))
+    out.append((f"scene features, {default}, {FAST_MATH}", "integrator.cl",
+                render_options(FEATURES, default, (FAST_MATH,))))
+    for name, est in ESTIMATORS.items():
+        for chromatic in (False, True):
+            for shadow in ((False, True) if est.shadow_kernel != est.kernel else (False,)):
+                out.append((f"{name}{' shadow' if shadow else ''}"
+                            f"{' chromatic' if chromatic else ' grey'}", "estimators.cl",
+                            estimator_options(name, chromatic, shadow)))
+    for kind, lookup in enumerate(LOOKUPS):
+        out.append((lookup, "bench_sparse.cl", list(lookup_options(kind))))
+    for name in ("testing.cl", "testing_power_series.cl", "bench.cl"):
+        out.append(("no options", name, []))
+    seen, unique = set(), []
+    for label, name, opts in out:
+        if (name, tuple(opts)) not in seen:
+            seen.add((name, tuple(opts)))
+            unique.append((f"{name} [{label}]", name, list(opts)))
+    return unique
+
+
+PROGRAMS = programs()
+
+
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory):
+    """{kernels/ file: path of its assembled source}."""
+    folder = tmp_path_factory.mktemp("gpu_kernels")
+    out = {}
+    for name in sorted({name for _, name, _ in PROGRAMS}):
+        out[name] = folder / name
+        out[name].write_text(assemble(name))
+    return out
+
+
+def clang(args, source):
+    """(return code, diagnostics, output text) of clang-19 on ``source``."""
+    out = source.parent / f"{source.stem}.{abs(hash(tuple(args)))}.out"
+    p = subprocess.run([CLANG] + FLAGS + list(args) + ["-o", str(out), str(source)],
+                       capture_output=True, text=True)
+    text = out.read_text() if out.exists() else ""
+    out.unlink(missing_ok=True)
+    return p.returncode, p.stderr.strip(), text
+
+
+def private_bytes(target, asm):
+    """Private memory per work item the assembly of a module reserves (see the docstring)."""
+    if target == "amdgcn":
+        sizes = re.findall(r"\.amdhsa_private_segment_fixed_size\s+(\d+)", asm)
+        assert sizes, "no AMD kernel descriptor in the assembly"
+        return max(int(s) for s in sizes)
+    return sum(int(s) for s in re.findall(r"__local_depot\d+\[(\d+)\]", asm))
+
+
+def call_graph(ir):
+    """({defined function: {called functions}}, {declared-only functions}) of LLVM IR text."""
+    graph, current = {}, None
+    for line in ir.splitlines():
+        m = re.match(r"define\b.*?@([\w.$]+)\(", line)
+        if m:
+            current = graph.setdefault(m.group(1), set())
+        elif line.startswith("}"):
+            current = None
+        elif current is not None:
+            current.update(re.findall(r"\bcall\b.*?@([\w.$]+)\(", line))
+    declared = set(re.findall(r"^declare\b.*?@([\w.$]+)\(", ir, re.M))
+    return graph, declared
+
+
+def find_cycle(graph):
+    """A call cycle [f, g, ..., f] among defined functions, or None."""
+    state = {}
+
+    def visit(f, path):
+        state[f] = 1
+        for g in sorted(graph.get(f, ())):
+            if g not in graph:
+                continue
+            if state.get(g) == 1:
+                return path[path.index(g):] + [g]
+            if g not in state:
+                found = visit(g, path + [g])
+                if found:
+                    return found
+        state[f] = 2
+        return None
+
+    for f in sorted(graph):
+        if f not in state:
+            found = visit(f, [f])
+            if found:
+                return found
+    return None
+
+
+def undefined_kernel_functions(declared):
+    """Declared functions that are no OpenCL builtin (mangled _Z...) or LLVM intrinsic."""
+    return sorted(f for f in declared if not f.startswith(("_Z", "llvm.")))
+
+
+def test_every_kernel_program_is_covered():
+    """Each kernels/*.cl is a program the project builds; a new one must join PROGRAMS."""
+    built = {name for _, name, _ in PROGRAMS}
+    assert built == {p.name for p in kernels_dir().glob("*.cl")}
+    assert len([p for p in PROGRAMS if p[1] == "integrator.cl"]) == (
+        2 ** (len(FEATURES) + len(TOOL_FEATURES)) + len(ESTIMATORS) - 1 + 1)
+
+
+@needs_clang
+@pytest.mark.parametrize("target", sorted(TARGETS))
+def test_kernels_compile_cleanly_for_gpu(target, sources):
+    """Every program compiles to target assembly without errors, warnings, doubles or more
+    than PRIVATE_BUDGET bytes of private memory per work item."""
+    def one(program):
+        label, name, opts = program
+        rc, diag, asm = clang(TARGETS[target] + opts + ["-S"], sources[name])
+        problems = []
+        if rc != 0 or diag:
+            problems.append(f"{label}: clang exit {rc}\n{diag[:4000]}")
+        elif private_bytes(target, asm) > PRIVATE_BUDGET:
+            problems.append(f"{label}: {private_bytes(target, asm)} bytes of private memory "
+                            f"per work item (budget {PRIVATE_BUDGET})")
+        return problems
+    with ThreadPoolExecutor(WORKERS) as pool:
+        problems = [p for ps in pool.map(one, PROGRAMS) for p in ps]
+    assert not problems, f"{len(problems)} of {len(PROGRAMS)} builds fail on {target}:\n" + \
+        "\n\n".join(problems)
+
+
+@needs_clang
+def test_no_recursion_and_no_undefined_functions(sources):
+    """The unoptimised call graph of every program is acyclic, and every function a kernel
+    calls is defined (or an OpenCL builtin)."""
+    def one(program):
+        label, name, opts = program
+        rc, diag, ir = clang(TARGETS["nvptx"] + opts + ["-O0", "-emit-llvm", "-S"],
+                             sources[name])
+        if rc != 0:
+            return [f"{label}: clang exit {rc}\n{diag[:4000]}"]
+        graph, declared = call_graph(ir)
+        problems = []
+        if not graph:
+            problems.append(f"{label}: no function in the IR")
+        cycle = find_cycle(graph)
+        if cycle:
+            problems.append(f"{label}: recursion {' -> '.join(cycle)}")
+        missing = undefined_kernel_functions(declared)
+        if missing:
+            problems.append(f"{label}: called without a definition (an inline function "
+                            f"without static?): {', '.join(missing)}")
+        return problems
+    with ThreadPoolExecutor(WORKERS) as pool:
+        problems = [p for ps in pool.map(one, PROGRAMS) for p in ps]
+    assert not problems, "\n".join(problems)
+
+
+@needs_clang
+def test_the_checks_catch_what_they_claim(tmp_path):
+    """Each check fails on a small kernel with the problem: double, recursion, a frame over
+    the budget (AMD), an inline function without static."""
+    def compile_snippet(name, text, args):
+        path = tmp_path / f"{name}.cl"
+        path.write_text(text)
+        return clang(args, path)
+
+    rc, diag, _ = compile_snippet("fp64", "kernel void k(global float *o) {\n"
+                                  "    double x = o[0]; o[0] = (float)(x * 2.0); }\n",
+                                  TARGETS["nvptx"] + ["-S"])
+    assert rc != 0 and "cl_khr_fp64" in diag
+    rc, diag, _ = compile_snippet("literal", "kernel void k(global float *o) {\n"
+                                  "    o[0] = o[0] * 2.5; }\n", TARGETS["amdgcn"] + ["-S"])
+    assert rc == 0 and "double precision constant" in diag
+    n = PRIVATE_BUDGET // 4 + 16
+    big = (f"kernel void k(global float *o, int i) {{\n    float a[{n}];\n"
+           f"    for (int j = 0; j < {n}; j++) a[j] = o[j];\n    o[0] = a[i]; }}\n")
+    rc, diag, asm = compile_snippet("big", big, TARGETS["amdgcn"] + ["-S"])
+    assert "-Wframe-larger-than" in diag and private_bytes("amdgcn", asm) > PRIVATE_BUDGET
+    rc, diag, asm = compile_snippet("big", big, TARGETS["nvptx"] + ["-S"])
+    assert private_bytes("nvptx", asm) > PRIVATE_BUDGET
+    rc, diag, ir = compile_snippet("rec", "static int f(int n) { return n ? f(n - 1) + 1 : 0; }\n"
+                                   "kernel void k(global int *o) { o[0] = f(o[0]); }\n",
+                                   TARGETS["nvptx"] + ["-O0", "-emit-llvm", "-S"])
+    assert rc == 0 and find_cycle(call_graph(ir)[0]) == ["f", "f"]
+    rc, diag, ir = compile_snippet("c99inline", "inline int g(int n) { return n + 1; }\n"
+                                   "kernel void k(global int *o) { o[0] = g(o[0]); }\n",
+                                   TARGETS["nvptx"] + ["-O0", "-emit-llvm", "-S"])
+    assert rc == 0 and undefined_kernel_functions(call_graph(ir)[1]) == ["g"]
