@@ -156,7 +156,7 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     device: OpenCL device, a pyopencl Device or a spec string as for ``--device`` ("pocl",
     "0:1"; default ``$VOLMC_CL_DEVICE``, else the first PoCL device). progress: show a tqdm
     bar on stderr. An interrupt (Ctrl-C, or the notebook's stop button) stops after the
-    current batch and returns the samples so far with ``partial`` True. Raises VolmcError.
+    current chunk and returns the samples so far with ``partial`` True. Raises VolmcError.
     """
     from .backends import make_backend
     from .render import render as _render

@@ -292,7 +292,7 @@ def _dask_client(args):
 
 def _announce_start():
     # Printed once the backend is ready and Ctrl-C keeps the samples rendered so far.
-    print("volmc: started (Ctrl-C stops after the current batch and writes the partial image)",
+    print("volmc: started (Ctrl-C stops after the current chunk and writes the partial image)",
           file=sys.stderr, flush=True)
 
 

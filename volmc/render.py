@@ -120,7 +120,7 @@ class RenderResult:
 
 
 class _StopFlag:
-    """SIGINT handler that asks the loop to stop after the current batch."""
+    """SIGINT handler that asks the loop to stop after the current chunk."""
 
     def __init__(self):
         self.stop = False
@@ -134,7 +134,7 @@ class _StopFlag:
         return self
 
     def _handle(self, signum, frame):
-        if self.stop:  # second Ctrl-C: give up on the current batch too
+        if self.stop:  # second Ctrl-C: give up on the current chunk too
             raise KeyboardInterrupt
         self.stop = True
 
