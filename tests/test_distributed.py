@@ -122,3 +122,22 @@ def test_cli_workers_and_scheduler(cluster, tmp_path):
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1, r.stderr
     assert lines[0].startswith("volmc: error: command line: --scheduler: ")
+
+
+def test_bench_render_configurations_on_the_cluster(cluster):
+    """volmc bench render --workers: a configuration rendered on the cluster draws the same
+    samples as in this process: the same counters, and the same mean image up to float32
+    rounding (the cluster cuts samples [start, start + spp) along the render's global
+    batch schedule, the local runner from the start of its own, and the kernel averages
+    each batch in float32)."""
+    from volmc.bench import convergence as cv
+    _, client = cluster
+    scene = load_scene(default_scene(), SMALL)
+    cfg = cv.make_configs(["opencl"], ["grid"], ["delta"], ["track_length"], None)[0]
+    here = cv._VolmcRunner(scene, cfg, None)
+    there = cv._ClusterRunner(scene, cfg, None, client)
+    for spp in (8, 24):
+        a, _, ca = here.render(spp)
+        b, sec, cb = there.render(spp)
+        np.testing.assert_allclose(b, a, rtol=2e-6, atol=1e-9)
+        assert ca == cb and sec > 0

@@ -179,6 +179,13 @@ def build_parser():
                                         "(backend x majorant x free flight x shadow estimator, "
                                         "and Mitsuba 3 when it runs)")
     br.add_argument("scene", nargs="?", help="scene .toml (default: the bundled cloud scene)")
+    where = br.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, metavar="N",
+                       help="render volmc's configurations on a new local Dask cluster of N "
+                            "workers (needs volmc[dask])")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="render volmc's configurations on the running Dask scheduler at "
+                            "ADDRESS")
     br.add_argument("--backends", default="opencl,numba",
                     help="comma-separated volmc backends (default opencl,numba)")
     br.add_argument("--majorants", default="grid,global",
@@ -569,8 +576,17 @@ def cmd_bench_render(args):
     if not args.no_ceiling and not homogeneous:
         from .bench.lookups import lookup_ceiling
         ceiling = lookup_ceiling(scene, backends, device=args.device)
-    report = cv.run(scene, configs, levels, args.reference_spp, args.repeats, args.device,
-                    ceiling, defines=args.defines)
+    client = cluster = None
+    if args.workers or args.scheduler:
+        client, cluster = _dask_client(args)
+    try:
+        report = cv.run(scene, configs, levels, args.reference_spp, args.repeats, args.device,
+                        ceiling, defines=args.defines, client=client)
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
     cv.print_report(report)
     if args.json:
         write_json(args.json, report)

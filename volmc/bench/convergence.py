@@ -124,6 +124,38 @@ class _VolmcRunner:
         return out
 
 
+class _ClusterRunner:
+    """A volmc configuration rendered on a Dask cluster (``run(..., client=...)``): each
+    render's chunks of samples [start, start + spp) run as tasks (distributed.py), timed
+    from submission to the last merge, so scheduling and transfer are in the figure."""
+
+    def __init__(self, scene, cfg, device, client):
+        self.scene = scene.with_render(majorant=cfg.majorant, free_flight=cfg.free_flight,
+                                       transmittance=cfg.transmittance,
+                                       spectral=cfg.spectral or scene.render.spectral)
+        self.cfg, self.device, self.client = cfg, device, client
+        self.w, self.h = self.scene.camera.resolution
+        self.next_sample = 0
+        self.render(1)  # the workers build their backends: not measured
+
+    def render(self, spp):
+        from ..distributed import ClusterChunks
+        from ..render import chunk_schedule
+        start = self.next_sample
+        film = Film(self.w, self.h)
+        chunks = chunk_schedule(self.w * self.h, start + spp, start)
+        t = time.perf_counter()
+        runner = ClusterChunks(self.client, self.scene, self.cfg.backend, self.device, film,
+                               chunks)
+        runner.warm_up()
+        for n in runner:
+            film.spp += n
+        sec = time.perf_counter() - t
+        self.next_sample += spp
+        c = runner.counter_totals()
+        return film.mean(), sec, {k: int(c[i]) for i, k in enumerate(COUNTER_NAMES)}
+
+
 def timed_render(backend, width, height, start, spp):
     """Render samples [start, start + spp) of every pixel in the batches ``volmc render``
     uses. Returns (mean image [h, w, 3], wall seconds of the launches alone, {counter: count
@@ -192,9 +224,11 @@ def guard_totals(points):
 
 
 def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceiling=None,
-        log=print, defines=()):
+        log=print, defines=(), client=None):
     """Render every configuration at every spp level; returns the report dict. ``defines``:
-    the -D overrides the scene was loaded with (a baseline worker loads it the same way)."""
+    the -D overrides the scene was loaded with (a baseline worker loads it the same way).
+    ``client``: a dask.distributed Client; volmc's own configurations (not baselines or
+    Mitsuba, which run here) then render on its workers."""
     w, h = scene.camera.resolution
     pixels = w * h
     ref_mean, ref_var = reference_image(scene, reference_spp, device, log)
@@ -207,6 +241,8 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
         elif cfg.backend == "baseline":
             from .baseline import BaselineRunner
             runners[cfg] = BaselineRunner(cfg.path, scene.file, defines)
+        elif client is not None:
+            runners[cfg] = _ClusterRunner(scene, cfg, device, client)
         else:
             runners[cfg] = _VolmcRunner(scene, cfg, device)
         log(f"  {cfg.name}: ready in {time.perf_counter() - t:.1f} s")
