@@ -44,6 +44,17 @@ def _nonnegative_seconds(text):
     return v
 
 
+def _add_cluster_options(parser, what):
+    """--workers N | --scheduler ADDRESS (rendering on Dask; see _dask_client)."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, metavar="N",
+                       help=f"{what} on a new local Dask cluster of N worker processes "
+                            "(needs volmc[dask])")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help=f"{what} on the running Dask scheduler at ADDRESS, e.g. "
+                            "tcp://10.0.0.1:8786 (its workers need volmc installed)")
+
+
 def _seed(text):
     try:
         v = int(text)
@@ -110,13 +121,7 @@ def build_parser():
     r.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
     r.add_argument("--stats", action="store_true",
                    help="print samples/s, path length, lookups and guard counters")
-    where = r.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_positive_int, metavar="N",
-                       help="render on a new local Dask cluster of N worker processes "
-                            "(needs volmc[dask])")
-    where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="render on the running Dask scheduler at ADDRESS, e.g. "
-                            "tcp://10.0.0.1:8786 (its workers need volmc installed)")
+    _add_cluster_options(r, "render")
     r.add_argument("--checkpoint", metavar="FILE",
                    help="write the accumulated samples to FILE (atomically) every "
                         "--checkpoint-every seconds and at the end")
@@ -179,13 +184,7 @@ def build_parser():
                                         "(backend x majorant x free flight x shadow estimator, "
                                         "and Mitsuba 3 when it runs)")
     br.add_argument("scene", nargs="?", help="scene .toml (default: the bundled cloud scene)")
-    where = br.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_positive_int, metavar="N",
-                       help="render volmc's configurations on a new local Dask cluster of N "
-                            "workers (needs volmc[dask])")
-    where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="render volmc's configurations on the running Dask scheduler at "
-                            "ADDRESS")
+    _add_cluster_options(br, "render volmc's configurations")
     br.add_argument("--backends", default="opencl,numba",
                     help="comma-separated volmc backends (default opencl,numba)")
     br.add_argument("--majorants", default="grid,global",
