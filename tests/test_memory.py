@@ -108,6 +108,9 @@ def test_grid_too_large_fails_naming_the_density(tmp_path, monkeypatch, capsys, 
     for backend in ("opencl", "numba"):
         with pytest.raises(SceneError, match=r"medium\.density: the density grid needs"):
             render(cloud256, backend=backend, progress=False)
+    import volmc   # the Python API checks before it builds a backend, too
+    with pytest.raises(volmc.VolmcError, match=r"medium\.density: the density grid needs"):
+        volmc.render(cloud256, backend="numba", progress=False)
 
 
 def test_library_render_raises_for_a_huge_film(monkeypatch):

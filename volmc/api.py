@@ -158,7 +158,6 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     bar on stderr. An interrupt (Ctrl-C, or the notebook's stop button) stops after the
     current chunk and returns the samples so far with ``partial`` True. Raises VolmcError.
     """
-    from .backends import make_backend
     from .render import render as _render
     where = "volmc.render()"
     scene = _as_scene(scene, where)
@@ -169,8 +168,9 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
         keys["seed"] = _integer(seed, where, "seed", 0, 2**64 - 1)
     if keys:
         scene = scene.with_render(**keys)
-    be = make_backend(_backend_name(backend, device, where), scene, device)
-    return RenderedImage(_render(scene, backend=be, progress=bool(progress)), scene)
+    # By name: the driver checks the memory the scene needs before it builds the backend.
+    return RenderedImage(_render(scene, backend=_backend_name(backend, device, where),
+                                 device=device, progress=bool(progress)), scene)
 
 
 class RenderedImage:
