@@ -151,12 +151,12 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
     when stderr is a terminal). on_start: called once the backend is compiled and the
-    Ctrl-C handler is installed, just before the first batch. checkpoint: a path to write
-    checkpoints to (checkpoint.py) between batches, every ``checkpoint_every`` seconds of
+    Ctrl-C handler is installed, just before the first chunk. checkpoint: a path to write
+    checkpoints to (checkpoint.py) between chunks, every ``checkpoint_every`` seconds of
     wall time and at the end (also when interrupted). resume: a checkpoint to continue from;
     it must be of this scene, seed, sampler and backend (SceneError otherwise), and the
     result equals an uninterrupted render bit for bit. client: a dask.distributed Client;
-    the batches then run as tasks on its workers (distributed.py; ``backend`` must be a
+    the chunks then run as tasks on its workers (distributed.py; ``backend`` must be a
     name, ``device`` the OpenCL device there) and the image is the same bit for bit.
     chunk_samples: the chunk size of ``chunk_schedule``; progress, Ctrl-C and checkpoints
     act between chunks. band_rows: rows of pixels per launch of a backend made here (None:

@@ -106,11 +106,16 @@ def segments_per_camera_ray(scene, majorant):
     return segments / max(rays, 1)
 
 
+def config_scene(scene, cfg):
+    """``scene`` with the techniques of volmc configuration ``cfg``."""
+    return scene.with_render(majorant=cfg.majorant, free_flight=cfg.free_flight,
+                             transmittance=cfg.transmittance,
+                             spectral=cfg.spectral or scene.render.spectral)
+
+
 class _VolmcRunner:
     def __init__(self, scene, cfg, device):
-        self.scene = scene.with_render(majorant=cfg.majorant, free_flight=cfg.free_flight,
-                                       transmittance=cfg.transmittance,
-                                       spectral=cfg.spectral or scene.render.spectral)
+        self.scene = config_scene(scene, cfg)
         self.be = make_backend(cfg.backend, self.scene, device)
         self.be.warm_up()
         w, h = self.scene.camera.resolution
@@ -130,9 +135,7 @@ class _ClusterRunner:
     from submission to the last merge, so scheduling and transfer are in the figure."""
 
     def __init__(self, scene, cfg, device, client):
-        self.scene = scene.with_render(majorant=cfg.majorant, free_flight=cfg.free_flight,
-                                       transmittance=cfg.transmittance,
-                                       spectral=cfg.spectral or scene.render.spectral)
+        self.scene = config_scene(scene, cfg)
         self.cfg, self.device, self.client = cfg, device, client
         self.w, self.h = self.scene.camera.resolution
         self.next_sample = 0
