@@ -347,18 +347,13 @@ def cmd_render(args):
     checkpoint = args.checkpoint or args.resume
     if checkpoint:
         _check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
-    if args.resume:
-        from .checkpoint import load
-        load(args.resume, scene, args.backend)   # a wrong checkpoint fails before compiling
     client = cluster = None
     if args.workers or args.scheduler:
         client, cluster = _dask_client(args)
-        backend = args.backend
-    else:
-        from .backends import make_backend
-        backend = make_backend(args.backend, scene, args.device)
     try:
-        res = render(scene, backend=backend, progress=False if args.quiet else None,
+        # By name: the driver reads a --resume checkpoint (and refuses a wrong one) before
+        # it builds and compiles the backend.
+        res = render(scene, backend=args.backend, progress=False if args.quiet else None,
                      on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
                      checkpoint_every=args.checkpoint_every, resume=args.resume,
                      client=client, device=args.device)
