@@ -178,6 +178,7 @@ def build_parser():
     bt.add_argument("--json", help="write the full report to this JSON file")
     bt.add_argument("--figures", help="write PNG figures into this directory")
     bt.add_argument("--device", help="OpenCL device (as for render)")
+    _add_cluster_options(bt, "run the sweep's cases")
     bt.add_argument("-D", dest="defines", action="append", default=[],
                     metavar="SECTION.KEY=VALUE", help="override a key of every scene")
     br = bsub.add_parser("render", help="RMSE against wall time for every configuration "
@@ -296,6 +297,14 @@ def _dask_client(args):
                                                f"{args.scheduler!r}: {e}") from None
 
 
+def _close_client(client, cluster):
+    """Closes what _dask_client opened (either may be None)."""
+    if client is not None:
+        client.close()
+    if cluster is not None:
+        cluster.close()
+
+
 def _announce_start():
     # Printed once the backend is ready and Ctrl-C keeps the samples rendered so far.
     print("volmc: started (Ctrl-C stops after the current chunk and writes the partial image)",
@@ -358,10 +367,7 @@ def cmd_render(args):
                      checkpoint_every=args.checkpoint_every, resume=args.resume,
                      client=client, device=args.device)
     finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        _close_client(client, cluster)
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
     meta["scene_toml"] = to_toml(scene.spec)
@@ -483,7 +489,14 @@ def cmd_bench_transmittance(args):
                                                        "dense grids: set it to \"dense\"")
         scenes.append(s)
     t = time.perf_counter()
-    report = bt.run(names, scenes, n_rays=args.rays, quick=args.quick, device=args.device)
+    client = cluster = None
+    if args.workers or args.scheduler:
+        client, cluster = _dask_client(args)
+    try:
+        report = bt.run(names, scenes, n_rays=args.rays, quick=args.quick, device=args.device,
+                        client=client)
+    finally:
+        _close_client(client, cluster)
     report["seconds"] = time.perf_counter() - t
     bt.print_report(report)
     if args.json:
@@ -577,10 +590,7 @@ def cmd_bench_render(args):
         report = cv.run(scene, configs, levels, args.reference_spp, args.repeats, args.device,
                         ceiling, defines=args.defines, client=client)
     finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        _close_client(client, cluster)
     cv.print_report(report)
     if args.json:
         write_json(args.json, report)

@@ -137,11 +137,16 @@ def rule_regions(rule, names, length, n_tau=120, n_ratio=60):
     return taus.tolist(), ratios.tolist(), grid
 
 
-def measure(runners, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
-    """The maps' data over ``replays``, a list of (Recording, rays [r, 9]) (every replayed
-    segment of a scene): per bin the pieces counted, the subsample run and each estimator's
-    metrics; JSON-able. Bins with fewer than ``min_segments`` pieces are not measured."""
-    names = [n for n in runners if not ESTIMATORS[n].homogeneous_only]
+def plan(names, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
+    """The maps over ``replays``, a list of (Recording, rays [r, 9]) (every replayed segment
+    of a scene; the launches name scene k, entry k of run_cases' shared data):
+    (maps, cases). ``maps`` is the JSON-able skeleton (per bin the pieces counted and the
+    subsample run); each case, a (launches, finish) pair, measures one bin with every
+    estimator of ``names`` except the homogeneous-only ones, and ``finish(launches,
+    results)`` puts their metrics and winners in the bin. Bins with fewer than
+    ``min_segments`` pieces are not measured."""
+    from .transmittance import Launch
+    names = [n for n in names if not ESTIMATORS[n].homogeneous_only]
     per_scene = []
     n_all = n_homog = 0
     for k, (rec, rays) in enumerate(replays):
@@ -158,7 +163,7 @@ def measure(runners, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
     bi, bj = bin_index(tau_bar, tight)
     rule, rule_names_ = auto_rule()
     rng = np.random.default_rng(seed)
-    bins = []
+    bins, cases = [], []
     for i in range(len(TAU_BAR_EDGES) - 1):
         for j in range(len(TIGHTNESS_EDGES) - 1):
             members = np.flatnonzero((bi == i) & (bj == j))
@@ -176,12 +181,19 @@ def measure(runners, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
                 use = np.sort(rng.choice(members, size=min(MAX_SEGMENTS, members.size),
                                          replace=False))
                 row["n_used"] = int(use.size)
-                for n in names:
-                    row["results"][n] = _run_bin(runners[n], replays, scene_of, pieces, use)
-                row.update(winners(row["results"]))
+                launches, truths = [], []
+                for k in np.unique(scene_of[use]):
+                    p = pieces[use[scene_of[use] == k]]
+                    r = replays[k][1][p[:, 0].astype(np.int64)].copy()
+                    r[:, 6], r[:, 7] = p[:, 1], p[:, 2]
+                    bounds = np.stack([p[:, 3] * (1.0 + SLACK), p[:, 4] * (1.0 - SLACK)], 1)
+                    launches += [Launch(n, int(k), None, r, bounds, PER_SEGMENT, 53)
+                                 for n in names]
+                    truths += [np.exp(-p[:, 5])] * len(names)
+                cases.append((launches, _finish_bin(row, truths)))
             bins.append(row)
     log(f"  maps: {len(pieces)} heterogeneous majorant segments ({n_homog} homogeneous of "
-        f"{n_all} left out), {sum(1 for b in bins if b['results'])} bins measured")
+        f"{n_all} left out), {len(cases)} bins to measure")
     out = {"tau_bar_edges": TAU_BAR_EDGES.tolist(), "tightness_edges": TIGHTNESS_EDGES.tolist(),
            "min_segments": min_segments, "max_segments": MAX_SEGMENTS,
            "per_segment": PER_SEGMENT, "n_pieces": int(n_all), "n_homogeneous": int(n_homog),
@@ -191,31 +203,25 @@ def measure(runners, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
         taus, ratios, grid = rule_regions(rule, rule_names_, length)
         out["auto_regions"] = {"length": length, "tau_bar": taus, "bound_ratio": ratios,
                                "choice": grid}
-    return out
+    return out, cases
 
 
-def _run_bin(runner, replays, scene_of, pieces, use):
-    """One estimator on the bin's pieces ``use``: a timed launch per recording they come
-    from, the estimates pooled."""
-    from .transmittance import stats, timed_launch
-    ests, cnts, truths, seconds = [], [], [], 0.0
-    for k in np.unique(scene_of[use]):
-        sel = use[scene_of[use] == k]
-        rec, rays = replays[k]
-        p = pieces[sel]
-        r = rays[p[:, 0].astype(np.int64)].copy()
-        r[:, 6], r[:, 7] = p[:, 1], p[:, 2]
-        bounds = np.stack([p[:, 3] * (1.0 + SLACK), p[:, 4] * (1.0 - SLACK)], 1)
-        est, cnt, sec = timed_launch(runner, rec.medium, rec.grid, r, bounds, PER_SEGMENT, 53)
-        seconds += sec
-        ests.append(est)
-        cnts.append(cnt)
-        truths.append(np.exp(-p[:, 5]))
-    r = stats(np.concatenate(ests), np.concatenate(truths), np.concatenate(cnts), seconds,
-              PER_SEGMENT)
-    keep = ("bias_z", "variance", "mse", "lookups", "seconds_per_estimate", "eff_var_lookups",
-            "eff_mse_time", "guards")
-    return {k: r[k] for k in keep}
+def _finish_bin(row, truths):
+    """The finish step of a bin's case: per estimator, its launches (one per recording the
+    bin's pieces come from) pooled, with their times summed; then the winners."""
+    def finish(launches, results):
+        from .transmittance import stats
+        keep = ("bias_z", "variance", "mse", "lookups", "seconds_per_estimate",
+                "eff_var_lookups", "eff_mse_time", "guards")
+        for n in dict.fromkeys(x.name for x in launches):
+            mine = [i for i, x in enumerate(launches) if x.name == n]
+            r = stats(np.concatenate([results[i][0] for i in mine]),
+                      np.concatenate([truths[i] for i in mine]),
+                      np.concatenate([results[i][1] for i in mine]),
+                      sum(results[i][2] for i in mine), PER_SEGMENT)
+            row["results"][n] = {k: r[k] for k in keep}
+        row.update(winners(row["results"]))
+    return finish
 
 
 def winners(results):

@@ -25,6 +25,7 @@ the per-estimate variance (equal samples).
 import json
 import math
 import time
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -145,55 +146,118 @@ def stats(est, exact, counters, seconds, n_per_ray):
     }
 
 
-def timed_launch(runner, med, grid, rays, bounds, n_per_ray, seed,
-                 structure=(None, None, None)):
-    """A launch's (estimates, counters, seconds), after an untimed launch of one estimate
-    (the first launch compiles for the size). ``structure``: (maj, mnr, nodes) of the
-    medium's own majorant structure, or Nones for ``bounds``. The time is the fastest of
-    TIME_REPEATS identical launches: other work on the machine only ever adds time."""
-    maj, mnr, nodes = structure
-    runner.run(med, grid, rays[:1], None if bounds is None else bounds[:1], 1, seed, 0, maj,
-               mnr, nodes)
-    best = math.inf
+Launch = namedtuple("Launch", "name scene med rays bounds n_per_ray seed")
+Launch.__doc__ = """One launch of estimator ``name`` on ``rays`` [r, 9] with ``n_per_ray``
+estimates each, on the 1-D profile ``med`` (``scene`` None) or on recorded scene ``scene``
+(an index into the cases' shared list of (medium, grid, maj, mnr, nodes)). ``bounds`` [r, 2]:
+each ray's majorant and minorant, or None to walk the scene's own majorant structure."""
+
+_NO_GRID = np.zeros((1, 1, 1))
+#: OpenCL runners built in this process, by (estimator, device): a Dask worker keeps them
+#: from case to case.
+_RUNNERS = {}
+
+
+def _runner(name, device):
+    key = (name, device)
+    if key not in _RUNNERS:
+        _RUNNERS[key] = OpenCLEstimator(name, device)
+    return _RUNNERS[key]
+
+
+def _launch_args(launch, shared, n):
+    """``runner.run`` arguments of ``launch``, cut to its first ``n`` rays."""
+    b = None if launch.bounds is None else launch.bounds[:n]
+    if launch.scene is None:
+        return (launch.med, _NO_GRID, launch.rays[:n], b)
+    medium, grid, maj, mnr, nodes = shared[launch.scene]
+    if b is not None:
+        maj = mnr = nodes = None
+    return (medium, grid, launch.rays[:n], b, None, 0, maj, mnr, nodes)
+
+
+def run_case(launches, shared=(), device=None):
+    """Run one case's launches in this process: [(estimates, counters, seconds)] per launch.
+
+    Each launch first runs one untimed estimate (the first launch of a size compiles); then
+    TIME_REPEATS rounds run every launch in turn, and a launch's time is its fastest round:
+    other work on the machine only ever adds time, and alternating spreads what it adds
+    evenly over the estimators a case compares. Estimates are the same in every round (fixed
+    seed)."""
+    runners = [_runner(x.name, device) for x in launches]
+    for r, x in zip(runners, launches):
+        a = _launch_args(x, shared, 1)
+        r.run(*a[:4], 1, x.seed, *a[5:])
+    out = [None] * len(launches)
+    best = [math.inf] * len(launches)
     for _ in range(TIME_REPEATS):
-        t = time.perf_counter()
-        est, cnt = runner.run(med, grid, rays, bounds, n_per_ray, seed, 0, maj, mnr, nodes)
-        best = min(best, time.perf_counter() - t)
-    return est, cnt, best
+        for i, (r, x) in enumerate(zip(runners, launches)):
+            a = _launch_args(x, shared, len(x.rays))
+            t = time.perf_counter()
+            out[i] = r.run(*a[:4], x.n_per_ray, x.seed, *a[5:])
+            best[i] = min(best[i], time.perf_counter() - t)
+    return [(est, cnt, sec) for (est, cnt), sec in zip(out, best)]
+
+
+def run_cases(cases, shared=(), device=None, client=None):
+    """``run_case`` of every case (a list of Launches) in order, yielding each case's result
+    list as it is ready: in this process, or with a Dask ``client`` as one task per case on
+    the cluster's workers (submitted together; ``shared`` scattered to every worker once).
+    A case's launches run back to back on one worker, so the estimators it compares are
+    timed on the same machine under the same load; different cases may run on different
+    machines. Tasks still pending when the caller stops (Ctrl-C) are cancelled."""
+    if client is None:
+        for c in cases:
+            yield run_case(c, shared, device)
+        return
+    data = client.scatter([tuple(shared)], broadcast=True)[0]
+    futures = [client.submit(run_case, c, data, device, pure=False, retries=3)
+               for c in cases]
+    try:
+        for f in futures:
+            res = f.result()
+            f.release()
+            yield res
+    finally:
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            client.cancel(pending)
 
 
 def run(names=None, scenes=(), n_per_case=2048, n_rays=1024, n_per_ray=64, quick=False,
-        log=print, device=None, resolution=None, per_pixel=RECORD_PER_PIXEL):
+        log=print, device=None, resolution=None, per_pixel=RECORD_PER_PIXEL, client=None):
     """Run the benchmark; returns the JSON-able report. ``scenes``: grid scenes whose render
     is recorded at their own camera.resolution or at ``resolution`` (width, height) if given
     (the CLI sets RECORD_RESOLUTION, or QUICK_RESOLUTION with --quick, by -D), keeping
     ``per_pixel`` segments per pixel; ``n_rays`` camera and ``n_rays`` shadow segments (a
-    quarter with ``quick``) are replayed with ``n_per_ray`` estimates each."""
+    quarter with ``quick``) are replayed with ``n_per_ray`` estimates each. The recordings
+    are made here; the cases (a profile sweep point, a replayed set, a map bin: every
+    estimator on it) run here or, with a Dask ``client``, as tasks on its workers
+    (``run_cases``). Every figure but the times is the same either way."""
     names = list(names or ESTIMATORS)
     targets = TARGET_T if not quick else (0.1, 0.6)
     tights = TIGHTNESS if not quick else (0.25, 1.0)
-    runners = {n: OpenCLEstimator(n, device) for n in names}
     report = {"profiles": [], "grids": [], "budget": BUDGET, "estimators": names,
               "unbiased": {n: ESTIMATORS[n].unbiased for n in names}}
+    plan = []   # (launches, finish(launches, results)) per case, in report order
     ray = np.array([[0, 0, 0, 1, 0, 0, 0, 1, 0]], np.float64)
     for shape in SHAPES:
         for T in targets:
             for tight in tights:
                 med, mbar, mu_c, exact, eff_tight = profile_case(shape, T, tight)
-                bounds = np.array([[mbar, mu_c]])
                 row = {"profile": shape, "target_T": T, "tightness": tight,
                        "effective_tightness": eff_tight, "exact": exact, "results": {}}
+                launches = []
                 for n in names:
                     if ESTIMATORS[n].homogeneous_only and shape != "constant":
                         continue  # analytic needs a homogeneous segment
                     mu = float(med["density"])  # homogeneous_only: the constant profile
-                    bnd = bounds if not ESTIMATORS[n].homogeneous_only else np.array([[mu, mu]])
-                    est, cnt, sec = timed_launch(runners[n], med, np.zeros((1, 1, 1)), ray,
-                                                 bnd, n_per_case, 17)
-                    row["results"][n] = stats(est, [exact], cnt, sec, n_per_case)
+                    bnd = np.array([[mu, mu] if ESTIMATORS[n].homogeneous_only
+                                    else [mbar, mu_c]])
+                    launches.append(Launch(n, None, med, ray, bnd, n_per_case, 17))
                 report["profiles"].append(row)
-        log(f"  profiles: {shape} done")
-    replays = []
+                plan.append((launches, _finish_row(row, [exact], n_per_case)))
+    shared, replays = [], []
     for scene in scenes:
         if resolution:
             scene = with_resolution(scene, resolution)
@@ -203,6 +267,8 @@ def run(names=None, scenes=(), n_per_case=2048, n_rays=1024, n_per_ray=64, quick
         grey = "" if not scene.medium.chromatic else " (chromatic: the largest channel)"
         log(f"  {scene.file}: recorded {len(rec.camera)} camera and {len(rec.shadow)} shadow "
             f"segments at {res[0]}x{res[1]}, {majorant_name(rec)}{grey}")
+        k = len(shared)
+        shared.append((rec.medium, rec.grid, rec.maj, rec.mnr, rec.nodes))
         n = n_rays if not quick else n_rays // 4
         cases = replay_cases(rec, n, seed=3)
         replays.append((rec, np.concatenate([c[1] for c in cases])))
@@ -221,23 +287,36 @@ def run(names=None, scenes=(), n_per_case=2048, n_rays=1024, n_per_ray=64, quick
                                                 / max(len(rays), 1)),
                    "mean_majorant_segments": len(pieces) / max(len(rays), 1),
                    "results": {}}
-            for n_ in names:
-                if ESTIMATORS[n_].homogeneous_only:
-                    continue
-                est, cnt, sec = timed_launch(runners[n_], rec.medium, rec.grid, rays, None,
-                                             n_per_ray, 29,
-                                             structure=(rec.maj, rec.mnr, rec.nodes))
-                row["results"][n_] = stats(est, exact, cnt, sec, n_per_ray)
-                row["results"][n_]["convergence"] = convergence(est, exact, cnt[:, 0], sec,
-                                                                n_per_ray)
+            launches = [Launch(n_, k, None, rays, None, n_per_ray, 29) for n_ in names
+                        if not ESTIMATORS[n_].homogeneous_only]
             report["grids"].append(row)
-            log(f"  {scene.file}: {label} done")
+            plan.append((launches, _finish_row(row, exact, n_per_ray, with_convergence=True)))
     if replays:
-        report["maps"] = segment_maps.measure(
-            runners, replays, log=log,
+        report["maps"], map_plan = segment_maps.plan(
+            names, replays, log=log,
             min_segments=segment_maps.MIN_SEGMENTS // (4 if quick else 1))
+        plan += map_plan
+    where = "here" if client is None else "as tasks on the cluster"
+    log(f"  {len(plan)} cases ({sum(len(c) for c, _ in plan)} launches) running {where}")
+    step = max(len(plan) // 8, 1)
+    results = run_cases([c for c, _ in plan], shared, device, client)
+    for i, ((launches, finish), res) in enumerate(zip(plan, results)):
+        finish(launches, res)
+        if (i + 1) % step == 0 or i + 1 == len(plan):
+            log(f"  {i + 1} of {len(plan)} cases done")
     report["summary"] = summarise(report)
     return report
+
+
+def _finish_row(row, exact, n_per_ray, with_convergence=False):
+    """The finish step of a profile or replayed-set case: each launch's stats (and
+    convergence) into ``row["results"]``."""
+    def finish(launches, results):
+        for x, (est, cnt, sec) in zip(launches, results):
+            r = row["results"][x.name] = stats(est, exact, cnt, sec, n_per_ray)
+            if with_convergence:
+                r["convergence"] = convergence(est, exact, cnt[:, 0], sec, n_per_ray)
+    return finish
 
 
 def convergence(est, exact, lookups, seconds, n_per_ray):
