@@ -113,6 +113,65 @@ def test_grid_too_large_fails_naming_the_density(tmp_path, monkeypatch, capsys, 
         volmc.render(cloud256, backend="numba", progress=False)
 
 
+def test_generated_density_too_large_fails_before_generating(tmp_path, monkeypatch, capsys):
+    """A generated grid that cannot fit fails before the generator runs (it would exhaust
+    memory while generating): medium.density.resolution, the generator's peak against what
+    there is, exit 2 and nothing written; the same from the library."""
+    from volmc.scene import generators
+    monkeypatch.setenv(memory.ENV_VAR, "1G")
+
+    def never(*a, **k):
+        raise AssertionError("the generator ran")
+    monkeypatch.setattr(generators, "cloud", never)
+    status = main(["render", str(default_scene()), "-o", str(tmp_path / "c.exr"),
+                   "-D", "medium.density.resolution=2048"])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    # 2048^3 float32 values and one byte per voxel of the validation masks: 40 GiB.
+    assert re.fullmatch(r"volmc: error: .*cloud\.toml: medium\.density\.resolution: "
+                        r"generating a 2048x2048x2048 cloud needs 40\.0 GiB of host memory, "
+                        r"1\.0 GiB available \(VOLMC_MEMORY_LIMIT\)\n", err), err
+    assert not (tmp_path / "c.exr").exists()
+    import volmc
+    with pytest.raises(volmc.VolmcError, match=r"medium\.density\.resolution: generating"):
+        volmc.load_scene(default_scene(), {"medium.density.resolution": 1024})
+    # The plume generates two fields: a 512^3 plume needs 2 x 512 MiB + 128 MiB.
+    monkeypatch.setattr(generators, "plume", never)
+    spec = dict(TINY, medium=dict(TINY["medium"], density={
+        "generator": "plume", "resolution": 512}))
+    with pytest.raises(SceneError, match=r"generating a 512x512x512 plume needs 1\.1 GiB"):
+        scene_from_dict(spec)
+
+
+@pytest.mark.parametrize("suffix", [".npy", ".npz", ".vol", ".vdb"])
+def test_grid_file_too_large_fails_before_reading(tmp_path, monkeypatch, suffix):
+    """A grid file whose array would not fit fails before it is read (from the header), or,
+    for a VDB file rendered dense, before it is expanded: the file and key are named. The
+    same files load under a larger limit."""
+    from volmc.scene.grids import save_grid
+    path = tmp_path / f"g{suffix}"
+    if suffix == ".vdb":
+        import shutil
+        from pathlib import Path
+        shutil.copy(Path(__file__).parent / "data" / "vdb" / "blobs.vdb", path)
+        what, limit = r"expanding grid 'density' to a dense 22x21x21 array", "40K"
+    elif suffix == ".npy":
+        np.save(path, np.ones((40, 30, 20)))   # float64: its float32 copy counts too
+        what, limit = r"loading a 20x30x40 grid of float64", "300K"
+    else:
+        save_grid(path, np.ones((40, 30, 20), np.float32))
+        what = r"loading a 20x30x40 grid" + (" of float32" if suffix == ".npz" else "")
+        limit = "100K"
+    spec = dict(TINY, medium=dict(TINY["medium"], density={"file": str(path)}),
+                render=dict(TINY["render"], grid_storage="dense"))
+    monkeypatch.setenv(memory.ENV_VAR, limit)
+    with pytest.raises(SceneError, match=rf"g\{suffix}: medium\.density.*: {what} needs "
+                                         rf"{FIGURE} of host memory, {FIGURE} available"):
+        scene_from_dict(spec)
+    monkeypatch.setenv(memory.ENV_VAR, "1G")
+    assert scene_from_dict(spec).grid.shape[::-1] in ((20, 30, 40), (22, 21, 21))
+
+
 def test_library_render_raises_for_a_huge_film(monkeypatch):
     from volmc.render import render
     monkeypatch.setenv(memory.ENV_VAR, "16G")

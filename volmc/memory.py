@@ -23,14 +23,12 @@ the same bit for bit however it is banded.
 """
 
 import math
-import os
 from dataclasses import dataclass
 
+from .scene.hostmem import ENV_VAR, fmt_bytes, host_available, parse_size  # noqa: F401
 from .params import N_COUNTERS
 from .scene.errors import SceneError
 
-#: Environment variable overriding the host memory available (bytes, or a K/M/G/T suffix).
-ENV_VAR = "VOLMC_MEMORY_LIMIT"
 #: Per-launch buffers of one band at most this many bytes...
 LAUNCH_BUDGET = 256 << 20
 #: ... and at most this fraction of the memory available.
@@ -50,7 +48,6 @@ COUNTER_BYTES_PER_PIXEL = N_COUNTERS * 8
 CL_BATCH_BYTES_PER_PIXEL = 2 * 3 * 4
 CL_TEMP_BYTES_PER_PIXEL = 4 * 3 * 8
 
-_SUFFIXES = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 
 
 @dataclass
@@ -93,54 +90,11 @@ class Estimate:
         return out
 
 
-def parse_size(text, where=ENV_VAR):
-    """Bytes of ``text``: an integer with an optional K, M, G or T suffix (powers of 1024,
-    an optional trailing "B" or "iB")."""
-    t = str(text).strip().upper().replace("IB", "").rstrip("B") if str(text).strip() else ""
-    num, suffix = t, ""
-    if t and t[-1] in _SUFFIXES:
-        num, suffix = t[:-1], t[-1]
-    try:
-        v = float(num)
-    except ValueError:
-        v = float("nan")
-    if not (v == v and 0 < v < float("inf")):
-        raise SceneError("environment", where, f"expected bytes with an optional K, M, G or T "
-                                               f"suffix (e.g. 100M), got {text!r}")
-    return int(v * _SUFFIXES[suffix])
-
-
-def host_available():
-    """(bytes of host memory available, where the figure comes from), or (None, why)."""
-    env = os.environ.get(ENV_VAR)
-    if env:
-        return parse_size(env), ENV_VAR
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024, "MemAvailable"
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"), "free pages"
-    except (ValueError, OSError, AttributeError):
-        return None, "unknown"
-
-
 def device_limits(device):
     """(global_mem_size, max_mem_alloc_size, is a CPU device, name) of a pyopencl Device."""
     import pyopencl as cl
     return (int(device.global_mem_size), int(device.max_mem_alloc_size),
             bool(device.type & cl.device_type.CPU), device.name.strip())
-
-
-def fmt_bytes(n):
-    """1.5 GiB, 20.3 MiB, 12 KiB, 100 B."""
-    for unit, shift in (("TiB", 40), ("GiB", 30), ("MiB", 20), ("KiB", 10)):
-        if n >= 1 << shift:
-            return f"{n / (1 << shift):.1f} {unit}"
-    return f"{int(n)} B"
 
 
 def _emission_key(scene):

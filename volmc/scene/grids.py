@@ -17,6 +17,7 @@ import zlib
 
 import numpy as np
 
+from .hostmem import require_host
 from .errors import SceneError
 
 VOL_MAGIC = b"VOL"
@@ -49,6 +50,9 @@ def read_vol(path, key="density"):
         avail = max(os.fstat(f.fileno()).st_size - VOL_HEADER.size, 0) // 4
         if count > avail:
             raise SceneError(path, key, f"truncated .vol data: {avail} of {count} values")
+        # fromfile's array, then its float32 copy and validate_grid's masks.
+        require_host(count * 4 + load_peak_bytes(count), path, key,
+                     f"loading a {nx}x{ny}x{nz} grid")
         data = np.fromfile(f, dtype="<f4", count=count)
     if data.size != count:
         raise SceneError(path, key, f"truncated .vol data: {data.size} of {count} values")
@@ -96,6 +100,10 @@ def read_grid_file(path, key="density", name="density"):
             if name not in z.files:
                 raise SceneError(path, key, f".npz has no array '{name}' (has: "
                                  f"{', '.join(z.files) or 'nothing'})")
+            with z.zip.open(f"{name}.npy") as member:
+                shape, dtype = _npy_header(member)
+            require_host(load_peak_bytes(math.prod(shape), dtype), path, key,
+                         f"loading a {_shape_text(shape)} grid of {dtype}")
             return z[name]
     except SceneError:
         raise
@@ -107,17 +115,38 @@ def read_grid_file(path, key="density", name="density"):
         raise SceneError(path, key, f"cannot read grid: {text}") from None
 
 
-def _check_npy_size(f, file_size, path, key):
-    """Reject a .npy header that declares more data than the file holds (before numpy
-    allocates it)."""
+def _npy_header(f):
+    """(shape, dtype) of the .npy stream ``f``, left at the start of its data."""
     version = np.lib.format.read_magic(f)
     read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
                    else np.lib.format.read_array_header_2_0)
     shape, _, dtype = read_header(f)
+    return shape, dtype
+
+
+def _check_npy_size(f, file_size, path, key):
+    """Reject a .npy header that declares more data than the file holds, or than the host
+    memory can load (before numpy allocates it)."""
+    shape, dtype = _npy_header(f)
     declared = math.prod(shape) * dtype.itemsize
     if declared > file_size - f.tell():
         raise SceneError(path, key, f"truncated .npy data: shape {shape} of {dtype} needs "
                                     f"{declared} bytes, the file holds {file_size - f.tell()}")
+    require_host(load_peak_bytes(math.prod(shape), dtype), path, key,
+                 f"loading a {_shape_text(shape)} grid of {dtype}")
+
+
+def load_peak_bytes(voxels, dtype=np.float32):
+    """Peak host bytes of loading a grid of ``voxels`` values of ``dtype`` and validating it
+    (validate_grid): the array, one byte per voxel of its checks' masks, and its float32
+    copy unless it is float32 already."""
+    dtype = np.dtype(dtype)
+    return voxels * (dtype.itemsize + 1 + (0 if dtype == np.float32 else 4))
+
+
+def _shape_text(shape):
+    """[z, y, x] shape as "x-by-y-by-z" text: 512x512x512."""
+    return "x".join(str(n) for n in reversed(tuple(shape)))
 
 
 def validate_grid(arr, file, key="density"):

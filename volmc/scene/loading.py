@@ -6,6 +6,7 @@
 ``camera.type=orthographic`` works unquoted.
 """
 
+import math
 import os
 import tomllib
 from collections.abc import Mapping
@@ -14,9 +15,10 @@ from typing import Optional
 
 import numpy as np
 
+from .hostmem import require_host
 from .errors import SceneError
 from .bricks import BrickGrid
-from .grids import load_grid, validate_grid
+from .grids import load_grid, load_peak_bytes, validate_grid
 from .schema import (FLOAT32_MAX, GENERATORS, ArrayDensity, ConstantDensity, FileDensity,
                      GeneratedDensity, SceneSpec, check_box, validate)
 
@@ -174,6 +176,12 @@ def _read_source(spec, src, key, vdb_density=None, cache=None):
         if cache is not None and key_g in cache:
             out = cache[key_g]
         else:
+            shape = generators._parse_resolution(src.resolution)
+            n_fields = len(GENERATORS[src.generator])
+            # Every field's float32 array; validate_grid adds its masks to the first.
+            require_host((n_fields - 1) * 4 * math.prod(shape) + load_peak_bytes(math.prod(shape)),
+                         spec.file, key + ".resolution",
+                         f"generating a {'x'.join(map(str, shape))} {src.generator}")
             out = getattr(generators, src.generator)(src.resolution, src.seed)
             if cache is not None:   # density and temperature of one plume: generate once
                 cache[key_g] = out
@@ -188,6 +196,16 @@ def _read_source(spec, src, key, vdb_density=None, cache=None):
     raise TypeError(src)
 
 
+def _dense(vg, path, key):
+    """The VDB grid ``vg`` expanded over its active bounding box (float32), once the host
+    memory is known to hold it."""
+    voxels = math.prod(vg.shape)
+    require_host(load_peak_bytes(voxels), path, key,
+                 f"expanding grid '{vg.name}' to a dense {'x'.join(map(str, vg.shape[::-1]))} "
+                 "array")
+    return vg.to_dense()
+
+
 def _align_vdb(vg, density, path, key):
     """Grid ``vg`` resampled onto the voxels of the VDB density grid (same voxel size and
     voxel-centre lattice required): the overlap is copied, the rest is vg's background."""
@@ -199,7 +217,7 @@ def _align_vdb(vg, density, path, key):
     if not np.allclose(shift, np.round(shift), atol=1e-4):
         raise SceneError(path, key, f"grid '{vg.name}' is offset from the density by a "
                                     "fraction of a voxel; the voxels must line up")
-    dense = vg.to_dense()
+    dense = _dense(vg, path, key)
     lo_d = np.asarray(density.bbox[0])
     hi_d = np.asarray(density.bbox[1])
     lo_v = np.asarray(vg.bbox[0]) + np.round(shift).astype(int)
@@ -245,7 +263,8 @@ def load_density(spec: SceneSpec, cache=None):
     if raw is None and spec.render.grid_storage != "dense" and vg.background == 0.0:
         grid = _vdb_bricks(vg, where, "medium.density")
     else:
-        grid = validate_grid(vg.to_dense() if raw is None else raw, where, "medium.density")
+        grid = validate_grid(_dense(vg, where, "medium.density") if raw is None else raw, where,
+                             "medium.density")
     # The float32 kernels hold the global majorant scale * max(density).
     top = max(spec.medium.scale) * float(grid.max())
     if top > FLOAT32_MAX:
@@ -267,7 +286,7 @@ def load_emission(spec: SceneSpec, vdb_density=None, cache=None):
         return np.full((1, 1, 1), src.value, np.float32)
     raw, vg = _read_source(spec, src, key, vdb_density, cache)
     where = src.resolved if isinstance(src, FileDensity) else spec.file
-    return validate_grid(vg.to_dense() if raw is None else raw, where, key)
+    return validate_grid(_dense(vg, where, key) if raw is None else raw, where, key)
 
 
 def _complete(spec: SceneSpec):
