@@ -152,6 +152,37 @@ def test_save_exr_png_and_repr_png(tmp_path):
         img.save(tmp_path / "missing" / "a.exr")
 
 
+def test_save_writes_the_variance_exr(tmp_path):
+    """save(variance=True): <stem>.var.exr holds the variance of the mean, with the image's
+    metadata, beside an EXR or a PNG; it is the file volmc render --variance writes."""
+    img = volmc.render(volmc.load_scene(overrides=SMALL), progress=False)
+    for name in ("b.exr", "c.png"):
+        img.save(tmp_path / name, variance=True)
+        var, meta = read_exr(tmp_path / (name[0] + ".var.exr"))
+        assert np.array_equal(var, img.variance) and int(meta["spp"]) == 4
+    assert np.any(img.variance > 0) and not np.array_equal(img.variance, img.image)
+    cli = subprocess.run([sys.executable, "-m", "volmc.cli", "render", "--quiet", "--variance",
+                          "-o", str(tmp_path / "d.exr"), "-D", "camera.resolution=[8, 8]",
+                          "-D", "render.spp=4", "-D", "medium.density.resolution=16"],
+                         capture_output=True, text=True)
+    assert cli.returncode == 0, cli.stderr
+    assert np.array_equal(read_exr(tmp_path / "d.var.exr")[0], img.variance)
+
+
+def test_guards_that_fired_warn():
+    """Walks cut by render.max_steps: volmc.render issues a VolmcWarning naming the count,
+    the message volmc render prints; a clean render issues none."""
+    import warnings
+    scene = volmc.load_scene(overrides=dict(SMALL, **{"render.max_steps": 1}))
+    with pytest.warns(volmc.VolmcWarning, match=r"^\d+ walks were cut by render\.max_steps$"):
+        img = volmc.render(scene, progress=False)
+    assert img.counters["capped"] > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert volmc.render(volmc.load_scene(overrides=SMALL), progress=False).counters[
+            "capped"] == 0
+
+
 def test_save_exr_of_a_numpy_grid_scene(tmp_path):
     """A scene with a numpy grid has no TOML form: the EXR is written without it."""
     scene = volmc.scene_from_dict(_base(np.full((2, 2, 2), 0.5), spp=2))

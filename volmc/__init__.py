@@ -16,6 +16,7 @@ The Python API (volmc/api.py; the README's "Python API" section)::
 * ``estimate_transmittance(scene_or_medium, origins, directions, t_max, estimator="auto",
   n=64, backend="opencl", seed=0)``: a ``TransmittanceResult`` per ray.
 * ``VolmcError``: raised for any bad input, with the CLI's one-line message.
+* ``VolmcWarning``: issued by ``render`` when a guard fired (the image may be biased).
 
 Importing volmc imports nothing heavy: the functions import Numba, pyopencl and the
 renderer when first called.
@@ -31,13 +32,13 @@ from .api import (RenderedImage, TransmittanceResult, estimate_transmittance, lo
                   render, scene_from_dict)
 
 __all__ = ["load_scene", "scene_from_dict", "render", "estimate_transmittance", "VolmcError",
-           "RenderedImage", "TransmittanceResult"]
+           "VolmcWarning", "RenderedImage", "TransmittanceResult"]
 
 
 def __getattr__(name):
-    if name == "VolmcError":   # defined in volmc/scene/errors.py, imported on first use
-        from .scene.errors import VolmcError
-        return VolmcError
+    if name in ("VolmcError", "VolmcWarning"):   # volmc/scene/errors.py, imported on use
+        from .scene import errors
+        return getattr(errors, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

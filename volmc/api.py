@@ -157,6 +157,8 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     "0:1"; default ``$VOLMC_CL_DEVICE``, else the first PoCL device). progress: show a tqdm
     bar on stderr. An interrupt (Ctrl-C, or the notebook's stop button) stops after the
     current chunk and returns the samples so far with ``partial`` True. Raises VolmcError.
+    A guard that fired (lookups above the majorant, walks cut by render.max_steps, dropped
+    samples: the image may be biased) issues a ``volmc.VolmcWarning``.
     """
     from .render import render as _render
     where = "volmc.render()"
@@ -169,8 +171,14 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     if keys:
         scene = scene.with_render(**keys)
     # By name: the driver checks the memory the scene needs before it builds the backend.
-    return RenderedImage(_render(scene, backend=_backend_name(backend, device, where),
-                                 device=device, progress=bool(progress)), scene)
+    result = _render(scene, backend=_backend_name(backend, device, where), device=device,
+                     progress=bool(progress))
+    if result.guard_warnings():
+        import warnings
+        from .scene.errors import VolmcWarning
+        for text in result.guard_warnings():
+            warnings.warn(text, VolmcWarning, stacklevel=2)
+    return RenderedImage(result, scene)
 
 
 class RenderedImage:
@@ -184,7 +192,8 @@ class RenderedImage:
     compilation). spp: samples per pixel rendered; seed; backend; partial: True if
     interrupted; scene: the Scene rendered; result: the driver's ``volmc.render.RenderResult``
     (its ``film`` holds the float64 sums). ``stats()``: samples/s and per-sample counts.
-    ``save(path)`` writes an EXR or PNG; in Jupyter the object shows as a tonemapped PNG.
+    ``save(path, variance=False)`` writes an EXR or PNG (and the variance EXR); in Jupyter
+    the object shows as a tonemapped PNG.
     """
 
     def __init__(self, result, scene):
@@ -216,26 +225,29 @@ class RenderedImage:
             pass
         return meta
 
-    def save(self, path, exposure=0.0, tonemap="filmic"):
+    def save(self, path, exposure=0.0, tonemap="filmic", variance=False):
         """Write the image: ``.exr`` (float32 RGB with metadata, as ``volmc render``) or
         ``.png`` (tonemapped 8-bit sRGB: ``exposure`` in stops, ``tonemap`` "filmic" or
-        "clamp"), chosen by the extension. Returns the path. Raises VolmcError."""
+        "clamp"), chosen by the extension. ``variance``: also write the per-pixel variance
+        of the mean to ``<path without its extension>.var.exr``, with the same metadata (as
+        ``volmc render --variance``). Returns the path of the image. Raises VolmcError."""
         from .cli import _check_writable
         from .film import write_exr, write_png
         where = "RenderedImage.save()"
         path = os.fspath(path)
         _check_writable(path, "path", where)
         suffix = os.path.splitext(path)[1].lower()
-        if suffix == ".exr":
-            write_exr(path, self.image, self.metadata())
-        elif suffix == ".png":
-            if tonemap not in ("filmic", "clamp"):
-                raise _error(where, "tonemap", f"must be 'filmic' or 'clamp', got "
-                                                   f"{tonemap!r}")
-            write_png(path, self.image, exposure, tonemap)
-        else:
+        if suffix not in (".exr", ".png"):
             raise _error(where, "path", f"expected a path ending in .exr or .png, got "
                                             f"{path!r}")
+        if suffix == ".png" and tonemap not in ("filmic", "clamp"):
+            raise _error(where, "tonemap", f"must be 'filmic' or 'clamp', got {tonemap!r}")
+        if suffix == ".exr":
+            write_exr(path, self.image, self.metadata())
+        else:
+            write_png(path, self.image, exposure, tonemap)
+        if variance:
+            write_exr(os.path.splitext(path)[0] + ".var.exr", self.variance, self.metadata())
         return path
 
     def png_bytes(self, exposure=0.0, tonemap="filmic"):

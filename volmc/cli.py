@@ -388,13 +388,8 @@ def cmd_render(args):
     # Guard "reported counters" (robustness case 10, 19, 20): a render that cut paths, dropped
     # samples or met extinction above its majorant says so even without --stats or with
     # --quiet (the counts are also in the EXR metadata): never a silent bias.
-    c = res.counters
-    for key, what in (("over_majorant", "density lookups exceeded the majorant (the image is "
-                       "biased: was the density changed after the majorant was built?)"),
-                      ("capped", "walks were cut by render.max_steps"),
-                      ("dropped", "NaN, infinite or negative samples were dropped")):
-        if c.get(key, 0) > 0:
-            print(f"volmc: warning: {c[key]} {what}", file=sys.stderr)
+    for text in res.guard_warnings():
+        print(f"volmc: warning: {text}", file=sys.stderr)
     return EXIT_INTERRUPTED if res.partial else 0
 
 

@@ -71,6 +71,15 @@ def chunk_schedule(n_pixels, spp, start=0, chunk_samples=CHUNK_SAMPLES):
     return chunks
 
 
+#: The guard counters a render reports when they are not 0, and what each count means.
+GUARD_WARNINGS = (
+    ("over_majorant", "density lookups exceeded the majorant (the image is biased: was the "
+                      "density changed after the majorant was built?)"),
+    ("capped", "walks were cut by render.max_steps"),
+    ("dropped", "NaN, infinite or negative samples were dropped"),
+)
+
+
 @dataclass
 class RenderResult:
     """A finished (or interrupted) render."""
@@ -102,6 +111,13 @@ class RenderResult:
             "dropped_contributions": c["dropped"],
             "lookups_over_majorant": c["over_majorant"],
         }
+
+    def guard_warnings(self):
+        """One message per guard that fired during the render (lookups above the majorant,
+        walks cut by render.max_steps, dropped samples), with its count: the image may then
+        be biased, and a render never is silently. Empty for a clean render."""
+        c = self.counters
+        return [f"{c[key]} {what}" for key, what in GUARD_WARNINGS if c.get(key, 0) > 0]
 
     def metadata(self):
         """EXR header metadata: spp, seed, backend, time, techniques, partial flag, counters."""

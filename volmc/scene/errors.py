@@ -20,6 +20,13 @@ class VolmcError(Exception):
         super().__init__(_one_line(text))
 
 
+class VolmcWarning(UserWarning):
+    """A render finished, but a guard fired (lookups above the majorant, walks cut by
+    render.max_steps, dropped samples): the image may be biased. ``volmc.render`` issues one
+    per guard with ``warnings.warn``, where ``volmc render`` prints ``volmc: warning: ``
+    lines. Exported as ``volmc.VolmcWarning``."""
+
+
 class SceneError(VolmcError):
     """Bad scene, grid or command-line value (every error volmc raises for bad input is one;
     a subclass of VolmcError, so ``except VolmcError`` catches it too)."""
