@@ -59,9 +59,16 @@ def identity(scene, backend):
     import dataclasses
     from .scene.serialize import to_toml
     spec = dataclasses.replace(scene.spec, render=dataclasses.replace(scene.spec.render, spp=1))
-    return {"scene_toml": to_toml(spec), "grids": grid_hashes(scene),
+    # A grid given as a numpy array (Python API) is identified by its hash in "grids"; the
+    # TOML records where it stands, its type and shape.
+    return {"scene_toml": to_toml(spec, array_as=_array_stand_in), "grids": grid_hashes(scene),
             "seed": str(scene.render.seed), "backend": backend,
             "sampler": scene.render.sampler}
+
+
+def _array_stand_in(a):
+    a = np.asarray(a)
+    return {"array": f"{a.dtype} {list(a.shape)}"}
 
 
 def save(path, film, counters, seconds, ident):
@@ -111,7 +118,8 @@ def load(path, scene, backend):
                           "compare with -D overrides and the scene file)")
             raise bad(f"the checkpoint has {words} {header.get(key)!r}, this render "
                       f"{want[key]!r}" if key != "grids" else
-                      "the checkpoint's grids differ from the scene's (a grid file changed)")
+                      "the checkpoint's grids differ from the scene's (a grid file changed, "
+                      "or another array was given)")
     w, h = scene.camera.resolution
     if s.shape != (h, w, 3) or sq.shape != (h, w, 3) or len(cnt) != len(COUNTER_NAMES):
         raise bad("the checkpoint's arrays do not match the scene's resolution")

@@ -8,9 +8,14 @@ from .schema import (ArrayDensity, ConstantDensity, DirectionalLight, Environmen
                      FileDensity, GeneratedDensity, PointLight, SceneSpec)
 
 
-def to_dict(spec: SceneSpec) -> dict:
-    """Plain dictionary in the TOML layout of docs/scene_format.md, every key explicit."""
+def to_dict(spec: SceneSpec, array_as=None) -> dict:
+    """Plain dictionary in the TOML layout of docs/scene_format.md, every key explicit. A grid
+    given as a numpy array stays the array, or is ``array_as(array)`` when given (a TOML
+    file cannot hold the array: ``to_toml`` needs a stand-in)."""
     c, m, r = spec.camera, spec.medium, spec.render
+
+    def _source(d):
+        return _grid_source(d, array_as)
     density = _source(m.density)
     phase = {"type": m.phase.type}
     if m.phase.type == "hg":
@@ -52,7 +57,7 @@ def to_dict(spec: SceneSpec) -> dict:
     }
 
 
-def _source(d):
+def _grid_source(d, array_as=None):
     """A grid source as the scene writes it."""
     if isinstance(d, ConstantDensity):
         return d.value
@@ -63,7 +68,7 @@ def _source(d):
         return {"generator": d.generator, "resolution": d.resolution, "seed": d.seed,
                 "channel": d.channel}
     if isinstance(d, ArrayDensity):   # the array itself: validate() takes it back
-        return d.array
+        return d.array if array_as is None else array_as(d.array)
     raise TypeError(d)
 
 
@@ -102,6 +107,7 @@ def dict_to_toml(d: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def to_toml(spec: SceneSpec) -> str:
-    """TOML text of a scene (tables for sections, [[lights]] for lights)."""
-    return dict_to_toml(to_dict(spec))
+def to_toml(spec: SceneSpec, array_as=None) -> str:
+    """TOML text of a scene (tables for sections, [[lights]] for lights). A numpy-array grid
+    raises TypeError unless ``array_as`` maps it to a TOML value (see ``to_dict``)."""
+    return dict_to_toml(to_dict(spec, array_as))
