@@ -169,6 +169,30 @@ def test_save_writes_the_variance_exr(tmp_path):
     assert np.array_equal(read_exr(tmp_path / "d.var.exr")[0], img.variance)
 
 
+def test_checkpoint_and_resume_through_the_api(tmp_path):
+    """volmc.render(checkpoint=...) then volmc.render(resume=...) to more samples: the
+    uninterrupted render's image (up to the order of the float64 sums: the checkpoint holds
+    the first 3 spp summed apart) and counters; another seed's resume is refused; bad
+    arguments are VolmcErrors."""
+    scene = volmc.load_scene(overrides=SMALL)
+    full = volmc.render(scene, spp=8, backend="numba", progress=False)
+    ck = tmp_path / "ck.npz"
+    volmc.render(scene, spp=3, backend="numba", progress=False, checkpoint=ck)
+    res = volmc.render(scene, spp=8, backend="numba", progress=False, resume=ck)
+    assert res.spp == 8 and res.counters == full.counters
+    with np.load(ck) as z:   # the resumed render went on checkpointing to its file
+        assert '"spp": 8' in str(z["header"])
+    np.testing.assert_allclose(res.image, full.image, rtol=1e-6, atol=1e-12)
+    with pytest.raises(volmc.VolmcError, match=r"--resume: .*seed"):
+        volmc.render(scene, spp=8, seed=9, backend="numba", progress=False, resume=ck)
+    for kw, key in (({"checkpoint": 3}, "checkpoint"), ({"checkpoint_every": -1},
+                                                        "checkpoint_every"),
+                    ({"client": 5}, "client"),
+                    ({"checkpoint": tmp_path / "no" / "ck.npz"}, "checkpoint")):
+        with pytest.raises(volmc.VolmcError, match=rf"^volmc\.render\(\): {key}: "):
+            volmc.render(scene, backend="numba", progress=False, **kw)
+
+
 def test_guards_that_fired_warn():
     """Walks cut by render.max_steps: volmc.render issues a VolmcWarning naming the count,
     the message volmc render prints; a clean render issues none."""

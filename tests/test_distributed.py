@@ -65,6 +65,24 @@ def test_cluster_render_equals_single_process(cluster):
     assert a.counters == b.counters and b.film.spp == 300
 
 
+def test_api_render_on_the_cluster(cluster):
+    """volmc.render(client=Client) and volmc.render(client="tcp://...") (a client opened
+    and closed for the call) give the single-process image bit for bit."""
+    import volmc
+    c, client = cluster
+    scene = load_scene(default_scene(), SMALL)
+    one = volmc.render(scene, spp=40, progress=False)
+    for where in (client, c.scheduler_address):
+        there = volmc.render(scene, spp=40, progress=False, client=where)
+        np.testing.assert_array_equal(there.image, one.image)
+        assert there.counters == one.counters and there.backend == "opencl on dask"
+    import dask
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        with pytest.raises(volmc.VolmcError,
+                           match=r"^volmc\.render\(\): client: cannot reach"):
+            volmc.render(scene, spp=1, progress=False, client="tcp://127.0.0.1:9")
+
+
 def test_killed_worker_leaves_the_image_exact(cluster):
     """A worker process killed by SIGKILL while the render runs: its tasks are run again on
     a worker (the nanny restarts the process), and the image is still the single-process
@@ -94,6 +112,7 @@ def test_killed_worker_leaves_the_image_exact(cluster):
 
 def _cli(args, cwd):
     env = dict(os.environ)
+    env["DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT"] = "2s"   # the unreachable scheduler
     env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(__file__)),
                                          env.get("PYTHONPATH", "")])
     return subprocess.run([sys.executable, "-m", "volmc.cli", *args], cwd=cwd, env=env,

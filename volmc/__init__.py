@@ -11,8 +11,10 @@ The Python API (volmc/api.py; the README's "Python API" section)::
   overrides as a dict of dotted keys or ``-D`` strings.
 * ``scene_from_dict(scene, base_dir=".", overrides=None)``: a scene from a dict shaped like
   the TOML (numpy arrays allowed as density grids) or from the schema dataclasses.
-* ``render(scene, spp=None, seed=None, backend="opencl", device=None, progress=True)``: a
-  ``RenderedImage`` with ``image``, ``variance``, ``counters``, ``seconds``, ``save(path)``.
+* ``render(scene, spp=None, seed=None, backend="opencl", device=None, progress=True,
+  client=None, checkpoint=None, checkpoint_every=60.0, resume=None)``: a ``RenderedImage``
+  with ``image``, ``variance``, ``counters``, ``seconds``, ``save(path)``; ``client`` renders
+  on a Dask cluster, ``checkpoint``/``resume`` as on the command line.
 * ``estimate_transmittance(scene_or_medium, origins, directions, t_max, estimator="auto",
   n=64, backend="opencl", seed=0)``: a ``TransmittanceResult`` per ray.
 * ``VolmcError``: raised for any bad input, with the CLI's one-line message.

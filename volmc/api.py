@@ -133,6 +133,28 @@ def _integer(v, where, key, lo, hi):
     return int(v)
 
 
+def _path(p, where, key, writable=False):
+    """None, or the path ``p`` as a str (its directory must be writable if ``writable``)."""
+    if p is None:
+        return None
+    if not isinstance(p, (str, os.PathLike)):
+        raise _error(where, key, f"expected a path, got {type(p).__name__}")
+    p = os.fspath(p)
+    if writable:
+        from .cli import _check_writable
+        _check_writable(p, key, where)
+    return p
+
+
+def _seconds(v, where, key):
+    """A finite number of seconds >= 0, as float."""
+    import math
+    import numbers
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v) or v < 0:
+        raise _error(where, key, f"expected a finite number of seconds >= 0, got {v!r}")
+    return float(v)
+
+
 def _backend_name(backend, device, where):
     from .backends import BACKENDS
     if backend not in BACKENDS:
@@ -146,7 +168,8 @@ def _backend_name(backend, device, where):
     return backend
 
 
-def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=True):
+def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=True,
+           client=None, checkpoint=None, checkpoint_every=60.0, resume=None):
     """Render a scene; returns a ``RenderedImage`` (``.image``, ``.variance``, ``.save()``).
 
     scene: a Scene (``load_scene``, ``scene_from_dict``), a scene file path or a scene dict.
@@ -159,6 +182,15 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     current chunk and returns the samples so far with ``partial`` True. Raises VolmcError.
     A guard that fired (lookups above the majorant, walks cut by render.max_steps, dropped
     samples: the image may be biased) issues a ``volmc.VolmcWarning``.
+
+    client: render on a Dask cluster (``volmc[dask]``): a ``distributed.Client``, or a
+    scheduler address such as "tcp://10.0.0.1:8786" (a client is opened and closed here).
+    The image is the single-process one bit for bit; a worker that dies has its chunks run
+    again. checkpoint: a path written atomically every ``checkpoint_every`` seconds and at
+    the end (also when interrupted); resume: a checkpoint of this scene, seed, sampler and
+    backend to continue from (another is refused with VolmcError), which is then also the
+    checkpoint unless ``checkpoint`` names another. The result equals an uninterrupted
+    render bit for bit.
     """
     from .render import render as _render
     where = "volmc.render()"
@@ -170,9 +202,27 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
         keys["seed"] = _integer(seed, where, "seed", 0, 2**64 - 1)
     if keys:
         scene = scene.with_render(**keys)
-    # By name: the driver checks the memory the scene needs before it builds the backend.
-    result = _render(scene, backend=_backend_name(backend, device, where), device=device,
-                     progress=bool(progress))
+    name = _backend_name(backend, device, where)
+    resume = _path(resume, where, "resume")
+    # As on the command line, a resumed render goes on checkpointing to its file.
+    checkpoint = _path(checkpoint if checkpoint is not None else resume, where,
+                       "checkpoint", writable=True)
+    every = _seconds(checkpoint_every, where, "checkpoint_every")
+    own = isinstance(client, str)
+    if own:
+        from .distributed import connect
+        client = connect(scheduler=client, file=where, key="client")[0]
+    elif client is not None and not hasattr(client, "submit"):
+        raise _error(where, "client", f"expected a distributed.Client or a scheduler address, "
+                                      f"got {type(client).__name__}")
+    try:
+        # By name: the driver checks the memory the scene needs before it builds the backend.
+        result = _render(scene, backend=name, device=device, progress=bool(progress),
+                         client=client, checkpoint=checkpoint, checkpoint_every=every,
+                         resume=resume)
+    finally:
+        if own:
+            client.close()
     if result.guard_warnings():
         import warnings
         from .scene.errors import VolmcWarning

@@ -284,17 +284,9 @@ def _check_writable(path, flag, where="command line"):
 def _dask_client(args):
     """(client, cluster) for --workers or --scheduler; a one-line error without dask or
     when the scheduler cannot be reached."""
-    flag = "--workers" if args.workers else "--scheduler"
-    try:
-        from .distributed import make_client
-        import distributed  # noqa: F401
-    except ImportError:
-        raise SceneError("command line", flag, "needs Dask: pip install 'volmc[dask]'") from None
-    try:
-        return make_client(args.workers, args.scheduler)
-    except (OSError, TimeoutError, ValueError) as e:
-        raise SceneError("command line", flag, f"cannot reach the Dask scheduler "
-                                               f"{args.scheduler!r}: {e}") from None
+    from .distributed import connect
+    return connect(args.workers, args.scheduler, "command line",
+                   "--workers" if args.workers else "--scheduler")
 
 
 def _close_client(client, cluster):

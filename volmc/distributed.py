@@ -62,14 +62,20 @@ class ClusterChunks:
         self.token = uuid.uuid4().hex
         self.counts = np.zeros(len(COUNTER_NAMES), np.int64)
         self.futures = []
+        self.scene_future = None
 
     def warm_up(self):
         """Sends the scene to every worker and submits every task (workers build their
         backends as their first task starts)."""
-        scene = self.client.scatter(self.scene, broadcast=True)
+        # hash=False: a key of its own. Scattered data is keyed by its content otherwise,
+        # so two renders of one scene (two clients, or one after another) would share the
+        # key, and the release of one could drop the data under the other's tasks ("lost
+        # dependencies"). Held until close(), so it outlives every task.
+        self.scene_future = self.client.scatter(self.scene, broadcast=True, hash=False)
         self.futures = [
-            self.client.submit(render_task, scene, self.token, self.backend, self.device, r,
-                               key=f"volmc-{self.token}-{i}", retries=3, pure=False)
+            self.client.submit(render_task, self.scene_future, self.token, self.backend,
+                               self.device, r, key=f"volmc-{self.token}-{i}", retries=3,
+                               pure=False)
             for i, r in enumerate(self.tasks)]
 
     def __iter__(self):
@@ -89,6 +95,22 @@ class ClusterChunks:
         pending = [f for f in self.futures if not f.done()]
         if pending:
             self.client.cancel(pending)
+        self.scene_future = None
+
+
+def connect(workers=None, scheduler=None, file="command line", key="--scheduler"):
+    """``make_client``, with the one-line SceneError (``file``, ``key``) when Dask is not
+    installed or the scheduler cannot be reached."""
+    from .scene.errors import SceneError
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise SceneError(file, key, "needs Dask: pip install 'volmc[dask]'") from None
+    try:
+        return make_client(workers, scheduler)
+    except (OSError, TimeoutError, ValueError) as e:
+        raise SceneError(file, key, f"cannot reach the Dask scheduler {scheduler!r}: "
+                                    f"{e}") from None
 
 
 def make_client(workers=None, scheduler=None):
@@ -97,7 +119,9 @@ def make_client(workers=None, scheduler=None):
     (e.g. "tcp://10.0.0.1:8786"; cluster None). Raises ImportError without dask."""
     from distributed import Client, LocalCluster
     if scheduler:
-        return Client(scheduler, timeout="30s"), None
+        # The connect timeout is Dask's distributed.comm.timeouts.connect (30 s unless
+        # configured, e.g. DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=5s).
+        return Client(scheduler), None
     cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
                            dashboard_address=None)
     return Client(cluster), cluster

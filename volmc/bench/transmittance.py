@@ -210,7 +210,8 @@ def run_cases(cases, shared=(), device=None, client=None):
         for c in cases:
             yield run_case(c, shared, device)
         return
-    data = client.scatter([tuple(shared)], broadcast=True)[0]
+    # hash=False: a key of its own (see distributed.ClusterChunks.warm_up).
+    data = client.scatter([tuple(shared)], broadcast=True, hash=False)[0]
     futures = [client.submit(run_case, c, data, device, pure=False, retries=3)
                for c in cases]
     try:
