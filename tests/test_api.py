@@ -187,7 +187,7 @@ def test_checkpoint_and_resume_through_the_api(tmp_path):
         volmc.render(scene, spp=8, seed=9, backend="numba", progress=False, resume=ck)
     for kw, key in (({"checkpoint": 3}, "checkpoint"), ({"checkpoint_every": -1},
                                                         "checkpoint_every"),
-                    ({"client": 5}, "client"),
+                    ({"client": 5}, "client"), ({"client": " "}, "client"),
                     ({"checkpoint": tmp_path / "no" / "ck.npz"}, "checkpoint")):
         with pytest.raises(volmc.VolmcError, match=rf"^volmc\.render\(\): {key}: "):
             volmc.render(scene, backend="numba", progress=False, **kw)

@@ -83,6 +83,20 @@ def test_api_render_on_the_cluster(cluster):
             volmc.render(scene, spp=1, progress=False, client="tcp://127.0.0.1:9")
 
 
+def test_multithreaded_worker_renders_the_same_image():
+    """A worker with 2 threads (dask-worker's default is one per core) runs one chunk at a
+    time on its one backend: the image and counters are the single-process ones."""
+    scene = load_scene(default_scene(), SMALL)
+    a = render(scene, backend="opencl", spp=300, progress=False, chunk_samples=20_000)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=True,
+                                  dashboard_address=None, host="127.0.0.1") as c, \
+            distributed.Client(c) as client:
+        b = render(scene, backend="opencl", spp=300, progress=False, client=client,
+                   chunk_samples=20_000)
+    np.testing.assert_array_equal(a.film.sum, b.film.sum)
+    assert a.counters == b.counters
+
+
 def test_killed_worker_leaves_the_image_exact(cluster):
     """A worker process killed by SIGKILL while the render runs: its tasks are run again on
     a worker (the nanny restarts the process), and the image is still the single-process

@@ -157,7 +157,7 @@ def test_grid_file_too_large_fails_before_reading(tmp_path, monkeypatch, suffix)
         what, limit = r"expanding grid 'density' to a dense 22x21x21 array", "40K"
     elif suffix == ".npy":
         np.save(path, np.ones((40, 30, 20)))   # float64: its float32 copy counts too
-        what, limit = r"loading a 20x30x40 grid of float64", "300K"
+        what, limit = r"loading a 20x30x40 grid of float64", "250K"
     else:
         save_grid(path, np.ones((40, 30, 20), np.float32))
         what = r"loading a 20x30x40 grid" + (" of float32" if suffix == ".npz" else "")
@@ -170,6 +170,45 @@ def test_grid_file_too_large_fails_before_reading(tmp_path, monkeypatch, suffix)
         scene_from_dict(spec)
     monkeypatch.setenv(memory.ENV_VAR, "1G")
     assert scene_from_dict(spec).grid.shape[::-1] in ((20, 30, 40), (22, 21, 21))
+
+
+def test_grid_file_estimates_follow_layout_and_member_names(tmp_path, monkeypatch):
+    """A Fortran-order float32 array is copied to C order (8 bytes a voxel at the peak, not
+    5): a limit between the two refuses it and loads the C-order file. An .npz member
+    stored without the .npy suffix is read (and checked) too."""
+    import zipfile
+    from volmc.scene.grids import load_grid, load_peak_bytes
+    a = np.ones((40, 30, 20), np.float32)
+    np.save(tmp_path / "c.npy", a)
+    np.save(tmp_path / "f.npy", np.asfortranarray(a))
+    assert load_peak_bytes(a.size) == 5 * a.size
+    assert load_peak_bytes(a.size, np.float32, True) == 8 * a.size
+    monkeypatch.setenv(memory.ENV_VAR, str(6 * a.size))
+    assert load_grid(tmp_path / "c.npy").flags.c_contiguous
+    with pytest.raises(SceneError, match=r"f\.npy: density: loading a 20x30x40 grid"):
+        load_grid(tmp_path / "f.npy")
+    with zipfile.ZipFile(tmp_path / "bare.npz", "w") as z:
+        with z.open("density", "w") as m:
+            np.lib.format.write_array(m, a)
+    assert load_grid(tmp_path / "bare.npz").shape == a.shape
+    monkeypatch.setenv(memory.ENV_VAR, str(4 * a.size))
+    with pytest.raises(SceneError, match=r"bare\.npz: density: loading a 20x30x40 grid"):
+        load_grid(tmp_path / "bare.npz")
+
+
+def test_vdb_field_placed_on_the_density_is_checked(tmp_path, monkeypatch):
+    """A field grid from the density's VDB file is placed on the density's voxels: that
+    array is checked before it is made, whatever size the field's own box has."""
+    from pathlib import Path
+    vdb = str(Path(__file__).parent / "data" / "vdb" / "blobs.vdb")
+    spec = dict(TINY, medium={"density": {"file": vdb}, "scale": 1.0, "albedo": 0.5,
+                              "emission": {"temperature": {"file": vdb}}})
+    monkeypatch.setenv(memory.ENV_VAR, "40K")   # 22x21x21 voxels: 4 + 5 bytes each
+    with pytest.raises(SceneError, match=r"medium\.emission\.temperature: placing grid "
+                                         r"'density' on the density's 22x21x21 voxels"):
+        scene_from_dict(spec)
+    monkeypatch.setenv(memory.ENV_VAR, "1G")
+    assert scene_from_dict(spec).emission_grid.shape == (21, 21, 22)
 
 
 def test_library_render_raises_for_a_huge_film(monkeypatch):

@@ -203,12 +203,14 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     if keys:
         scene = scene.with_render(**keys)
     name = _backend_name(backend, device, where)
-    resume = _path(resume, where, "resume")
     # As on the command line, a resumed render goes on checkpointing to its file.
-    checkpoint = _path(checkpoint if checkpoint is not None else resume, where,
-                       "checkpoint", writable=True)
+    resume = _path(resume, where, "resume", writable=checkpoint is None)
+    checkpoint = _path(checkpoint, where, "checkpoint", writable=True) or resume
     every = _seconds(checkpoint_every, where, "checkpoint_every")
     own = isinstance(client, str)
+    if own and not client.strip():
+        raise _error(where, "client", "expected a scheduler address such as "
+                                      "'tcp://10.0.0.1:8786', got an empty string")
     if own:
         from .distributed import connect
         client = connect(scheduler=client, file=where, key="client")[0]

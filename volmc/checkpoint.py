@@ -60,15 +60,15 @@ def identity(scene, backend):
     from .scene.serialize import to_toml
     spec = dataclasses.replace(scene.spec, render=dataclasses.replace(scene.spec.render, spp=1))
     # A grid given as a numpy array (Python API) is identified by its hash in "grids"; the
-    # TOML records where it stands, its type and shape.
+    # TOML records where it stands and its shape.
     return {"scene_toml": to_toml(spec, array_as=_array_stand_in), "grids": grid_hashes(scene),
             "seed": str(scene.render.seed), "backend": backend,
             "sampler": scene.render.sampler}
 
 
 def _array_stand_in(a):
-    a = np.asarray(a)
-    return {"array": f"{a.dtype} {list(a.shape)}"}
+    # The shape only: the values (as the scene holds them, in float32) are in the hash.
+    return {"array": [int(n) for n in np.shape(a)]}
 
 
 def save(path, film, counters, seconds, ident):

@@ -19,6 +19,7 @@ Progress, Ctrl-C (stop after the batch being merged; outstanding tasks are cance
 checkpoints work as for a local render (render.py).
 """
 
+import threading
 import uuid
 
 import numpy as np
@@ -27,12 +28,21 @@ from .params import COUNTER_NAMES
 
 #: Backends built in this (worker) process: {token: backend} of the render in progress.
 _WORKER_BACKENDS = {}
+#: One chunk at a time per worker process: a worker with several threads (dask-worker's
+#: default) would otherwise run chunks at once on the one backend, whose buffers, kernel
+#: arguments and counters are not shared safely. One volmc backend already uses every core.
+_WORKER_LOCK = threading.Lock()
 
 
 def render_task(scene, token, backend, device, chunk):
     """Runs on a worker: ``render.render_chunk`` of ``chunk`` with the backend of render
     ``token`` (built on first use in this process). Returns (sum, sum_sq) float64
     [h, w, 3] of the chunk and the counts int64 [N_COUNTERS] it made."""
+    with _WORKER_LOCK:
+        return _render_task(scene, token, backend, device, chunk)
+
+
+def _render_task(scene, token, backend, device, chunk):
     from .backends import make_backend
     from .render import render_chunk
     be = _WORKER_BACKENDS.get(token)

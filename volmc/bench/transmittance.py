@@ -24,6 +24,7 @@ the per-estimate variance (equal samples).
 
 import json
 import math
+import threading
 import time
 from collections import namedtuple
 
@@ -156,6 +157,10 @@ _NO_GRID = np.zeros((1, 1, 1))
 #: OpenCL runners built in this process, by (estimator, device): a Dask worker keeps them
 #: from case to case.
 _RUNNERS = {}
+#: One case at a time per process: a Dask worker with several threads would otherwise run
+#: cases at once on the shared runners (an OpenCL kernel's arguments are not thread-safe)
+#: and time each case under the others' load.
+_CASE_LOCK = threading.Lock()
 
 
 def _runner(name, device):
@@ -183,7 +188,12 @@ def run_case(launches, shared=(), device=None):
     TIME_REPEATS rounds run every launch in turn, and a launch's time is its fastest round:
     other work on the machine only ever adds time, and alternating spreads what it adds
     evenly over the estimators a case compares. Estimates are the same in every round (fixed
-    seed)."""
+    seed). Cases in one process run one at a time (_CASE_LOCK)."""
+    with _CASE_LOCK:
+        return _run_case(launches, shared, device)
+
+
+def _run_case(launches, shared, device):
     runners = [_runner(x.name, device) for x in launches]
     for r, x in zip(runners, launches):
         a = _launch_args(x, shared, 1)

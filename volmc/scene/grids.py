@@ -50,9 +50,9 @@ def read_vol(path, key="density"):
         avail = max(os.fstat(f.fileno()).st_size - VOL_HEADER.size, 0) // 4
         if count > avail:
             raise SceneError(path, key, f"truncated .vol data: {avail} of {count} values")
-        # fromfile's array, then its float32 copy and validate_grid's masks.
-        require_host(count * 4 + load_peak_bytes(count), path, key,
-                     f"loading a {nx}x{ny}x{nz} grid")
+        # fromfile's array and its float32 copy (validate_grid's masks come after the
+        # first is freed, and are smaller).
+        require_host(count * 8, path, key, f"loading a {nx}x{ny}x{nz} grid")
         data = np.fromfile(f, dtype="<f4", count=count)
     if data.size != count:
         raise SceneError(path, key, f"truncated .vol data: {data.size} of {count} values")
@@ -100,9 +100,11 @@ def read_grid_file(path, key="density", name="density"):
             if name not in z.files:
                 raise SceneError(path, key, f".npz has no array '{name}' (has: "
                                  f"{', '.join(z.files) or 'nothing'})")
-            with z.zip.open(f"{name}.npy") as member:
-                shape, dtype = _npy_header(member)
-            require_host(load_peak_bytes(math.prod(shape), dtype), path, key,
+            # np.load lists a member "x.npy" as "x", and one stored without the suffix as is.
+            member = name if name in z.zip.namelist() else f"{name}.npy"
+            with z.zip.open(member) as m:
+                shape, fortran, dtype = _npy_header(m)
+            require_host(load_peak_bytes(math.prod(shape), dtype, fortran), path, key,
                          f"loading a {_shape_text(shape)} grid of {dtype}")
             return z[name]
     except SceneError:
@@ -116,32 +118,34 @@ def read_grid_file(path, key="density", name="density"):
 
 
 def _npy_header(f):
-    """(shape, dtype) of the .npy stream ``f``, left at the start of its data."""
+    """(shape, Fortran order, dtype) of the .npy stream ``f``, left at the start of its
+    data."""
     version = np.lib.format.read_magic(f)
     read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
                    else np.lib.format.read_array_header_2_0)
-    shape, _, dtype = read_header(f)
-    return shape, dtype
+    return read_header(f)
 
 
 def _check_npy_size(f, file_size, path, key):
     """Reject a .npy header that declares more data than the file holds, or than the host
     memory can load (before numpy allocates it)."""
-    shape, dtype = _npy_header(f)
+    shape, fortran, dtype = _npy_header(f)
     declared = math.prod(shape) * dtype.itemsize
     if declared > file_size - f.tell():
         raise SceneError(path, key, f"truncated .npy data: shape {shape} of {dtype} needs "
                                     f"{declared} bytes, the file holds {file_size - f.tell()}")
-    require_host(load_peak_bytes(math.prod(shape), dtype), path, key,
+    require_host(load_peak_bytes(math.prod(shape), dtype, fortran), path, key,
                  f"loading a {_shape_text(shape)} grid of {dtype}")
 
 
-def load_peak_bytes(voxels, dtype=np.float32):
-    """Peak host bytes of loading a grid of ``voxels`` values of ``dtype`` and validating it
-    (validate_grid): the array, one byte per voxel of its checks' masks, and its float32
-    copy unless it is float32 already."""
+def load_peak_bytes(voxels, dtype=np.float32, fortran=False):
+    """Peak host bytes of holding a grid of ``voxels`` values of ``dtype`` and validating it
+    (validate_grid): the array, and on top of it either the one-byte-per-voxel mask of a
+    check or, after the checks, the float32 C-order copy (made unless the array is float32
+    in C order already)."""
     dtype = np.dtype(dtype)
-    return voxels * (dtype.itemsize + 1 + (0 if dtype == np.float32 else 4))
+    copied = dtype != np.float32 or fortran
+    return voxels * (dtype.itemsize + (4 if copied else 1))
 
 
 def _shape_text(shape):

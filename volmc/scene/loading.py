@@ -179,7 +179,8 @@ def _read_source(spec, src, key, vdb_density=None, cache=None):
             shape = generators._parse_resolution(src.resolution)
             n_fields = len(GENERATORS[src.generator])
             # Every field's float32 array; validate_grid adds its masks to the first.
-            require_host((n_fields - 1) * 4 * math.prod(shape) + load_peak_bytes(math.prod(shape)),
+            voxels = math.prod(shape)
+            require_host((n_fields - 1) * 4 * voxels + load_peak_bytes(voxels),
                          spec.file, key + ".resolution",
                          f"generating a {'x'.join(map(str, shape))} {src.generator}")
             out = getattr(generators, src.generator)(src.resolution, src.seed)
@@ -217,11 +218,16 @@ def _align_vdb(vg, density, path, key):
     if not np.allclose(shift, np.round(shift), atol=1e-4):
         raise SceneError(path, key, f"grid '{vg.name}' is offset from the density by a "
                                     "fraction of a voxel; the voxels must line up")
-    dense = _dense(vg, path, key)
     lo_d = np.asarray(density.bbox[0])
     hi_d = np.asarray(density.bbox[1])
     lo_v = np.asarray(vg.bbox[0]) + np.round(shift).astype(int)
     shape = tuple(int(x) for x in (hi_d - lo_d + 1)[::-1])
+    # vg expanded over its own box, and the array over the density's box with its
+    # validation (an upper bound: vg's array is gone by the time that is validated).
+    require_host(4 * math.prod(vg.shape) + load_peak_bytes(math.prod(shape)), path, key,
+                 f"placing grid '{vg.name}' on the density's "
+                 f"{'x'.join(map(str, shape[::-1]))} voxels")
+    dense = vg.to_dense()
     out = np.full(shape, np.float32(vg.background), np.float32)
     a = np.maximum(lo_d, lo_v)
     b = np.minimum(hi_d, lo_v + np.array(dense.shape[::-1]) - 1)
