@@ -336,8 +336,8 @@ class TransmittanceResult:
     t_enter, t_exit: float64 [k], the world-unit distances along each (normalised) ray
     where the estimated segment starts and ends (the ray clipped to the medium box and to
     t_max); nan for a ray with no segment in the box. estimator, n, backend: as asked.
-    counters: totals over all estimates (``capped``: walks cut by the step cap; ``over_majorant``: lookups above the
-    majorant, both 0 for an unbiased estimate).
+    counters: totals over all estimates (``capped``: walks cut by the step cap;
+    ``over_majorant``: lookups above the majorant, both 0 for an unbiased estimate).
     """
     estimates: object
     stderr: object
