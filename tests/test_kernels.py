@@ -55,6 +55,18 @@ def test_exponential():
         assert np.allclose(out, ref, rtol=2e-6, atol=1e-30)
 
 
+def test_exponential_without_collision():
+    """a <= 0: no collision. The kernel returns NO_LIMIT (FLT_MAX; INFINITY is undefined
+    under -cl-fast-relaxed-math), the reference math.inf, both with pdf 0: the pairing
+    volmc/constants.py documents."""
+    u = np.array([0.0, 0.3, 0.999], np.float32)
+    for a in (0.0, -1.0):
+        out, ob = out_buf((u.size, 2))
+        run("t_exponential", u.size, to_dev(u), np.float32(a), ob, outs=[(out, ob)])
+        assert np.all(out[:, 0] == np.finfo(np.float32).max) and np.all(out[:, 1] == 0.0)
+        assert all(sample_exponential(float(x), a) == (math.inf, 0.0) for x in u)
+
+
 def test_uniform_sphere():
     u = np.array([[a, b] for a in EDGE_U for b in EDGE_U] +
                  list(uniforms(2, 0, 0, 2, 4000).reshape(-1, 2)), np.float32)
