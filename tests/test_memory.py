@@ -91,19 +91,26 @@ def test_huge_film_real_figures():
             memory.check_memory(scene, "numba")
 
 
+def _cloud_cli_refuses(tmp_path, capsys, define, message):
+    """volmc render of the bundled cloud with ``-D define`` exits with status 2 and the one
+    line ``volmc: error: .../cloud.toml: <message>``, writing nothing."""
+    status = main(["render", str(default_scene()), "-o", str(tmp_path / "c.exr"),
+                   "-D", define])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert re.fullmatch(rf"volmc: error: .*cloud\.toml: {message}\n", err), err
+    assert not (tmp_path / "c.exr").exists()
+
+
 def test_grid_too_large_fails_naming_the_density(tmp_path, monkeypatch, capsys, cloud256):
     """A 256^3 cloud (64 MiB loaded, 64 MiB more on the device, 128 MiB more for the
     float64 reference) against a 100M machine: medium.density, exit 2, from the CLI and
     from the library's render()."""
     monkeypatch.setenv(memory.ENV_VAR, "100M")
-    status = main(["render", str(default_scene()), "-o", str(tmp_path / "c.exr"),
-                   "-D", "medium.density.resolution=256"])
-    err = capsys.readouterr().err
-    assert status == 2, err
-    assert re.fullmatch(rf"volmc: error: .*cloud\.toml: medium\.density: the density grid "
-                        rf"needs {FIGURE} of host memory \(the render {FIGURE} in all\), "
-                        r"100\.0 MiB available \(VOLMC_MEMORY_LIMIT\)\n", err), err
-    assert not (tmp_path / "c.exr").exists()
+    _cloud_cli_refuses(tmp_path, capsys, "medium.density.resolution=256",
+                       rf"medium\.density: the density grid needs {FIGURE} of host memory "
+                       rf"\(the render {FIGURE} in all\), 100\.0 MiB available "
+                       r"\(VOLMC_MEMORY_LIMIT\)")
     from volmc.render import render
     for backend in ("opencl", "numba"):
         with pytest.raises(SceneError, match=r"medium\.density: the density grid needs"):
@@ -123,15 +130,11 @@ def test_generated_density_too_large_fails_before_generating(tmp_path, monkeypat
     def never(*a, **k):
         raise AssertionError("the generator ran")
     monkeypatch.setattr(generators, "cloud", never)
-    status = main(["render", str(default_scene()), "-o", str(tmp_path / "c.exr"),
-                   "-D", "medium.density.resolution=2048"])
-    err = capsys.readouterr().err
-    assert status == 2, err
     # 2048^3 float32 values and one byte per voxel of the validation masks: 40 GiB.
-    assert re.fullmatch(r"volmc: error: .*cloud\.toml: medium\.density\.resolution: "
-                        r"generating a 2048x2048x2048 cloud needs 40\.0 GiB of host memory, "
-                        r"1\.0 GiB available \(VOLMC_MEMORY_LIMIT\)\n", err), err
-    assert not (tmp_path / "c.exr").exists()
+    _cloud_cli_refuses(tmp_path, capsys, "medium.density.resolution=2048",
+                       r"medium\.density\.resolution: generating a 2048x2048x2048 cloud "
+                       r"needs 40\.0 GiB of host memory, 1\.0 GiB available "
+                       r"\(VOLMC_MEMORY_LIMIT\)")
     import volmc
     with pytest.raises(volmc.VolmcError, match=r"medium\.density\.resolution: generating"):
         volmc.load_scene(default_scene(), {"medium.density.resolution": 1024})
