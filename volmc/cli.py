@@ -6,6 +6,7 @@ Ctrl-C during a render writes what was accumulated (marked partial) and exits 13
 """
 
 import argparse
+import contextlib
 import math
 import os
 import sys
@@ -45,7 +46,7 @@ def _nonnegative_seconds(text):
 
 
 def _add_cluster_options(parser, what):
-    """--workers N | --scheduler ADDRESS (rendering on Dask; see _dask_client)."""
+    """--workers N | --scheduler ADDRESS (rendering on Dask; see _dask_session)."""
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=_positive_int, metavar="N",
                        help=f"{what} on a new local Dask cluster of N worker processes "
@@ -281,20 +282,23 @@ def _check_writable(path, flag, where="command line"):
         raise SceneError(where, flag, f"directory is not writable: {d}")
 
 
-def _dask_client(args):
-    """(client, cluster) for --workers or --scheduler; a one-line error without dask or
-    when the scheduler cannot be reached."""
+@contextlib.contextmanager
+def _dask_session(args):
+    """The Dask client of --workers or --scheduler (None without either), closed with the
+    local cluster it started on leaving; a one-line error without Dask or when the scheduler
+    cannot be reached (distributed.connect)."""
+    if not (args.workers or args.scheduler):
+        yield None
+        return
     from .distributed import connect
-    return connect(args.workers, args.scheduler, "command line",
-                   "--workers" if args.workers else "--scheduler")
-
-
-def _close_client(client, cluster):
-    """Closes what _dask_client opened (either may be None)."""
-    if client is not None:
+    client, cluster = connect(args.workers, args.scheduler, "command line",
+                              "--workers" if args.workers else "--scheduler")
+    try:
+        yield client
+    finally:
         client.close()
-    if cluster is not None:
-        cluster.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def _announce_start():
@@ -348,18 +352,13 @@ def cmd_render(args):
     checkpoint = args.checkpoint or args.resume
     if checkpoint:
         _check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
-    client = cluster = None
-    if args.workers or args.scheduler:
-        client, cluster = _dask_client(args)
-    try:
+    with _dask_session(args) as client:
         # By name: the driver reads a --resume checkpoint (and refuses a wrong one) before
         # it builds and compiles the backend.
         res = render(scene, backend=args.backend, progress=False if args.quiet else None,
                      on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
                      checkpoint_every=args.checkpoint_every, resume=args.resume,
                      client=client, device=args.device)
-    finally:
-        _close_client(client, cluster)
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
     meta["scene_toml"] = to_toml(scene.spec)
@@ -476,14 +475,9 @@ def cmd_bench_transmittance(args):
                                                        "dense grids: set it to \"dense\"")
         scenes.append(s)
     t = time.perf_counter()
-    client = cluster = None
-    if args.workers or args.scheduler:
-        client, cluster = _dask_client(args)
-    try:
+    with _dask_session(args) as client:
         report = bt.run(names, scenes, n_rays=args.rays, quick=args.quick, device=args.device,
                         client=client)
-    finally:
-        _close_client(client, cluster)
     report["seconds"] = time.perf_counter() - t
     bt.print_report(report)
     if args.json:
@@ -570,14 +564,9 @@ def cmd_bench_render(args):
     if not args.no_ceiling and not homogeneous:
         from .bench.lookups import lookup_ceiling
         ceiling = lookup_ceiling(scene, backends, device=args.device)
-    client = cluster = None
-    if args.workers or args.scheduler:
-        client, cluster = _dask_client(args)
-    try:
+    with _dask_session(args) as client:
         report = cv.run(scene, configs, levels, args.reference_spp, args.repeats, args.device,
                         ceiling, defines=args.defines, client=client)
-    finally:
-        _close_client(client, cluster)
     cv.print_report(report)
     if args.json:
         write_json(args.json, report)
