@@ -105,7 +105,7 @@ def read_grid_file(path, key="density", name="density"):
             with z.zip.open(member) as m:
                 shape, fortran, dtype = _npy_header(m)
             require_host(load_peak_bytes(math.prod(shape), dtype, fortran), path, key,
-                         f"loading a {_shape_text(shape)} grid of {dtype}")
+                         f"loading a {shape_text(shape)} grid of {dtype}")
             return z[name]
     except SceneError:
         raise
@@ -135,7 +135,7 @@ def _check_npy_size(f, file_size, path, key):
         raise SceneError(path, key, f"truncated .npy data: shape {shape} of {dtype} needs "
                                     f"{declared} bytes, the file holds {file_size - f.tell()}")
     require_host(load_peak_bytes(math.prod(shape), dtype, fortran), path, key,
-                 f"loading a {_shape_text(shape)} grid of {dtype}")
+                 f"loading a {shape_text(shape)} grid of {dtype}")
 
 
 def load_peak_bytes(voxels, dtype=np.float32, fortran=False):
@@ -148,8 +148,8 @@ def load_peak_bytes(voxels, dtype=np.float32, fortran=False):
     return voxels * (dtype.itemsize + (4 if copied else 1))
 
 
-def _shape_text(shape):
-    """[z, y, x] shape as "x-by-y-by-z" text: 512x512x512."""
+def shape_text(shape):
+    """A [z, y, x] shape as the text errors use, x first: "512x256x128"."""
     return "x".join(str(n) for n in reversed(tuple(shape)))
 
 

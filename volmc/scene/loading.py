@@ -18,7 +18,7 @@ import numpy as np
 from .hostmem import require_host
 from .errors import SceneError
 from .bricks import BrickGrid
-from .grids import load_grid, load_peak_bytes, validate_grid
+from .grids import load_grid, load_peak_bytes, shape_text, validate_grid
 from .schema import (FLOAT32_MAX, GENERATORS, ArrayDensity, ConstantDensity, FileDensity,
                      GeneratedDensity, SceneSpec, check_box, validate)
 
@@ -202,8 +202,7 @@ def _dense(vg, path, key):
     memory is known to hold it."""
     voxels = math.prod(vg.shape)
     require_host(load_peak_bytes(voxels), path, key,
-                 f"expanding grid '{vg.name}' to a dense {'x'.join(map(str, vg.shape[::-1]))} "
-                 "array")
+                 f"expanding grid '{vg.name}' to a dense {shape_text(vg.shape)} array")
     return vg.to_dense()
 
 
@@ -225,8 +224,7 @@ def _align_vdb(vg, density, path, key):
     # vg expanded over its own box, and the array over the density's box with its
     # validation (an upper bound: vg's array is gone by the time that is validated).
     require_host(4 * math.prod(vg.shape) + load_peak_bytes(math.prod(shape)), path, key,
-                 f"placing grid '{vg.name}' on the density's "
-                 f"{'x'.join(map(str, shape[::-1]))} voxels")
+                 f"placing grid '{vg.name}' on the density's {shape_text(shape)} voxels")
     dense = vg.to_dense()
     out = np.full(shape, np.float32(vg.background), np.float32)
     a = np.maximum(lo_d, lo_v)
