@@ -16,16 +16,10 @@ Heavy modules (Numba, pyopencl, matplotlib) are imported inside the functions, s
 import os
 from dataclasses import dataclass, field
 
-__all__ = ["load_scene", "scene_from_dict", "render", "estimate_transmittance", "VolmcError",
+# VolmcError and VolmcWarning are exported by volmc/__init__.py, on first use (they live in
+# volmc/scene/errors.py, and importing the scene package at once would import Numba).
+__all__ = ["load_scene", "scene_from_dict", "render", "estimate_transmittance",
            "RenderedImage", "TransmittanceResult"]
-
-def __getattr__(name):
-    # VolmcError lives in volmc/scene/errors.py; importing the scene package at once would
-    # import Numba (its grids), so it is looked up on first use.
-    if name == "VolmcError":
-        from .scene.errors import VolmcError
-        return VolmcError
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _error(file, key, message):

@@ -9,9 +9,9 @@ backend and the sampler. Resuming refuses, with the one-line error, a checkpoint
 other scene, grid, seed, backend or sampler, since its samples would not be the ones the
 requested render draws.
 
-Checkpoints are written only between batches, and batches follow the fixed schedule of
-``render.batch_schedule``, so a resumed render adds the same batches in the same order as
-an uninterrupted one: the image is the same bit for bit. Writes are atomic (a temporary
+Checkpoints are written only between chunks, and chunks follow the fixed schedule of
+``render.chunk_schedule``, so a render resumed from a checkpoint adds the same chunks in
+the same order as an uninterrupted one: the image is the same bit for bit. Writes are atomic (a temporary
 file in the same directory, then ``os.replace``), so a render killed at any moment, even by
 SIGKILL, leaves the previous checkpoint intact and loses at most one interval of work.
 
