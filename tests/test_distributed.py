@@ -97,6 +97,23 @@ def test_multithreaded_worker_renders_the_same_image():
     assert a.counters == b.counters
 
 
+def test_held_data_survives_losing_every_worker_holding_it(cluster):
+    """distributed.hold: kill (SIGKILL) every worker holding the data, and a task that
+    needs it still gets it, since the scheduler runs the holding task again. (Scattered
+    data is lost with its workers.)"""
+    from volmc.distributed import hold
+    _, client = cluster
+    data = np.arange(1000.0)
+    fut = hold(client, data, "test-held")
+    fut.result()
+    holders = client.who_has([fut])[fut.key]
+    pids = client.run(os.getpid, workers=list(holders))
+    for pid in pids.values():
+        os.kill(pid, signal.SIGKILL)
+    assert client.submit(np.sum, fut, pure=False).result(timeout=120) == data.sum()
+    client.wait_for_workers(2, timeout=120)
+
+
 def test_killed_worker_leaves_the_image_exact(cluster):
     """A worker process killed by SIGKILL while the render runs: its tasks are run again on
     a worker (the nanny restarts the process), and the image is still the single-process

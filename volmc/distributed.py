@@ -13,7 +13,7 @@ A task is keyed by its chunk, and the host takes each chunk's result once, in or
 task whose worker dies is run again by Dask (the scheduler reassigns the tasks of a lost
 worker; ``retries`` covers exceptions), and no range is counted twice or lost. Workers
 build the scene's backend once per render (cached by a token in the worker process) from
-the scene the host scatters to them.
+the scene the host sends them once (``hold``: recoverable when a worker dies).
 
 Progress, Ctrl-C (stop after the batch being merged; outstanding tasks are cancelled) and
 checkpoints work as for a local render (render.py).
@@ -77,11 +77,8 @@ class ClusterChunks:
     def warm_up(self):
         """Sends the scene to every worker and submits every task (workers build their
         backends as their first task starts)."""
-        # hash=False: a key of its own. Scattered data is keyed by its content otherwise,
-        # so two renders of one scene (two clients, or one after another) would share the
-        # key, and the release of one could drop the data under the other's tasks ("lost
-        # dependencies"). Held until close(), so it outlives every task.
-        self.scene_future = self.client.scatter(self.scene, broadcast=True, hash=False)
+        # Held until close(), so it outlives every task.
+        self.scene_future = hold(self.client, self.scene, "volmc-scene")
         self.futures = [
             self.client.submit(render_task, self.scene_future, self.token, self.backend,
                                self.device, r, key=f"volmc-{self.token}-{i}", retries=3,
@@ -106,6 +103,25 @@ class ClusterChunks:
         if pending:
             self.client.cancel(pending)
         self.scene_future = None
+
+
+def hold(client, data, name):
+    """A future of ``data`` on the cluster that survives the loss of workers: a task that
+    returns it, under a key of its own (``name``-random). The scheduler keeps the task's
+    spec, so if every worker holding the result dies the task is run again. Data sent with
+    client.scatter is not recoverable: the active memory manager may trim its replicas to
+    one, and losing that worker then fails every task that needs it ("lost scattered
+    data"); and scattered data is keyed by content unless told otherwise, so two renders of
+    one scene would share a key, one's release dropping it under the other's tasks. The
+    data travels inside the task, hence the large-graph warning is silenced here."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Sending large graph")
+        return client.submit(_held, data, key=f"{name}-{uuid.uuid4().hex}", pure=False)
+
+
+def _held(data):
+    return data
 
 
 def connect(workers=None, scheduler=None, file="command line", key="--scheduler"):

@@ -212,7 +212,7 @@ def _run_case(launches, shared, device):
 def run_cases(cases, shared=(), device=None, client=None):
     """``run_case`` of every case (a list of Launches) in order, yielding each case's result
     list as it is ready: in this process, or with a Dask ``client`` as one task per case on
-    the cluster's workers (submitted together; ``shared`` scattered to every worker once).
+    the cluster's workers (submitted together; ``shared`` sent once, distributed.hold).
     A case's launches run back to back on one worker, so the estimators it compares are
     timed on the same machine under the same load; different cases may run on different
     machines. Tasks still pending when the caller stops (Ctrl-C) are cancelled."""
@@ -220,8 +220,8 @@ def run_cases(cases, shared=(), device=None, client=None):
         for c in cases:
             yield run_case(c, shared, device)
         return
-    # hash=False: a key of its own (see distributed.ClusterChunks.warm_up).
-    data = client.scatter([tuple(shared)], broadcast=True, hash=False)[0]
+    from ..distributed import hold
+    data = hold(client, tuple(shared), "volmc-bench-data")
     futures = [client.submit(run_case, c, data, device, pure=False, retries=3)
                for c in cases]
     try:
