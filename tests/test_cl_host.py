@@ -10,7 +10,7 @@ import pyopencl as cl
 import pytest
 
 from volmc.cl import build
-from volmc.cl.device import select_device
+from volmc.cl.device import compiler_error, select_device
 from volmc.cl.structs import c_struct, kernel_light_dtype, kernel_params_dtype
 from volmc.params import PARAM_FIELDS, medium_dtype
 from volmc.scene import SceneError
@@ -82,9 +82,27 @@ def test_device_selection_errors(monkeypatch):
         select_device("no-such-vendor")
     with pytest.raises(SceneError, match="device"):
         select_device("0:7")
-    assert select_device("pocl") == select_device("0:0") == select_device()
+    dev = select_device()
+    assert select_device("pocl") == dev and "Portable" in dev.platform.name
+    assert compiler_error(dev) is None
     monkeypatch.setenv("VOLMC_CL_DEVICE", "nope")
     with pytest.raises(SceneError, match="VOLMC_CL_DEVICE"):
+        select_device()
+
+
+def test_default_device_skips_a_compiler_that_fails(monkeypatch):
+    """A PoCL whose LLVM does not know the CPU ("unknown target CPU 'generic'", the PyPI PoCL
+    on AMD Zen 5) is passed over for one that compiles; with none, the one-line error says
+    why and what to install."""
+    import volmc.cl.device as device
+    good = select_device()
+    monkeypatch.setattr(device, "compiler_error",
+                        lambda d: None if d == good else "error: unknown target CPU 'generic'")
+    assert select_device() == good
+    monkeypatch.setattr(device, "compiler_error",
+                        lambda d: "error: unknown target CPU 'generic'")
+    with pytest.raises(SceneError, match="no OpenCL device here can compile kernels.*"
+                                         "unknown target CPU.*pocl-opencl-icd"):
         select_device()
 
 
