@@ -4,112 +4,110 @@
  * the Numba sparse_lookup does; kept here only to measure it) or 2 (sparse_lookup of grid.h:
  * the table read for every corner, no branch).
  *
- * Work item i sums n_per_item lookups at points drawn by a 32-bit hash:
+ * Lane l of work-item i is item i W + l: it sums n_per_item lookups at points drawn by a
+ * 32-bit hash:
  *   mode 0: uniform in the box;
  *   mode 1: uniform in a random non-empty brick (bricks: (x, y, z) brick indices, n_bricks);
  *   mode 2: a ray from a random point of a random non-empty brick in a random direction,
  *           points half a voxel apart (coherent, as tracking reads). */
+#include "lanes.h"
+#include "lane_io.h"
 #include "grid.h"
 
-static inline uint sb_hash(uint x) {
-    uint s = x * 747796405u + 2891336453u;
-    uint w = ((s >> ((s >> 28u) + 4u)) ^ s) * 277803737u;
+static inline luint sb_hash(luint x) {
+    luint s = x * 747796405u + 2891336453u;
+    luint w = ((s >> ((s >> 28u) + 4u)) ^ s) * 277803737u;
     return (w >> 22u) ^ w;
 }
 
-static inline float sb_unit(uint *st) {
+static inline lfloat sb_unit(luint *st) {
     *st = sb_hash(*st);
-    return (float)(*st >> 8) * 0x1p-24f;
+    return to_lfloat(*st >> 8) * 0x1p-24f;
 }
 
-static inline float sparse_lookup_fast_path(global const int *table, global const float *pool,
-                                            int3 dims, float3 bmin, float3 inv_extent, float3 p) {
-    float3 x = (p - bmin) * inv_extent * convert_float3(dims) - 0.5f;
-    x = clamp(x, (float3)(0.0f), convert_float3(dims - 1));
-    int3 i0 = min(convert_int3_rtz(x), dims - 1);
-    float3 f = x - convert_float3(i0);
-    int3 i1 = min(i0 + 1, dims - 1);
-    int3 nb = (dims + 7) >> 3;     /* bricks per axis */
-    int3 b0 = i0 >> 3, b1 = i1 >> 3; /* brick of the lower and upper corner */
-    int3 a0 = i0 & 7, a1 = i1 & 7;   /* voxel within its brick */
-    /* offsets within a brick: rows (z, y) and columns x */
-    int r00 = (a0.z << 6) | (a0.y << 3), r10 = (a0.z << 6) | (a1.y << 3);
-    int r01 = (a1.z << 6) | (a0.y << 3), r11 = (a1.z << 6) | (a1.y << 3);
-    float v000, v001, v010, v011, v100, v101, v110, v111;
-    if (all(b0 == b1)) {
-        global const float *b = pool + ((size_t)table[(b0.z * nb.y + b0.y) * nb.x + b0.x] << 9);
-        v000 = b[r00 | a0.x]; v001 = b[r00 | a1.x];
-        v010 = b[r10 | a0.x]; v011 = b[r10 | a1.x];
-        v100 = b[r01 | a0.x]; v101 = b[r01 | a1.x];
-        v110 = b[r11 | a0.x]; v111 = b[r11 | a1.x];
-    } else {
-        int t00 = (b0.z * nb.y + b0.y) * nb.x, t10 = (b0.z * nb.y + b1.y) * nb.x;
-        int t01 = (b1.z * nb.y + b0.y) * nb.x, t11 = (b1.z * nb.y + b1.y) * nb.x;
-        v000 = pool[((size_t)table[t00 + b0.x] << 9) | (r00 | a0.x)];
-        v001 = pool[((size_t)table[t00 + b1.x] << 9) | (r00 | a1.x)];
-        v010 = pool[((size_t)table[t10 + b0.x] << 9) | (r10 | a0.x)];
-        v011 = pool[((size_t)table[t10 + b1.x] << 9) | (r10 | a1.x)];
-        v100 = pool[((size_t)table[t01 + b0.x] << 9) | (r01 | a0.x)];
-        v101 = pool[((size_t)table[t01 + b1.x] << 9) | (r01 | a1.x)];
-        v110 = pool[((size_t)table[t11 + b0.x] << 9) | (r11 | a0.x)];
-        v111 = pool[((size_t)table[t11 + b1.x] << 9) | (r11 | a1.x)];
-    }
-    /* grid_lookup's order: c[zy] along x, then y, then z. */
-    float c00 = lerp_ab(v000, v001, f.x), c10 = lerp_ab(v010, v011, f.x);
-    float c01 = lerp_ab(v100, v101, f.x), c11 = lerp_ab(v110, v111, f.x);
-    return lerp_ab(lerp_ab(c00, c10, f.y), lerp_ab(c01, c11, f.y), f.z);
+/* The one-brick fast path: a branch, so in lanes it pays only when every lane's corners share
+ * a brick (one table read per lane); otherwise every lane reads a table entry per corner. */
+static inline lfloat sparse_lookup_fast_path(global const int *table, global const float *pool,
+                                             int3 dims, float3 bmin, float3 inv_extent, lvec3 p,
+                                             lmask active) {
+    VoxelCell c = voxel_cell(dims, bmin, inv_extent, p, active);
+    lint ix = c.i.x, iy = c.i.y, iz = c.i.z, jx = c.j.x, jy = c.j.y, jz = c.j.z;
+    lfloat fx = c.f.x, fy = c.f.y, fz = c.f.z;
+    lmask one = (ix >> 3 == jx >> 3) & (iy >> 3 == jy >> 3) & (iz >> 3 == jz >> 3);
+    if (!ALL(one | !active))
+        return sparse_lookup(table, pool, dims, bmin, inv_extent, p, active);
+    int3 nb = (dims + 7) >> 3;
+    lint slot = gather_int(table, ((iz >> 3) * nb.y + (iy >> 3)) * nb.x + (ix >> 3));
+    lint ax0 = ix & 7, ay0 = iy & 7, az0 = iz & 7, ax1 = jx & 7, ay1 = jy & 7, az1 = jz & 7;
+    lint r00 = (az0 << 6) | (ay0 << 3), r10 = (az0 << 6) | (ay1 << 3);
+    lint r01 = (az1 << 6) | (ay0 << 3), r11 = (az1 << 6) | (ay1 << 3);
+    lfloat c00 = lerp_ab(gather_float_brick(pool, slot, r00 | ax0),
+                         gather_float_brick(pool, slot, r00 | ax1), fx);
+    lfloat c10 = lerp_ab(gather_float_brick(pool, slot, r10 | ax0),
+                         gather_float_brick(pool, slot, r10 | ax1), fx);
+    lfloat c01 = lerp_ab(gather_float_brick(pool, slot, r01 | ax0),
+                         gather_float_brick(pool, slot, r01 | ax1), fx);
+    lfloat c11 = lerp_ab(gather_float_brick(pool, slot, r11 | ax0),
+                         gather_float_brick(pool, slot, r11 | ax1), fx);
+    return lerp_ab(lerp_ab(c00, c10, fy), lerp_ab(c01, c11, fy), fz);
 }
 
-static inline float sb_lookup(global const float *grid, global const int *table,
-                              global const float *pool, int3 dims, float3 bmin, float3 inv_extent,
-                              float3 p) {
+static inline lfloat sb_lookup(global const float *grid, global const int *table,
+                               global const float *pool, int3 dims, float3 bmin,
+                               float3 inv_extent, lvec3 p, lmask active) {
 #if LOOKUP_KIND == 0
-    return grid_lookup(grid, dims, bmin, inv_extent, p);
+    return grid_lookup(grid, dims, bmin, inv_extent, p, active);
 #elif LOOKUP_KIND == 1
-    return sparse_lookup_fast_path(table, pool, dims, bmin, inv_extent, p);
+    return sparse_lookup_fast_path(table, pool, dims, bmin, inv_extent, p, active);
 #else
-    return sparse_lookup(table, pool, dims, bmin, inv_extent, p);
+    return sparse_lookup(table, pool, dims, bmin, inv_extent, p, active);
 #endif
 }
 
 /* A point in brick (x, y, z) = bricks[3 k ...] of a random k, as voxel coordinates. */
-static inline float3 sb_brick_point(global const int *bricks, uint n_bricks, int3 dims, uint *st) {
+static inline lvec3 sb_brick_point(global const int *bricks, uint n_bricks, int3 dims,
+                                   luint *st) {
     *st = sb_hash(*st);
-    uint k = *st % n_bricks;
-    float3 v = (float3)(bricks[3 * k], bricks[3 * k + 1], bricks[3 * k + 2]) * 8.0f;
-    float ux = sb_unit(st), uy = sb_unit(st), uz = sb_unit(st); /* in this order */
-    return fmin(v + (float3)(ux, uy, uz) * 8.0f, convert_float3(dims));
+    lint k = as_lint(*st % n_bricks);
+    lvec3 v = scale3(v3(to_lfloat(gather_int(bricks, 3 * k)), to_lfloat(gather_int(bricks, 3 * k + 1)),
+                        to_lfloat(gather_int(bricks, 3 * k + 2))),
+                     (lfloat)(8.0f));
+    lfloat ux = sb_unit(st), uy = sb_unit(st), uz = sb_unit(st); /* in this order */
+    return v3(fmin(v.x + ux * 8.0f, (float)dims.x), fmin(v.y + uy * 8.0f, (float)dims.y),
+              fmin(v.z + uz * 8.0f, (float)dims.z));
 }
 
 kernel void sparse_bench(global const float *grid, global const int *table,
                          global const float *pool, int4 dims4, float4 bmin4, float4 bmax4,
                          global const int *bricks, uint n_bricks, int mode, uint n_per_item,
-                         uint seed, global float *out) {
-    uint gid = get_global_id(0);
+                         uint seed, global float *out, int n) {
+    lmask on;
+    lint gid = lane_element(n, &on);
     int3 dims = dims4.xyz;
     float3 bmin = bmin4.xyz, ext = bmax4.xyz - bmin;
     float3 inv_extent = 1.0f / ext;
     float3 vox = ext / convert_float3(dims); /* world size of a voxel */
-    uint st = sb_hash(gid ^ sb_hash(seed));
-    float acc = 0.0f;
+    luint st = sb_hash(as_luint(gid) ^ sb_hash((luint)(seed)));
+    lfloat acc = (lfloat)(0.0f);
     if (mode == 2) {
-        float3 o = bmin + sb_brick_point(bricks, n_bricks, dims, &st) * vox;
-        float z = 2.0f * sb_unit(&st) - 1.0f;
-        float phi = 6.2831853f * sb_unit(&st);
-        float r = sqrt(fmax(0.0f, 1.0f - z * z));
-        float3 step = (float3)(r * cos(phi), r * sin(phi), z) * 0.5f * vox;
+        lvec3 o = add3(v3u(bmin), mul3(sb_brick_point(bricks, n_bricks, dims, &st), v3u(vox)));
+        lfloat z = 2.0f * sb_unit(&st) - 1.0f;
+        lfloat phi = 6.2831853f * sb_unit(&st);
+        lfloat r = sqrt(fmax(0.0f, 1.0f - z * z));
+        lvec3 step = mul3(scale3(v3(r * cos(phi), r * sin(phi), z), (lfloat)(0.5f)), v3u(vox));
         for (uint k = 0; k < n_per_item; k++)
-            acc += sb_lookup(grid, table, pool, dims, bmin, inv_extent, o + (float)k * step);
+            acc += sb_lookup(grid, table, pool, dims, bmin, inv_extent,
+                             madd3(o, step, (lfloat)((float)k)), on);
     } else {
         for (uint k = 0; k < n_per_item; k++) {
-            float3 p;
+            lvec3 p;
             if (mode == 0) {
-                float ux = sb_unit(&st), uy = sb_unit(&st), uz = sb_unit(&st);
-                p = bmin + (float3)(ux, uy, uz) * ext;
+                lfloat ux = sb_unit(&st), uy = sb_unit(&st), uz = sb_unit(&st);
+                p = add3(v3u(bmin), mul3(v3(ux, uy, uz), v3u(ext)));
             } else
-                p = bmin + sb_brick_point(bricks, n_bricks, dims, &st) * vox;
-            acc += sb_lookup(grid, table, pool, dims, bmin, inv_extent, p);
+                p = add3(v3u(bmin), mul3(sb_brick_point(bricks, n_bricks, dims, &st), v3u(vox)));
+            acc += sb_lookup(grid, table, pool, dims, bmin, inv_extent, p, on);
         }
     }
-    out[gid] = acc;
+    store_float(out, gid, 1, 0, acc, on);
 }

@@ -1,30 +1,35 @@
 /* Bias-corrected ray marching on one majorant segment: the telescoping estimator (Misso et al.
  * 2022, unbiased) and the jackknife estimator (low bias). Twin of volmc/reference/debiasing.py,
  * where the estimators, constants, caps and guards are documented; the operation order and the
- * random-number consumption here follow it step by step. Compiled with -DVOLMC_DEBIASING.
- * Both return spec: channel c's optical depth is medium_chroma(med) x tau from the same
- * lookups (grey builds: float, the scalar arithmetic). */
+ * random-number consumption here follow it step by step, per lane. Compiled with
+ * -DVOLMC_DEBIASING. Both return spec: channel c's optical depth is medium_chroma(med) x tau
+ * from the same lookups (grey builds: lfloat, the scalar arithmetic). */
 #ifndef VOLMC_DEBIASING_H
 #define VOLMC_DEBIASING_H
 
 #include "params.h"
+#include "lanes.h"
 #include "medium.h"
 #include "rng.h"
 #include "guards.h"
 
 /* TELESCOPE_* and JACKKNIFE_* come from the generated params.h (volmc/constants.py). */
 
-static inline int telescoping_levels(float v, int n, int max_steps, bool *capped) {
-    int k = 0;
-    float q = TELESCOPE_CONTINUE; /* P(K >= k + 1) */
-    while (v <= q && k < TELESCOPE_MAX_LEVEL) {
-        k += 1;
-        q *= TELESCOPE_CONTINUE;
+static inline lint telescoping_levels(lfloat v, lint n, int max_steps, lmask *capped) {
+    lint k = (lint)(0);
+    lfloat q = (lfloat)(TELESCOPE_CONTINUE); /* P(K >= k + 1) */
+    for (int level = 0; level < TELESCOPE_MAX_LEVEL && ANY(v <= q); ++level) {
+        lmask up = v <= q;
+        k = k + (up & 1);
+        q = select(q, q * TELESCOPE_CONTINUE, up);
     }
     *capped = v <= q; /* the draw asks for a level past the cap */
-    while (k > 0 && ((long)n << k) > (long)max_steps) { /* long: n 2^16 overflows int */
-        k -= 1;
-        *capped = true;
+    /* n 2^k > max_steps, without the overflow of n << 16: n > floor(max_steps / 2^k). */
+    lmask over = k > 0 && n > ((lint)(max_steps) >> k);
+    while (ANY(over)) {
+        k = k - (over & 1);
+        *capped = *capped | over;
+        over = k > 0 && n > ((lint)(max_steps) >> k);
     }
     return k;
 }
@@ -32,89 +37,99 @@ static inline int telescoping_levels(float v, int n, int max_steps, bool *capped
 /* v, or 0 in each channel that is not finite. */
 static inline spec finite_or_zero3(spec v) {
 #if FEATURE_CHROMATIC
-    return (float3)(finite_bits(v.x) ? v.x : 0.0f, finite_bits(v.y) ? v.y : 0.0f,
-                    finite_bits(v.z) ? v.z : 0.0f);
+    return v3(select((lfloat)(0.0f), v.x, finite_bits(v.x)),
+              select((lfloat)(0.0f), v.y, finite_bits(v.y)),
+              select((lfloat)(0.0f), v.z, finite_bits(v.z)));
 #else
-    return finite_bits(v) ? v : 0.0f;
+    return select((lfloat)(0.0f), v, finite_bits(v));
 #endif
 }
 
-static inline spec telescoping_segment(const MediumData *med, float3 o, float3 d, float t0,
-                                       float t1, float mbar, float mu_c, Rng *rng, ulong *counters,
-                                       int max_steps) {
-    float L = t1 - t0;
-    if (segment_degenerate(L, mbar, counters, max_steps, 1)) return 1.0f;
-    spec kc = medium_chroma(med);
-    int n = max(1, (int)ceil(TELESCOPE_SAMPLES_PER_MFP * mbar * L));
-    float v = 1.0f - rng_next(rng);
-    bool capped = n > max_steps;
-    if (capped) n = max_steps;
-    bool cut;
-    int k_max = telescoping_levels(v, n, max_steps, &cut);
-    if (capped || cut) counters[C_CAPPED] += 1;
-    float a = rng_next(rng);
-    float h = L / (float)n;
-    float s = 0.0f;
-    for (int j = 0; j < n; ++j)
-        s += extinction(med, o + (t0 + ((float)j + a) * h) * d, mbar, counters);
-    spec y = exp(-(kc * (s * h)));
+static inline spec telescoping_segment(const MediumData *med, lvec3 o, lvec3 d, lfloat t0,
+                                       lfloat t1, lfloat mbar, lfloat mu_c, Rng *rng,
+                                       lulong *counters, int max_steps, lmask active) {
+    lfloat L = t1 - t0;
+    lmask on = active & !segment_degenerate(L, mbar, counters, max_steps, 1, active);
+    uspec kc = medium_chroma(med);
+    lint n = comb_count(TELESCOPE_SAMPLES_PER_MFP * mbar * L);
+    lfloat v = 1.0f - rng_next(rng, on);
+    lmask capped = n > max_steps;
+    n = min(n, max_steps);
+    lmask cut;
+    lint k_max = telescoping_levels(v, n, max_steps, &cut);
+    counters[C_CAPPED] += lane_ones(on & (capped | cut));
+    lfloat a = rng_next(rng, on);
+    lfloat h = L / to_lfloat(n);
+    lfloat s = (lfloat)(0.0f);
+    for (int j = 0; ANY(on & (j < n)); ++j) {
+        lmask look = on & (j < n);
+        s += select((lfloat)(0.0f),
+                    extinction(med, madd3(o, d, t0 + ((float)j + a) * h), mbar, counters, look),
+                    look);
+    }
+    spec y = spec_exp_neg(kc, s * h);
     spec est = y;
     float w = 1.0f;
-    int m = n;
-    for (int k = 0; k < k_max; ++k) {
-        float a2 = a + a;
-        int odd = a2 < 1.0f ? 1 : 0; /* level k-1's points have parity floor(2 a) = 1 - odd */
-        a = odd == 1 ? a2 : a2 - 1.0f;
-        h *= 0.5f;
-        float s_new = 0.0f;
-        for (int j = 0; j < m; ++j)
-            s_new += extinction(med, o + (t0 + ((float)(2 * j + odd) + a) * h) * d, mbar,
-                                counters);
-        s += s_new;
-        m += m;
+    lint m = n;
+    for (int k = 0; ANY(on & (k < k_max)); ++k) {
+        lmask level = on & (k < k_max);
+        lfloat a2 = a + a;
+        /* level k-1's points have parity floor(2 a) = 1 - odd */
+        lint odd = select((lint)(0), (lint)(1), a2 < 1.0f);
+        a = select(a, select(a2 - 1.0f, a2, a2 < 1.0f), level);
+        h = select(h, h * 0.5f, level);
+        lfloat s_new = (lfloat)(0.0f);
+        for (int j = 0; ANY(level & (j < m)); ++j) {
+            lmask look = level & (j < m);
+            s_new += select((lfloat)(0.0f),
+                            extinction(med, madd3(o, d, t0 + (to_lfloat(2 * j + odd) + a) * h),
+                                       mbar, counters, look),
+                            look);
+        }
+        s = select(s, s + s_new, level);
+        m = select(m, m + m, level);
         w *= TELESCOPE_CONTINUE;
-        spec y_next = exp(-(kc * (s * h)));
-        est += (y_next - y) / w;
-        y = y_next;
+        spec y_next = spec_exp_neg(kc, s * h);
+        est = spec_sel(est, spec_add(est, spec_div(spec_sub(y_next, y), (lfloat)(w))), level);
+        y = spec_sel(y, y_next, level);
     }
-    return finite_or_zero3(est);
+    return spec_sel(spec_s((lfloat)(1.0f)), finite_or_zero3(est), on);
 }
 
 /* The jackknife estimate of one channel, whose combs are k xs (k its chroma). */
-static inline float jackknife_channel(const float *xs, float k) {
+static inline lfloat jackknife_channel(const lfloat *xs, float k) {
     int g = JACKKNIFE_GROUPS;
-    float total = 0.0f;
+    lfloat total = (lfloat)(0.0f);
     for (int i = 0; i < g; ++i) total += k * xs[i];
-    float xbar = total / (float)g;
-    float acc = 0.0f;
+    lfloat xbar = total / (float)g;
+    lfloat acc = (lfloat)(0.0f);
     for (int i = 0; i < g; ++i) acc += exp((k * xs[i] - xbar) / (float)(g - 1));
-    float pre = exp(-xbar);
-    if (pre == 0.0f) return 0.0f;
-    float est = pre * ((float)g - (float)(g - 1) * acc / (float)g);
-    return finite_bits(est) ? est : 0.0f;
+    lfloat pre = exp(-xbar);
+    lfloat est = pre * ((float)g - (float)(g - 1) * acc / (float)g);
+    return select(select((lfloat)(0.0f), est, finite_bits(est)), (lfloat)(0.0f), pre == 0.0f);
 }
 
-static inline spec jackknife_segment(const MediumData *med, float3 o, float3 d, float t0, float t1,
-                                     float mbar, float mu_c, Rng *rng, ulong *counters,
-                                     int max_steps) {
-    float L = t1 - t0;
+static inline spec jackknife_segment(const MediumData *med, lvec3 o, lvec3 d, lfloat t0,
+                                     lfloat t1, lfloat mbar, lfloat mu_c, Rng *rng,
+                                     lulong *counters, int max_steps, lmask active) {
+    lfloat L = t1 - t0;
     int g = JACKKNIFE_GROUPS;
-    if (segment_degenerate(L, mbar, counters, max_steps, g)) return 1.0f;
-    int m = max(1, (int)ceil(JACKKNIFE_SAMPLES_PER_MFP * mbar * L / (float)g));
-    if (g * m > max_steps) {
-        counters[C_CAPPED] += 1;
-        m = max_steps / g;
-    }
-    float xs[JACKKNIFE_GROUPS];
+    lmask on = active & !segment_degenerate(L, mbar, counters, max_steps, g, active);
+    lint m = comb_count(JACKKNIFE_SAMPLES_PER_MFP * mbar * L / (float)g);
+    lmask over = on & (g * m > max_steps);
+    counters[C_CAPPED] += lane_ones(over);
+    m = select(m, (lint)(max_steps / g), over);
+    lfloat xs[JACKKNIFE_GROUPS];
     for (int i = 0; i < g; ++i)
-        xs[i] = optical_depth_comb(med, o, d, t0, L, m, rng_next(rng), mbar, counters);
+        xs[i] = optical_depth_comb(med, o, d, t0, L, m, rng_next(rng, on), mbar, counters, on);
 #if FEATURE_CHROMATIC
     float3 k = medium_chroma(med);
-    return (float3)(jackknife_channel(xs, k.x), jackknife_channel(xs, k.y),
-                    jackknife_channel(xs, k.z));
+    spec T = v3(jackknife_channel(xs, k.x), jackknife_channel(xs, k.y),
+                jackknife_channel(xs, k.z));
 #else
-    return jackknife_channel(xs, 1.0f);
+    spec T = jackknife_channel(xs, 1.0f);
 #endif
+    return spec_sel(spec_s((lfloat)(1.0f)), T, on);
 }
 
 #endif

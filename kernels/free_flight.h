@@ -4,15 +4,17 @@
 
 #include "tracking.h"
 
-/* Returns EVENT_SCATTER, EVENT_ESCAPE or EVENT_CAPPED; writes the distance (t1 on escape),
- * the flight's weight w (spectral tracking; 1 when grey) and the emission gathered per unit
- * beta. The caller adds beta * E and multiplies beta by w; with a hero channel (>= 0) beta
- * is the path's decision-probability ratios and w their update (see tracking.py). */
-static inline int free_flight(const MediumData *med, float3 o, float3 d, float t0, float t1,
-                              int use_control, float3 beta, int hero, Rng *rng, ulong *counters,
-                              int max_steps, float *t_out, spec *w_out, float3 *E_out) {
+/* Returns EVENT_SCATTER, EVENT_ESCAPE or EVENT_CAPPED per lane; writes the distance (t1 on
+ * escape), the flight's weight w (spectral tracking; 1 when grey) and the emission gathered
+ * per unit beta. The caller adds beta * E and multiplies beta by w; with a hero channel
+ * (>= 0) beta is the path's decision-probability ratios and w their update (see
+ * tracking.py). */
+static inline lint free_flight(const MediumData *med, lvec3 o, lvec3 d, lfloat t0, lfloat t1,
+                               int use_control, lvec3 beta, lint hero, Rng *rng,
+                               lulong *counters, int max_steps, lmask active, lfloat *t_out,
+                               spec *w_out, lvec3 *E_out) {
     return track(med, o, d, t0, t1, TRACK_FREE_FLIGHT, use_control, beta, hero, rng, counters,
-                 max_steps, t_out, w_out, E_out);
+                 max_steps, active, t_out, w_out, E_out);
 }
 
 #endif

@@ -1,29 +1,58 @@
 /* Density grid lookups: trilinear between voxel centres, clamp-to-edge. Twin of
  * volmc/reference/grid.py (convention there). The grid is [z][y][x] float32, x fastest;
- * its shape travels as dims = (nx, ny, nz) since a C pointer carries none. */
+ * its shape travels as dims = (nx, ny, nz) since a C pointer carries none. One point per
+ * lane: the index arithmetic is vector code, the eight fetches are gathers. A lane outside
+ * `active` reads voxel 0 (its point may be anything), so no lane ever reads out of bounds. */
 #ifndef VOLMC_GRID_H
 #define VOLMC_GRID_H
 
-/* Same operation order as the reference: a (1 - t) + b t. */
-static inline float lerp_ab(float a, float b, float t) { return a * (1.0f - t) + b * t; }
+#include "lanes.h"
 
-static inline float grid_lookup(global const float *grid, int3 dims, float3 bmin,
-                                float3 inv_extent, float3 p) {
-    float3 x = (p - bmin) * inv_extent * convert_float3(dims) - 0.5f;
-    x = clamp(x, (float3)(0.0f), convert_float3(dims - 1));
-    /* x >= 0 after the clamp, so truncation is floor (and far cheaper than floor() on PoCL). */
-    int3 i0 = min(convert_int3_rtz(x), dims - 1);
-    float3 f = x - convert_float3(i0);
-    int3 i1 = min(i0 + 1, dims - 1);
+/* Same operation order as the reference: a (1 - t) + b t. */
+static inline lfloat lerp_ab(lfloat a, lfloat b, lfloat t) { return a * (1.0f - t) + b * t; }
+
+/* The voxels trilinear interpolation at p blends: the lower corner i, the upper one j (each
+ * clamped into the grid) and the weights f of the upper one, per axis. */
+typedef struct {
+    lint3 i, j;
+    lvec3 f;
+} VoxelCell;
+
+/* One axis of voxel_cell: the continuous voxel coordinate clamped to [0, n - 1], whose
+ * truncation is its floor (it is >= 0; far cheaper than floor() on PoCL). */
+static inline lint voxel_axis(lfloat p, float bmin, float inv_extent, int n, lmask active,
+                              lint *j, lfloat *f) {
+    lfloat x = clamp((p - bmin) * inv_extent * (float)n - 0.5f, 0.0f, (float)(n - 1));
+    lint i = select((lint)(0), min(to_lint_rtz(x), n - 1), active);
+    *f = x - to_lfloat(i);
+    *j = min(i + 1, n - 1);
+    return i;
+}
+
+/* grid_lookup's and sparse_lookup's cell of p (a lane outside `active` gets voxel 0). */
+static inline VoxelCell voxel_cell(int3 dims, float3 bmin, float3 inv_extent, lvec3 p,
+                                   lmask active) {
+    VoxelCell c;
+    c.i.x = voxel_axis(p.x, bmin.x, inv_extent.x, dims.x, active, &c.j.x, &c.f.x);
+    c.i.y = voxel_axis(p.y, bmin.y, inv_extent.y, dims.y, active, &c.j.y, &c.f.y);
+    c.i.z = voxel_axis(p.z, bmin.z, inv_extent.z, dims.z, active, &c.j.z, &c.f.z);
+    return c;
+}
+
+static inline lfloat grid_lookup(global const float *grid, int3 dims, float3 bmin,
+                                 float3 inv_extent, lvec3 p, lmask active) {
+    VoxelCell c = voxel_cell(dims, bmin, inv_extent, p, active);
+    lint ix = c.i.x, iy = c.i.y, iz = c.i.z, jx = c.j.x, jy = c.j.y, jz = c.j.z;
+    lfloat fx = c.f.x, fy = c.f.y, fz = c.f.z;
     /* int indices: grids are limited to 2^31 voxels (checked on upload). */
     int sy = dims.x, sz = dims.x * dims.y;
-    int r00 = i0.z * sz + i0.y * sy, r10 = i0.z * sz + i1.y * sy;
-    int r01 = i1.z * sz + i0.y * sy, r11 = i1.z * sz + i1.y * sy;
-    float c00 = lerp_ab(grid[r00 + i0.x], grid[r00 + i1.x], f.x);
-    float c10 = lerp_ab(grid[r10 + i0.x], grid[r10 + i1.x], f.x);
-    float c01 = lerp_ab(grid[r01 + i0.x], grid[r01 + i1.x], f.x);
-    float c11 = lerp_ab(grid[r11 + i0.x], grid[r11 + i1.x], f.x);
-    return lerp_ab(lerp_ab(c00, c10, f.y), lerp_ab(c01, c11, f.y), f.z);
+    lint r00 = iz * sz + iy * sy, r10 = iz * sz + jy * sy;
+    lint r01 = jz * sz + iy * sy, r11 = jz * sz + jy * sy;
+    lfloat c00 = lerp_ab(gather_float(grid, r00 + ix), gather_float(grid, r00 + jx), fx);
+    lfloat c10 = lerp_ab(gather_float(grid, r10 + ix), gather_float(grid, r10 + jx), fx);
+    lfloat c01 = lerp_ab(gather_float(grid, r01 + ix), gather_float(grid, r01 + jx), fx);
+    lfloat c11 = lerp_ab(gather_float(grid, r11 + ix), gather_float(grid, r11 + jx), fx);
+    return lerp_ab(lerp_ab(c00, c10, fy), lerp_ab(c01, c11, fy), fz);
 }
 
 /* Sparse brick grids: twin of sparse_lookup in volmc/reference/sparse_grid.py, whose docstring
@@ -40,33 +69,32 @@ static inline float grid_lookup(global const float *grid, int3 dims, float3 bmin
  * the Numba twin does) measured 5-10 % slower on PoCL for random points and no faster along
  * rays (volmc/bench/sparse.py). Table indices are int (fewer than 2^31 bricks); pool offsets
  * are size_t, so the pool may exceed 2^31 voxels. */
-static inline float sparse_lookup(global const int *table, global const float *pool, int3 dims,
-                                  float3 bmin, float3 inv_extent, float3 p) {
-    float3 x = (p - bmin) * inv_extent * convert_float3(dims) - 0.5f;
-    x = clamp(x, (float3)(0.0f), convert_float3(dims - 1));
-    int3 i0 = min(convert_int3_rtz(x), dims - 1);
-    float3 f = x - convert_float3(i0);
-    int3 i1 = min(i0 + 1, dims - 1);
-    int3 nb = (dims + 7) >> 3;       /* bricks per axis */
-    int3 b0 = i0 >> 3, b1 = i1 >> 3; /* brick of the lower and upper corner */
-    int3 a0 = i0 & 7, a1 = i1 & 7;   /* voxel within its brick */
+static inline lfloat sparse_lookup(global const int *table, global const float *pool, int3 dims,
+                                   float3 bmin, float3 inv_extent, lvec3 p, lmask active) {
+    VoxelCell c = voxel_cell(dims, bmin, inv_extent, p, active);
+    lint ix = c.i.x, iy = c.i.y, iz = c.i.z, jx = c.j.x, jy = c.j.y, jz = c.j.z;
+    lfloat fx = c.f.x, fy = c.f.y, fz = c.f.z;
+    int3 nb = (dims + 7) >> 3; /* bricks per axis */
+    /* brick of the lower and upper corner, and voxel within its brick */
+    lint bx0 = ix >> 3, by0 = iy >> 3, bz0 = iz >> 3, bx1 = jx >> 3, by1 = jy >> 3, bz1 = jz >> 3;
+    lint ax0 = ix & 7, ay0 = iy & 7, az0 = iz & 7, ax1 = jx & 7, ay1 = jy & 7, az1 = jz & 7;
     /* table rows (brick z, y) and offsets within a brick (voxel z, y) */
-    int t00 = (b0.z * nb.y + b0.y) * nb.x, t10 = (b0.z * nb.y + b1.y) * nb.x;
-    int t01 = (b1.z * nb.y + b0.y) * nb.x, t11 = (b1.z * nb.y + b1.y) * nb.x;
-    int r00 = (a0.z << 6) | (a0.y << 3), r10 = (a0.z << 6) | (a1.y << 3);
-    int r01 = (a1.z << 6) | (a0.y << 3), r11 = (a1.z << 6) | (a1.y << 3);
-    float v000 = pool[((size_t)table[t00 + b0.x] << 9) | (r00 | a0.x)];
-    float v001 = pool[((size_t)table[t00 + b1.x] << 9) | (r00 | a1.x)];
-    float v010 = pool[((size_t)table[t10 + b0.x] << 9) | (r10 | a0.x)];
-    float v011 = pool[((size_t)table[t10 + b1.x] << 9) | (r10 | a1.x)];
-    float v100 = pool[((size_t)table[t01 + b0.x] << 9) | (r01 | a0.x)];
-    float v101 = pool[((size_t)table[t01 + b1.x] << 9) | (r01 | a1.x)];
-    float v110 = pool[((size_t)table[t11 + b0.x] << 9) | (r11 | a0.x)];
-    float v111 = pool[((size_t)table[t11 + b1.x] << 9) | (r11 | a1.x)];
+    lint t00 = (bz0 * nb.y + by0) * nb.x, t10 = (bz0 * nb.y + by1) * nb.x;
+    lint t01 = (bz1 * nb.y + by0) * nb.x, t11 = (bz1 * nb.y + by1) * nb.x;
+    lint r00 = (az0 << 6) | (ay0 << 3), r10 = (az0 << 6) | (ay1 << 3);
+    lint r01 = (az1 << 6) | (ay0 << 3), r11 = (az1 << 6) | (ay1 << 3);
+    lfloat v000 = gather_float_brick(pool, gather_int(table, t00 + bx0), r00 | ax0);
+    lfloat v001 = gather_float_brick(pool, gather_int(table, t00 + bx1), r00 | ax1);
+    lfloat v010 = gather_float_brick(pool, gather_int(table, t10 + bx0), r10 | ax0);
+    lfloat v011 = gather_float_brick(pool, gather_int(table, t10 + bx1), r10 | ax1);
+    lfloat v100 = gather_float_brick(pool, gather_int(table, t01 + bx0), r01 | ax0);
+    lfloat v101 = gather_float_brick(pool, gather_int(table, t01 + bx1), r01 | ax1);
+    lfloat v110 = gather_float_brick(pool, gather_int(table, t11 + bx0), r11 | ax0);
+    lfloat v111 = gather_float_brick(pool, gather_int(table, t11 + bx1), r11 | ax1);
     /* grid_lookup's order: c[zy] along x, then y, then z. */
-    float c00 = lerp_ab(v000, v001, f.x), c10 = lerp_ab(v010, v011, f.x);
-    float c01 = lerp_ab(v100, v101, f.x), c11 = lerp_ab(v110, v111, f.x);
-    return lerp_ab(lerp_ab(c00, c10, f.y), lerp_ab(c01, c11, f.y), f.z);
+    lfloat c00 = lerp_ab(v000, v001, fx), c10 = lerp_ab(v010, v011, fx);
+    lfloat c01 = lerp_ab(v100, v101, fx), c11 = lerp_ab(v110, v111, fx);
+    return lerp_ab(lerp_ab(c00, c10, fy), lerp_ab(c01, c11, fy), fz);
 }
 
 #endif

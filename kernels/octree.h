@@ -1,92 +1,104 @@
 /* Walk of a ray through the leaves of an octree of majorants. Twin of
  * volmc/reference/octree.py (layout, conventions and robustness arguments there):
- * octree_next yields (t_enter, t_exit, leaf) segments tiling [t0, t1]. */
+ * octree_next yields (t_enter, t_exit, leaf) segments tiling [t0, t1]. One walk per lane;
+ * the descent to a leaf runs while any lane still has an inner node. */
 #ifndef VOLMC_OCTREE_H
 #define VOLMC_OCTREE_H
 
+#include "lanes.h"
+
 typedef struct {
-    float o[3], d[3];
-    float t, t1;
-    int i[3]; /* finest-level cell (x, y, z) of the current point */
-    int done;
+    lfloat o[3], d[3];
+    lfloat t, t1;
+    lint i[3]; /* finest-level cell (x, y, z) of the current point */
+    lmask done;
 } OctreeWalk;
 
-/* The segment is already clipped to the box [bmin, bmax]; depth: the octree's depth D. */
-static inline void octree_init(OctreeWalk *state, float3 o, float3 d, float t0, float t1,
-                               float3 bmin, float3 bmax, int depth) {
-    float oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
+/* The segment is already clipped to the box [bmin, bmax]; depth: the octree's depth D.
+ * Starts the walk of the active lanes. */
+static inline void octree_init(OctreeWalk *state, lvec3 o, lvec3 d, lfloat t0, lfloat t1,
+                               float3 bmin, float3 bmax, int depth, lmask active) {
+    lfloat oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
     float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
     int n = 1 << depth;
-    state->t = t0;
-    state->t1 = t1;
-    state->done = !(t1 > t0);
+    state->t = select(state->t, t0, active);
+    state->t1 = select(state->t1, t1, active);
+    state->done = select(state->done, !(t1 > t0), active);
     for (int a = 0; a < 3; ++a) {
-        state->o[a] = oa[a];
-        state->d[a] = da[a];
+        state->o[a] = select(state->o[a], oa[a], active);
+        state->d[a] = select(state->d[a], da[a], active);
         float size = (hi[a] - lo[a]) / (float)n;
-        float x = clamp((oa[a] + t0 * da[a] - lo[a]) / size, 0.0f, (float)(n - 1));
-        state->i[a] = (int)floor(x);
+        lfloat x = clamp((oa[a] + t0 * da[a] - lo[a]) / size, 0.0f, (float)(n - 1));
+        state->i[a] = select(state->i[a], to_lint(floor(x)), active);
     }
 }
 
-/* Returns 0 when the walk is over; else writes the segment and its leaf's node index. */
-static inline int octree_next(OctreeWalk *state, global const int *children, float3 bmin,
-                              float3 bmax, int depth, float *t_enter, float *t_exit, int *node) {
-    if (state->done) return 0;
+/* Returns the lanes of `active` that got a segment (0 where the walk is over); writes
+ * their segments and their leaves' node indices. */
+static inline lmask octree_next(OctreeWalk *state, global const int *children, float3 bmin,
+                                float3 bmax, int depth, lfloat *t_enter, lfloat *t_exit,
+                                lint *node, lmask active) {
+    lmask go = active & !state->done;
     float lo3[3] = {bmin.x, bmin.y, bmin.z}, hi3[3] = {bmax.x, bmax.y, bmax.z};
-    int k = 0, level = 0;
-    while (level < depth && children[k] != 0) {
-        int s = depth - 1 - level;
-        k = children[k] + (((state->i[0] >> s) & 1) | (((state->i[1] >> s) & 1) << 1) |
-                           (((state->i[2] >> s) & 1) << 2));
-        ++level;
+    lint k = (lint)(0), level = (lint)(0);
+    lmask inner = go;
+    for (int lv = 0; lv < depth && ANY(inner); ++lv) {
+        lint first = gather_int(children, k);
+        inner = inner & (first != 0);
+        int s = depth - 1 - lv;
+        lint octant = ((state->i[0] >> s) & 1) | (((state->i[1] >> s) & 1) << 1) |
+                      (((state->i[2] >> s) & 1) << 2);
+        k = select(k, first + octant, inner);
+        level = level + (inner & 1);
     }
-    int span_log = depth - level;
-    int span = 1 << span_log, n = 1 << depth;
-    int a_exit = 0;
-    float t_face = FLT_MAX; /* finite-math-only builds may fold infinities (guards.h) */
+    lint span_log = depth - level;
+    lint span = (lint)(1) << span_log;
+    int n = 1 << depth;
+    lmask exit_axis[3];
+    lfloat t_face = (lfloat)(FLT_MAX); /* finite-math-only builds may fold infinities */
     for (int a = 0; a < 3; ++a) {
-        float da = state->d[a];
-        if (da != 0.0f) {
-            int lo = (state->i[a] >> span_log) << span_log;
-            int face = da > 0.0f ? lo + span : lo;
-            float size = (hi3[a] - lo3[a]) / (float)n;
-            float tf = (lo3[a] + (float)face * size - state->o[a]) / da;
-            if (tf < t_face) {
-                t_face = tf;
-                a_exit = a;
-            }
-        }
+        lfloat da = state->d[a];
+        lint lo = (state->i[a] >> span_log) << span_log;
+        lint face = select(lo, lo + span, da > 0.0f);
+        float size = (hi3[a] - lo3[a]) / (float)n;
+        lfloat tf = (lo3[a] + to_lfloat(face) * size - state->o[a]) / da;
+        exit_axis[a] = da != 0.0f && tf < t_face;
+        t_face = select(t_face, tf, exit_axis[a]);
     }
+    /* The last axis that lowered t_face is the exit axis (strict <: the lowest on ties). */
+    exit_axis[0] = exit_axis[0] & !exit_axis[1] & !exit_axis[2];
+    exit_axis[1] = exit_axis[1] & !exit_axis[2];
+    lmask none = !exit_axis[0] & !exit_axis[1] & !exit_axis[2];
+    exit_axis[0] = exit_axis[0] | none; /* a_exit = 0 when no face is crossed */
     *t_enter = state->t;
-    float te = fmin(fmax(t_face, state->t), state->t1);
-    if (te >= state->t1) {
-        state->done = 1;
-    } else {
-        float da = state->d[a_exit];
-        int lo = (state->i[a_exit] >> span_log) << span_log;
-        int i = da > 0.0f ? lo + span : lo - 1;
-        if (i < 0 || i >= n) {
-            state->done = 1;
-            te = state->t1;
-        } else {
-            for (int a = 0; a < 3; ++a) {
-                float db = state->d[a];
-                if (a == a_exit || db == 0.0f) continue;
-                int cur = state->i[a];
-                int lb = (cur >> span_log) << span_log;
-                float size = (hi3[a] - lo3[a]) / (float)n;
-                float x = (state->o[a] + te * db - lo3[a]) / size;
-                int j = (int)floor(clamp(x, (float)lb, (float)(lb + span - 1)));
-                state->i[a] = db > 0.0f ? max(j, cur) : min(j, cur);
-            }
-            state->i[a_exit] = i;
-        }
+    lfloat te = fmin(fmax(t_face, state->t), state->t1);
+    lmask end = go & (te >= state->t1);
+    lmask step = go & !end;
+    lint i = (lint)(0);
+    for (int a = 0; a < 3; ++a) {
+        lint lo = (state->i[a] >> span_log) << span_log;
+        i = select(i, select(lo - 1, lo + span, state->d[a] > 0.0f), exit_axis[a]);
     }
-    state->t = te;
+    /* Rounding left the box early: the last leaf ends the segment (octree.py). */
+    lmask out = step & (i < 0 || i >= n);
+    lmask move = step & !out;
+    for (int a = 0; a < 3; ++a) {
+        lfloat db = state->d[a];
+        lint cur = state->i[a];
+        lint lb = (cur >> span_log) << span_log;
+        float size = (hi3[a] - lo3[a]) / (float)n;
+        lfloat x = (state->o[a] + te * db - lo3[a]) / size;
+        lint j = to_lint(floor(clamp(x, to_lfloat(lb), to_lfloat(lb + span - 1))));
+        j = select(min(j, cur), max(j, cur), db > 0.0f);
+        lmask other = move & !exit_axis[a] & (db != 0.0f);
+        state->i[a] = select(select(state->i[a], j, other), i, move & exit_axis[a]);
+    }
+    state->done = state->done | end | out;
+    te = select(te, state->t1, out);
+    state->t = select(state->t, te, go);
     *t_exit = te;
     *node = k;
-    return 1;
+    return go;
 }
 
 #endif

@@ -1,26 +1,27 @@
 /* Phase functions: isotropic and Henyey-Greenstein. Twin of volmc/reference/phase.py, where
  * the convention (propagation directions, g > 0 forward) and the cancellation-free
- * inversion are derived. */
+ * inversion are derived. g and the kind are the medium's, the same in every lane. */
 #ifndef VOLMC_PHASE_H
 #define VOLMC_PHASE_H
 
+#include "lanes.h"
 #include "sampling.h"
 
 /* PHASE_ISOTROPIC and PHASE_HG come from the generated params.h. */
 
-static inline float hg_eval(float cos_theta, float g) {
-    float denom = g >= 0.0f ? (1.0f - g) * (1.0f - g) + 2.0f * g * (1.0f - cos_theta)
-                            : (1.0f + g) * (1.0f + g) - 2.0f * g * (1.0f + cos_theta);
+static inline lfloat hg_eval(lfloat cos_theta, float g) {
+    lfloat denom = g >= 0.0f ? (1.0f - g) * (1.0f - g) + 2.0f * g * (1.0f - cos_theta)
+                             : (1.0f + g) * (1.0f + g) - 2.0f * g * (1.0f + cos_theta);
     return INV_4PI * (1.0f - g) * (1.0f + g) / (denom * sqrt(denom));
 }
 
 /* Returns cos(theta); writes sin(theta) and the pdf (1/sr). */
-static inline float hg_sample_cos(float u, float g, float *sin_theta, float *pdf) {
-    float t = g >= 0.0f ? (1.0f - g) + 2.0f * g * u : (1.0f + g) - 2.0f * g * (1.0f - u);
-    float inv_t2 = 1.0f / (t * t);
-    float omc = (1.0f - g) * (1.0f - g) * (1.0f - u) * (1.0f + g + t) * inv_t2;
-    float opc = (1.0f + g) * (1.0f + g) * u * (1.0f - g + t) * inv_t2;
-    float c = omc < opc ? 1.0f - omc : opc - 1.0f;
+static inline lfloat hg_sample_cos(lfloat u, float g, lfloat *sin_theta, lfloat *pdf) {
+    lfloat t = g >= 0.0f ? (1.0f - g) + 2.0f * g * u : (1.0f + g) - 2.0f * g * (1.0f - u);
+    lfloat inv_t2 = 1.0f / (t * t);
+    lfloat omc = (1.0f - g) * (1.0f - g) * (1.0f - u) * (1.0f + g + t) * inv_t2;
+    lfloat opc = (1.0f + g) * (1.0f + g) * u * (1.0f - g + t) * inv_t2;
+    lfloat c = select(opc - 1.0f, 1.0f - omc, omc < opc);
     c = clamp(c, -1.0f, 1.0f);
     *sin_theta = sqrt(fmax(0.0f, omc * opc));
     float one_m_g2 = (1.0f - g) * (1.0f + g);
@@ -28,36 +29,38 @@ static inline float hg_sample_cos(float u, float g, float *sin_theta, float *pdf
     return c;
 }
 
-static inline float3 hg_sample(float u1, float u2, float3 d_in, float g, float *pdf) {
-    float sin_theta;
-    float c = hg_sample_cos(u1, g, &sin_theta, pdf);
+static inline lvec3 hg_sample(lfloat u1, lfloat u2, lvec3 d_in, float g, lfloat *pdf) {
+    lfloat sin_theta;
+    lfloat c = hg_sample_cos(u1, g, &sin_theta, pdf);
     return from_frame(d_in, c, sin_theta, TWO_PI * u2);
 }
 
 /* The uniform hg_sample_cos maps to cos_theta (derivation in phase.py). */
-static inline float hg_invert_cos(float cos_theta, float g) {
-    float denom = g >= 0.0f ? (1.0f - g) * (1.0f - g) + 2.0f * g * (1.0f - cos_theta)
-                            : (1.0f + g) * (1.0f + g) - 2.0f * g * (1.0f + cos_theta);
-    float s = sqrt(denom);
+static inline lfloat hg_invert_cos(lfloat cos_theta, float g) {
+    lfloat denom = g >= 0.0f ? (1.0f - g) * (1.0f - g) + 2.0f * g * (1.0f - cos_theta)
+                             : (1.0f + g) * (1.0f + g) - 2.0f * g * (1.0f + cos_theta);
+    lfloat s = sqrt(denom);
     return (1.0f - g) * (1.0f + cos_theta) / (s * (1.0f + g + s));
 }
 
 /* (u1, u2) that hg_sample maps to w about d_in. */
-static inline float2 invert_hg_sample(float3 w, float3 d_in, float g) {
-    float c = clamp(dot(d_in, w), -1.0f, 1.0f);
-    float3 s, t;
+static inline lvec2 invert_hg_sample(lvec3 w, lvec3 d_in, float g) {
+    lfloat c = clamp(dot3(d_in, w), -1.0f, 1.0f);
+    lvec3 s, t;
     coordinate_system(d_in, &s, &t);
-    float phi = atan2(dot(w, t), dot(w, s));
-    if (phi < 0.0f) phi += TWO_PI;
-    return (float2)(hg_invert_cos(c, g), phi / TWO_PI);
+    lfloat phi = atan2(dot3(w, t), dot3(w, s));
+    phi = select(phi, phi + TWO_PI, phi < 0.0f);
+    lvec2 u = {hg_invert_cos(c, g), phi / TWO_PI};
+    return u;
 }
 
-static inline float phase_eval(int kind, float g, float cos_theta) {
+static inline lfloat phase_eval(int kind, float g, lfloat cos_theta) {
     if (kind == PHASE_HG) return hg_eval(cos_theta, g);
-    return INV_4PI;
+    return (lfloat)(INV_4PI);
 }
 
-static inline float3 phase_sample(int kind, float g, float u1, float u2, float3 d_in, float *pdf) {
+static inline lvec3 phase_sample(int kind, float g, lfloat u1, lfloat u2, lvec3 d_in,
+                                 lfloat *pdf) {
     if (kind == PHASE_HG) return hg_sample(u1, u2, d_in, g, pdf);
     return sample_uniform_sphere(u1, u2, pdf);
 }

@@ -1,23 +1,57 @@
 /* The type of per-channel weights in the tracking loop (transmittance estimates, spectral
- * tracking's flight weights): `spec` is float3 when the build has colour-dependent
- * extinction (FEATURE_CHROMATIC) and float otherwise, so a grey scene runs the scalar
- * arithmetic it always ran. The reference always carries RGB tuples (volmc/reference/vec.py);
- * for a grey medium its three channels are equal, and the kernels' float is any of them. */
+ * tracking's flight weights): `spec` is RGB (lvec3) per lane when the build has
+ * colour-dependent extinction (FEATURE_CHROMATIC) and one lfloat otherwise, so a grey scene
+ * runs the scalar arithmetic it always ran. `uspec` is the same for a value every lane
+ * shares (the medium's chroma): float3 or float. The reference always carries RGB tuples
+ * (volmc/reference/vec.py); for a grey medium its three channels are equal, and the
+ * kernels' one value is any of them. The spec_* helpers are the few operations the tracking
+ * loop and the estimators write on a spec. */
 #ifndef VOLMC_SPECTRUM_H
 #define VOLMC_SPECTRUM_H
 
 #include "features.h"
+#include "lanes.h"
 
 #if FEATURE_CHROMATIC
-typedef float3 spec;
-static inline float spec_max(float3 a) { return fmax(a.x, fmax(a.y, a.z)); }
-static inline float3 spec_rgb(float3 a) { return a; }
-static inline float spec_first(float3 a) { return a.x; }
+typedef lvec3 spec;
+typedef float3 uspec;
+static inline lfloat spec_max(spec a) { return max3(a); }
+static inline lvec3 spec_rgb(spec a) { return a; }
+static inline lfloat spec_first(spec a) { return a.x; }
+static inline spec spec_s(lfloat s) { return v3s(s); }
+static inline spec spec_u(uspec k) { return v3u(k); }
+static inline spec spec_add(spec a, spec b) { return add3(a, b); }
+static inline spec spec_sub(spec a, spec b) { return sub3(a, b); }
+static inline spec spec_div(spec a, lfloat s) { return div3(a, s); }
+static inline spec spec_mul(spec a, spec b) { return mul3(a, b); }
+static inline spec spec_scale(spec a, lfloat s) { return scale3(a, s); }
+static inline spec spec_sel(spec a, spec b, lmask m) { return sel3(a, b, m); }
+static inline spec spec_abs(spec a) { return v3(fabs(a.x), fabs(a.y), fabs(a.z)); }
+/* exp(-k s) per channel of k, for s per lane (exp_neg3 in vec.py). */
+static inline spec spec_exp_neg(uspec k, lfloat s) {
+    return v3(exp(-(k.x * s)), exp(-(k.y * s)), exp(-(k.z * s)));
+}
+/* 1 - k s per channel of k (one_minus3 in vec.py). */
+static inline spec spec_one_minus(uspec k, lfloat s) {
+    return v3(1.0f - k.x * s, 1.0f - k.y * s, 1.0f - k.z * s);
+}
 #else
-typedef float spec;
-static inline float spec_max(float a) { return a; }
-static inline float3 spec_rgb(float a) { return (float3)(a); }
-static inline float spec_first(float a) { return a; }
+typedef lfloat spec;
+typedef float uspec;
+static inline lfloat spec_max(spec a) { return a; }
+static inline lvec3 spec_rgb(spec a) { return v3s(a); }
+static inline lfloat spec_first(spec a) { return a; }
+static inline spec spec_s(lfloat s) { return s; }
+static inline spec spec_u(uspec k) { return (lfloat)(k); }
+static inline spec spec_add(spec a, spec b) { return a + b; }
+static inline spec spec_sub(spec a, spec b) { return a - b; }
+static inline spec spec_div(spec a, lfloat s) { return a / s; }
+static inline spec spec_mul(spec a, spec b) { return a * b; }
+static inline spec spec_scale(spec a, lfloat s) { return a * s; }
+static inline spec spec_sel(spec a, spec b, lmask m) { return select(a, b, m); }
+static inline spec spec_abs(spec a) { return fabs(a); }
+static inline spec spec_exp_neg(uspec k, lfloat s) { return exp(-(k * s)); }
+static inline spec spec_one_minus(uspec k, lfloat s) { return 1.0f - k * s; }
 #endif
 
 #endif

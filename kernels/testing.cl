@@ -1,7 +1,12 @@
 /* Test kernels: thin wrappers that feed explicit inputs to the kernel functions so tests can
- * compare them with their Numba twins value by value (tests/test_kernels.py). */
+ * compare them with their Numba twins value by value (tests/test_kernels.py). Built at every
+ * lane width: lane l of work-item i takes element i W + l of the batch (lane_io.h), so each
+ * element meets exactly the code a lane of the renderer runs; the last argument of every
+ * kernel is the batch size n (tests/cl_harness.py appends it). */
 
 #include "params.h"
+#include "lanes.h"
+#include "lane_io.h"
 #include "rng.h"
 #include "sampling.h"
 #include "phase.h"
@@ -9,191 +14,296 @@
 #include "medium.h"
 #include "tracking.h"
 #include "dda.h"
+#include "octree.h"
 #include "sampler.h"
 
-kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out) {
-    int i = get_global_id(0);
-    uint4 w = philox4x32_10(vload4(i, ctr), vload2(i, key));
-    vstore4(w, i, out);
+kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    /* Counters per lane; the key is per element here but one per work-item in the renderer,
+     * so each lane's key in turn, keeping that lane's words. */
+    luint c0 = load_uint(ctr, i, 4, 0), c1 = load_uint(ctr, i, 4, 1);
+    luint c2 = load_uint(ctr, i, 4, 2), c3 = load_uint(ctr, i, 4, 3);
+    for (int l = 0; l < LANES; ++l) {
+        if (!lane_on(on, l)) continue;
+        lmask one = on & (LANE_IOTA == l);
+        int e = lane_int(i, l);
+        LaneWords w = philox4x32_10(c0, c1, c2, c3, key[2 * e], key[2 * e + 1]);
+        store_uint(out, i, 4, 0, w.x, one);
+        store_uint(out, i, 4, 1, w.y, one);
+        store_uint(out, i, 4, 2, w.z, one);
+        store_uint(out, i, 4, 3, w.w, one);
+    }
 }
 
-kernel void t_uniforms(ulong seed, uint pixel, uint sample, uint stream, uint n,
-                       global float *out) {
+/* Lane l draws from stream (seed, pixel + l, sample, stream): out[l][k], k < count. The
+ * tests read lane 0 against the reference and every lane against its own stream. */
+kernel void t_uniforms(ulong seed, uint pixel, uint sample, uint stream, uint count,
+                       global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
     Rng rng;
-    rng_init(&rng, seed, pixel, sample, stream);
-    for (uint i = 0; i < n; ++i) out[i] = rng_next(&rng);
+    rng.preset = (lmask)(0);
+    rng_init(&rng, seed, pixel + as_luint(i), (luint)(sample), stream, on);
+    for (uint k = 0; k < count; ++k)
+        store_float(out, i, (int)count, (int)k, rng_next(&rng, on), on);
 }
 
-kernel void t_exponential(global const float *u, float a, global float *out) {
-    int i = get_global_id(0);
-    float pdf;
-    float t = sample_exponential(u[i], a, &pdf);
-    out[2 * i] = t;
-    out[2 * i + 1] = pdf;
+kernel void t_exponential(global const float *u, float a, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lfloat pdf;
+    lfloat t = sample_exponential(load_float(u, i, 1, 0), (lfloat)(a), &pdf);
+    store_float(out, i, 2, 0, t, on);
+    store_float(out, i, 2, 1, pdf, on);
 }
 
-kernel void t_uniform_sphere(global const float *u, global float *out) {
-    int i = get_global_id(0);
-    float pdf;
-    float3 w = sample_uniform_sphere(u[2 * i], u[2 * i + 1], &pdf);
-    vstore4((float4)(w, pdf), i, out);
+kernel void t_uniform_sphere(global const float *u, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lfloat pdf;
+    lvec3 w = sample_uniform_sphere(load_float(u, i, 2, 0), load_float(u, i, 2, 1), &pdf);
+    store_float3(out, i, 4, 0, w, on);
+    store_float(out, i, 4, 3, pdf, on);
 }
 
 kernel void t_hg_sample(global const float *u, global const float *g, float3 d_in,
-                        global float *out) {
-    int i = get_global_id(0);
-    float pdf;
-    float3 w = hg_sample(u[2 * i], u[2 * i + 1], d_in, g[i], &pdf);
-    vstore4((float4)(w, pdf), i, out);
+                        global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    /* g is per element here, the medium's (one value) in the renderer: lanes one by one. */
+    for (int l = 0; l < LANES; ++l) {
+        if (!lane_on(on, l)) continue;
+        lmask one = on & (LANE_IOTA == l);
+        lfloat pdf;
+        lvec3 w = hg_sample(load_float(u, i, 2, 0), load_float(u, i, 2, 1), v3u(d_in),
+                            g[lane_int(i, l)], &pdf);
+        store_float3(out, i, 4, 0, w, one);
+        store_float(out, i, 4, 3, pdf, one);
+    }
 }
 
-kernel void t_hg_sample_cos(global const float *u, global const float *g, global float *out) {
-    int i = get_global_id(0);
-    float s, pdf;
-    float c = hg_sample_cos(u[i], g[i], &s, &pdf);
-    out[3 * i] = c;
-    out[3 * i + 1] = s;
-    out[3 * i + 2] = pdf;
+kernel void t_hg_sample_cos(global const float *u, global const float *g, global float *out,
+                            int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    for (int l = 0; l < LANES; ++l) {
+        if (!lane_on(on, l)) continue;
+        lmask one = on & (LANE_IOTA == l);
+        lfloat s, pdf;
+        lfloat c = hg_sample_cos(load_float(u, i, 1, 0), g[lane_int(i, l)], &s, &pdf);
+        store_float(out, i, 3, 0, c, one);
+        store_float(out, i, 3, 1, s, one);
+        store_float(out, i, 3, 2, pdf, one);
+    }
 }
 
-kernel void t_hg_eval(global const float *mu, global const float *g, global float *out) {
-    int i = get_global_id(0);
-    out[i] = hg_eval(mu[i], g[i]);
+kernel void t_hg_eval(global const float *mu, global const float *g, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    for (int l = 0; l < LANES; ++l) {
+        if (!lane_on(on, l)) continue;
+        store_float(out, i, 1, 0, hg_eval(load_float(mu, i, 1, 0), g[lane_int(i, l)]),
+                    on & (LANE_IOTA == l));
+    }
 }
 
-kernel void t_coordinate_system(global const float *n, global float *out) {
-    int i = get_global_id(0);
-    float3 s, t;
-    coordinate_system(vload3(i, n), &s, &t);
-    vstore3(s, 2 * i, out);
-    vstore3(t, 2 * i + 1, out);
+kernel void t_coordinate_system(global const float *nv, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lvec3 s, t;
+    coordinate_system(load_float3(nv, i, 3, 0), &s, &t);
+    store_float3(out, i, 6, 0, s, on);
+    store_float3(out, i, 6, 3, t, on);
 }
 
 /* Inverse samplers: out[i] = (u1, u2) for direction i (uniform sphere; HG about d_in with g[i]),
  * and u for the exponential distance t[i] at rate a. */
-kernel void t_invert_uniform_sphere(global const float *w, global float *out) {
-    int i = get_global_id(0);
-    vstore2(invert_uniform_sphere(vload3(i, w)), i, out);
+kernel void t_invert_uniform_sphere(global const float *w, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lvec2 u = invert_uniform_sphere(load_float3(w, i, 3, 0));
+    store_float(out, i, 2, 0, u.x, on);
+    store_float(out, i, 2, 1, u.y, on);
 }
 
 kernel void t_invert_hg_sample(global const float *w, float3 d_in, global const float *g,
-                               global float *out) {
-    int i = get_global_id(0);
-    vstore2(invert_hg_sample(vload3(i, w), d_in, g[i]), i, out);
+                               global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    for (int l = 0; l < LANES; ++l) {
+        if (!lane_on(on, l)) continue;
+        lmask one = on & (LANE_IOTA == l);
+        lvec2 u = invert_hg_sample(load_float3(w, i, 3, 0), v3u(d_in), g[lane_int(i, l)]);
+        store_float(out, i, 2, 0, u.x, one);
+        store_float(out, i, 2, 1, u.y, one);
+    }
 }
 
-kernel void t_invert_exponential(global const float *t, float a, global float *out) {
-    int i = get_global_id(0);
-    out[i] = invert_exponential_sample(t[i], a);
+kernel void t_invert_exponential(global const float *t, float a, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    store_float(out, i, 1, 0, invert_exponential_sample(load_float(t, i, 1, 0), (lfloat)(a)), on);
 }
 
 kernel void t_equiangular(global const float *u, float h, float D, float ta, float tb,
-                          global float *out) {
-    int i = get_global_id(0);
-    float pdf;
-    float t = sample_equiangular(u[i], h, D, ta, tb, &pdf);
-    out[3 * i] = t;
-    out[3 * i + 1] = pdf;
-    out[3 * i + 2] = invert_equiangular_sample(t, h, D, ta, tb);
+                          global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lfloat pdf;
+    lfloat t = sample_equiangular(load_float(u, i, 1, 0), (lfloat)(h), (lfloat)(D), (lfloat)(ta),
+                                  (lfloat)(tb), &pdf);
+    store_float(out, i, 3, 0, t, on);
+    store_float(out, i, 3, 1, pdf, on);
+    store_float(out, i, 3, 2,
+                invert_equiangular_sample(t, (lfloat)(h), (lfloat)(D), (lfloat)(ta), (lfloat)(tb)),
+                on);
 }
 
 kernel void t_grid_lookup(global const float *grid, int3 dims, float3 bmin, float3 inv_extent,
-                          global const float *p, global float *out) {
-    int i = get_global_id(0);
-    out[i] = grid_lookup(grid, dims, bmin, inv_extent, vload3(i, p));
+                          global const float *p, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    store_float(out, i, 1, 0, grid_lookup(grid, dims, bmin, inv_extent, load_float3(p, i, 3, 0), on),
+                on);
 }
 
 /* The tracking loop with technique TRACK_* (use_control: the minorant as control in free
- * flight). One work item per walk; ray r = i / n_per_ray (9 floats: o, d, t0, t1, pad) goes
- * through media[r] and uses sample index i % n_per_ray. Writes the distance (-1 on escape,
- * -2 if capped), the transmittance estimate and the lookups of each walk. */
+ * flight). Walk j of ray r (ray_lanes: the lanes of a work-item share a ray) goes through
+ * media[r] with sample index j; rays are 9 floats (o, d, t0, t1, pad). Writes, at
+ * r n_per_ray + j, the distance (-1 on escape, -2 if capped), the transmittance estimate and
+ * the lookups of each walk. */
 kernel void t_track(int technique, int use_control, global const Medium *media,
                     global const float *grid, global const float *maj, global const float *mnr,
                     global const float *rays, int n_per_ray, ulong seed, int max_steps,
-                    global float *out_t, global float *out_T, global ulong *lookups) {
-    int i = get_global_id(0);
-    int r = i / n_per_ray;
-    Medium m = media[r];
-    MediumData med = {m, grid, maj, mnr, grid, grid, 0, grid, 0, 0};
-    float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
-    float t0 = rays[9 * r + 6], t1 = rays[9 * r + 7];
+                    global float *out_t, global float *out_T, global ulong *lookups, int n) {
+    int r;
+    lmask on;
+    lint j = ray_lanes(n_per_ray, &r, &on);
+    if (!ANY(on)) return;
+    MediumData med = {media[r], grid, maj, mnr, grid, grid, 0, grid, 0, 0, 0, (lint)(-1)};
+    lvec3 o = v3u(vload3(3 * r, rays)), d = v3u(vload3(3 * r + 1, rays));
+    lfloat t0 = (lfloat)(rays[9 * r + 6]), t1 = (lfloat)(rays[9 * r + 7]);
     Rng rng;
-    rng_init(&rng, seed, (uint)r, (uint)(i % n_per_ray), STREAM_TEST);
-    ulong cnt[N_COUNTERS];
-    for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = 0;
-    float t;
+    rng.preset = (lmask)(0);
+    rng_init(&rng, seed, (luint)(r), as_luint(j), STREAM_TEST, on);
+    lulong cnt[N_COUNTERS];
+    for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = (lulong)(0);
+    lfloat t;
     spec T;
-    float3 E;
-    int ev = track(&med, o, d, t0, t1, technique, use_control, (float3)(1.0f), -1, &rng, cnt,
-                   max_steps, &t, &T, &E);
-    out_t[i] = ev == EVENT_SCATTER ? t : (ev == EVENT_CAPPED ? -2.0f : -1.0f);
-    vstore3(spec_rgb(T), i, out_T);
-    lookups[i] = cnt[C_LOOKUPS];
+    lvec3 E;
+    lint ev = track(&med, o, d, t0, t1, technique, use_control, v3s(1.0f), (lint)(-1), &rng, cnt,
+                    max_steps, on, &t, &T, &E);
+    lint idx = r * n_per_ray + j;
+    store_float(out_t, idx, 1, 0,
+                select(select((lfloat)(-1.0f), (lfloat)(-2.0f), ev == EVENT_CAPPED), t,
+                       ev == EVENT_SCATTER),
+                on);
+    store_float3(out_T, idx, 3, 0, spec_rgb(T), on);
+    store_ulong(lookups, idx, 1, 0, cnt[C_LOOKUPS], on);
 }
 
 /* DDA walks of rays (9 floats each, as t_track) into out[r][k] = (ta, tb, iz, iy, ix). */
 kernel void t_dda(global const float *rays, float3 bmin, float3 bmax, int3 res_zyx,
-                  int max_segments, global float *out, global int *count) {
-    int r = get_global_id(0);
-    float3 o = vload3(3 * r, rays), d = vload3(3 * r + 1, rays);
+                  int max_segments, global float *out, global int *count, int n) {
+    lmask on;
+    lint r = lane_element(n, &on);
     Dda s;
-    dda_init(&s, o, d, rays[9 * r + 6], rays[9 * r + 7], bmin, bmax, res_zyx);
-    float ta, tb;
-    int3 cell;
-    int k = 0;
-    while (k < max_segments && dda_next(&s, &ta, &tb, &cell)) {
-        global float *row = out + ((size_t)r * max_segments + k) * 5;
-        row[0] = ta;
-        row[1] = tb;
-        row[2] = (float)cell.z;
-        row[3] = (float)cell.y;
-        row[4] = (float)cell.x;
-        ++k;
+    s.done = (lmask)(0);
+    dda_init(&s, load_float3(rays, r, 9, 0), load_float3(rays, r, 9, 3), load_float(rays, r, 9, 6),
+             load_float(rays, r, 9, 7), bmin, bmax, res_zyx, on);
+    lfloat ta, tb;
+    lint3 cell;
+    lint k = (lint)(0);
+    lmask go = on;
+    for (int step = 0; step < max_segments && ANY(go); ++step) {
+        go = dda_next(&s, &ta, &tb, &cell, go, res_zyx);
+        lint row = r * max_segments + k;
+        store_float(out, row, 5, 0, ta, go);
+        store_float(out, row, 5, 1, tb, go);
+        store_float(out, row, 5, 2, to_lfloat(cell.z), go);
+        store_float(out, row, 5, 3, to_lfloat(cell.y), go);
+        store_float(out, row, 5, 4, to_lfloat(cell.x), go);
+        k = k + (go & 1);
     }
-    count[r] = k;
+    store_uint((global uint *)count, r, 1, 0, as_luint(k), on);
 }
 
 /* Octree walks of rays (9 floats each, as t_track) into out[r][k] = (ta, tb, node). */
 kernel void t_octree(global const float *rays, float3 bmin, float3 bmax,
                      global const int *children, int depth, int max_segments,
-                     global float *out, global int *count) {
-    int r = get_global_id(0), node, k = 0;
+                     global float *out, global int *count, int n) {
+    lmask on;
+    lint r = lane_element(n, &on);
     OctreeWalk s;
-    octree_init(&s, vload3(3 * r, rays), vload3(3 * r + 1, rays), rays[9 * r + 6],
-                rays[9 * r + 7], bmin, bmax, depth);
-    float ta, tb;
-    while (k < max_segments && octree_next(&s, children, bmin, bmax, depth, &ta, &tb, &node))
-        vstore3((float3)(ta, tb, (float)node), (size_t)r * max_segments + k++, out);
-    count[r] = k;
+    s.done = (lmask)(0);
+    octree_init(&s, load_float3(rays, r, 9, 0), load_float3(rays, r, 9, 3),
+                load_float(rays, r, 9, 6), load_float(rays, r, 9, 7), bmin, bmax, depth, on);
+    lfloat ta, tb;
+    lint node;
+    lint k = (lint)(0);
+    lmask go = on;
+    for (int step = 0; step < max_segments && ANY(go); ++step) {
+        go = octree_next(&s, children, bmin, bmax, depth, &ta, &tb, &node, go);
+        lint row = r * max_segments + k;
+        store_float(out, row, 3, 0, ta, go);
+        store_float(out, row, 3, 1, tb, go);
+        store_float(out, row, 3, 2, to_lfloat(node), go);
+        k = k + (go & 1);
+    }
+    store_uint((global uint *)count, r, 1, 0, as_luint(k), on);
 }
 
 kernel void t_sparse_lookup(global const int *table, global const float *pool, int3 dims,
                             float3 bmin, float3 inv_extent, global const float *p,
-                            global float *out) {
-    int i = get_global_id(0);
-    out[i] = sparse_lookup(table, pool, dims, bmin, inv_extent, vload3(i, p));
+                            global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    store_float(out, i, 1, 0,
+                sparse_lookup(table, pool, dims, bmin, inv_extent, load_float3(p, i, 3, 0), on),
+                on);
 }
 
 /* The sampler's parts on in[i] = (a, b, c, d): out[i] = (sobol_u32(a, 0), sobol_u32(a, 1),
  * owen_scramble(a, b), hash_u32(a, b), permute_index(a % (c % 4096 + 1), c % 4096 + 1, b),
- * sobol_pair(a, b, c, d), stratified_pair(a, c, b, d, a ^ b)). */
-kernel void t_sampler_parts(global const uint *in, global uint *out) {
-    int i = get_global_id(0);
-    uint4 v = vload4(i, in);
-    uint np = v.z % 4096u + 1u;
-    global uint *o = out + (size_t)i * 9;
-    o[0] = sobol_u32(v.x, 0);
-    o[1] = sobol_u32(v.x, 1);
-    o[2] = owen_scramble(v.x, v.y);
-    o[3] = hash_u32(v.x, v.y);
-    o[4] = permute_index(v.x % np, np, v.y);
-    vstore2(sobol_pair(v.x, v.y, v.z, v.w), 0, o + 5);
-    vstore2(stratified_pair(v.x, v.z, v.y, v.w, v.x ^ v.y), 0, o + 7);
+ * sobol_pair(a, b, c, d), stratified_pair(a, c, b, d, a ^ b)). permute_index and
+ * stratified_pair take the point count as one value for all lanes (the renderer's spp): lanes
+ * one by one. */
+kernel void t_sampler_parts(global const uint *in, global uint *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    luint a = load_uint(in, i, 4, 0), b = load_uint(in, i, 4, 1);
+    luint c = load_uint(in, i, 4, 2), d = load_uint(in, i, 4, 3);
+    store_uint(out, i, 9, 0, sobol_u32(a, 0), on);
+    store_uint(out, i, 9, 1, sobol_u32(a, 1), on);
+    store_uint(out, i, 9, 2, owen_scramble(a, b), on);
+    store_uint(out, i, 9, 3, hash_u32(a, b), on);
+    LanePair sp = sobol_pair(a, b, c, d);
+    store_uint(out, i, 9, 5, sp.x, on);
+    store_uint(out, i, 9, 6, sp.y, on);
+    for (int l = 0; l < LANES; ++l) {
+        if (!lane_on(on, l)) continue;
+        lmask one = on & (LANE_IOTA == l);
+        uint np = lane_uint(c, l) % 4096u + 1u;
+        store_uint(out, i, 9, 4, permute_index(a % np, np, b), one);
+        LanePair st = stratified_pair(a, lane_uint(c, l), b, d, a ^ b);
+        store_uint(out, i, 9, 7, st.x, one);
+        store_uint(out, i, 9, 8, st.y, one);
+    }
 }
 
-/* sampler_pair on rows of 7 words (kind, key0, key1, pixel, index, pair, n): out[i] = (ux, uy). */
-kernel void t_sampler_pairs(global const uint *in, global uint *out) {
-    int i = get_global_id(0);
-    global const uint *a = in + (size_t)i * 7;
-    vstore2(sampler_pair((int)a[0], a[1], a[2], a[3], a[4], a[5], a[6]), i, out);
+/* sampler_pair on rows of 7 words (kind, key0, key1, pixel, index, pair, n): out[i] = (ux, uy).
+ * The kind, key and n are the renderer's (one value for all lanes): lanes one by one. */
+kernel void t_sampler_pairs(global const uint *in, global uint *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    for (int l = 0; l < LANES; ++l) {
+        if (!lane_on(on, l)) continue;
+        lmask one = on & (LANE_IOTA == l);
+        global const uint *w = in + (size_t)lane_int(i, l) * 7;
+        LanePair p = sampler_pair((int)w[0], w[1], w[2], load_uint(in, i, 7, 3),
+                                  load_uint(in, i, 7, 4), load_uint(in, i, 7, 5), w[6]);
+        store_uint(out, i, 2, 0, p.x, one);
+        store_uint(out, i, 2, 1, p.y, one);
+    }
 }

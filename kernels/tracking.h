@@ -1,246 +1,395 @@
 /* The tracking loop, written once: tentative collisions over the medium's majorant segments
  * and what each technique (TRACK_*) does at them. Twin of volmc/reference/tracking.py, where
  * the techniques, the carried optical-depth budget, the exact treatment of homogeneous
- * segments and the guards (local distances, step cap, transmittance roulette) are described. */
+ * segments and the guards (local distances, step cap, transmittance roulette) are described.
+ *
+ * Per lane, a walk does exactly what the reference's nested loops do (segments, and tentative
+ * collisions within a segment), with the same random numbers. The lanes run one flat loop
+ * instead: a walk is a record (Walk) and walk_step advances every live lane by one event --
+ * the start of its next segment, or one tentative collision -- so a lane that crosses many
+ * cell faces does not hold the others in an inner loop. Each lane carries its own technique,
+ * so one loop can advance free flights and shadow rays side by side (the integrator's
+ * lanes do); `may`, a constant bit set of the techniques a call site can meet, lets the
+ * compiler drop the code of the others. track() is one walk run to its end, the twin of
+ * the reference's track. */
 #ifndef VOLMC_TRACKING_H
 #define VOLMC_TRACKING_H
 
 #include "params.h"
+#include "lanes.h"
 #include "rng.h"
 #include "sampling.h"
 #include "medium.h"
 
-/* Guard "transmittance roulette": returns 0 when the walk ends (T is then 0). */
-static inline int transmittance_roulette(float *T, Rng *rng) {
-    float a = fabs(*T);
-    if (!(a < TR_RR_THRESHOLD)) return 1;
-    if (a == 0.0f || rng_next(rng) * TR_RR_THRESHOLD >= a) {
-        *T = 0.0f;
-        return 0;
-    }
-    *T = *T > 0.0f ? TR_RR_THRESHOLD : -TR_RR_THRESHOLD;
-    return 1;
+/* Guard "transmittance roulette": returns the lanes of `active` whose walk goes on (T is 0 in
+ * those that end). */
+static inline lmask transmittance_roulette(lfloat *T, Rng *rng, lmask active) {
+    lfloat a = fabs(*T);
+    lmask low = active & (a < TR_RR_THRESHOLD);
+    if (!ANY(low)) return active;
+    lmask draw = low & (a != 0.0f);
+    lfloat u = rng_next(rng, draw);
+    lmask end = (low & (a == 0.0f)) | (draw & (u * TR_RR_THRESHOLD >= a));
+    *T = select(*T, (lfloat)(0.0f), end);
+    *T = select(*T, select((lfloat)(-TR_RR_THRESHOLD), (lfloat)(TR_RR_THRESHOLD), *T > 0.0f),
+                low & !end);
+    return active & !end;
 }
 
 /* Guard "transmittance roulette" on a spec weight (twin of spec_roulette in tracking.py):
  * by its largest |component|; grey builds play the scalar roulette. */
-static inline int spec_roulette(spec *T, Rng *rng) {
+static inline lmask spec_roulette(spec *T, Rng *rng, lmask active) {
 #if FEATURE_CHROMATIC
-    float a = spec_max(fabs(*T));
-    if (!(a < TR_RR_THRESHOLD)) return 1;
-    if (a == 0.0f || rng_next(rng) * TR_RR_THRESHOLD >= a) {
-        *T = 0.0f;
-        return 0;
-    }
-    *T *= TR_RR_THRESHOLD / a;
-    return 1;
+    lfloat a = spec_max(spec_abs(*T));
+    lmask low = active & (a < TR_RR_THRESHOLD);
+    if (!ANY(low)) return active;
+    lmask draw = low & (a != 0.0f);
+    lfloat u = rng_next(rng, draw);
+    lmask end = (low & (a == 0.0f)) | (draw & (u * TR_RR_THRESHOLD >= a));
+    *T = sel3(*T, v3s(0.0f), end);
+    *T = sel3(*T, scale3(*T, TR_RR_THRESHOLD / a), low & !end);
+    return active & !end;
 #else
-    return transmittance_roulette(T, rng);
+    return transmittance_roulette(T, rng, active);
 #endif
 }
 
 /* What one tentative collision adds to the emission estimate (twin in tracking.py). */
-static inline float3 emission_term(const MediumData *med, float3 p, float mu, float s_maj,
-                                   float3 W) {
-    float3 k = spec_rgb(medium_chroma(med));
-    float3 sa = (1.0f - vec3(med->m.albedo)) * k * (mu / s_maj);
-    return sa * emitted_radiance(med, p) * W;
+static inline lvec3 emission_term(const MediumData *med, lvec3 p, lfloat mu, lfloat s_maj,
+                                  lvec3 W, lmask active) {
+    float3 k = (float3)(1.0f) * medium_chroma(med);
+    float3 ka = (1.0f - vec3(med->m.albedo)) * k;
+    lfloat s = mu / s_maj;
+    lvec3 Le = emitted_radiance(med, p, active);
+    return v3(ka.x * s * Le.x * W.x, ka.y * s * Le.y * W.y, ka.z * s * Le.z * W.z);
 }
 
 /* Hero MIS: balance-heuristic weights R / mean(R) (twin in tracking.py). */
-static inline float3 mis_weights(float3 R) {
-    float s = (R.x + R.y + R.z) / 3.0f;
-    if (!(s > 0.0f)) return (float3)(0.0f);
-    return R / s;
+static inline lvec3 mis_weights(lvec3 R) {
+    lfloat s = (R.x + R.y + R.z) / 3.0f;
+    return sel3(v3s(0.0f), div3(R, s), s > 0.0f);
 }
 
 #if FEATURE_CHROMATIC
-/* Spectral tracking's choice at a tentative collision (twin in tracking.py): returns 1 if
- * real; writes the weight factor. */
-static inline int spectral_choice(float3 W, float3 k, float mu, float s_maj, float u, float3 *f) {
-    float a = spec_max(W * k * mu);
-    float3 n = s_maj - k * mu;
-    float b = spec_max(W * n);
-    if (!(a + b > 0.0f)) {
-        *f = (float3)(0.0f);
-        return 0;
-    }
-    if (u * (a + b) < a) {
-        *f = k * (mu * (a + b) / (s_maj * a));
-        return 1;
-    }
-    *f = n * ((a + b) / (s_maj * b));
-    return 0;
+/* Spectral tracking's choice at a tentative collision (twin in tracking.py): returns the
+ * lanes where it is real; writes the weight factor. */
+static inline lmask spectral_choice(lvec3 W, float3 k, lfloat mu, lfloat s_maj, lfloat u,
+                                    lvec3 *f) {
+    lfloat a = fmax(W.x * k.x * mu, fmax(W.y * k.y * mu, W.z * k.z * mu));
+    lvec3 n = v3(s_maj - k.x * mu, s_maj - k.y * mu, s_maj - k.z * mu);
+    lfloat b = max3(mul3(W, n));
+    lmask none = !(a + b > 0.0f);
+    lmask real = !none & (u * (a + b) < a);
+    *f = sel3(scale3(n, (a + b) / (s_maj * b)), scale3(v3u(k), mu * (a + b) / (s_maj * a)),
+              real);
+    *f = sel3(*f, v3s(0.0f), none);
+    return real;
 }
 #endif
 
 /* render.transmittance = "auto": the technique for one majorant segment of extinction bounds
  * [s_min, s_maj] and length L (twin in tracking.py, where the rule and its measurements are). */
-static inline int auto_segment_technique(float s_maj, float s_min, float L) {
-    return (s_maj - s_min) * L <= AUTO_THIN_DEPTH ? TRACK_RESIDUAL_RATIO : TRACK_LENGTH;
+static inline lint auto_segment_technique(lfloat s_maj, lfloat s_min, lfloat L) {
+    return select((lint)(TRACK_LENGTH), (lint)(TRACK_RESIDUAL_RATIO),
+                  (s_maj - s_min) * L <= AUTO_THIN_DEPTH);
 }
 
-/* Walks o + t d over [t0, t1]. Returns the event; writes the distance (t1 on escape) to
- * *t_out, the transmittance estimate or flight weight to *T_out and the emission gathered
- * (free flight, per unit beta) to *E_out. */
-/* Always inlined: each call site passes a constant technique, so the compiler keeps only that
- * technique's code in the loop. */
-static inline __attribute__((always_inline)) int track(const MediumData *med, float3 o, float3 d,
-                                                       float t0, float t1, int technique,
-                                                       int use_control, float3 beta, int hero,
-                                                       Rng *rng, ulong *counters, int max_steps,
-                                                       float *t_out, spec *T_out, float3 *E_out) {
+/* A walk per lane: its ray, its technique, where it is, and what it has found. */
+typedef struct {
+    lvec3 o, d;       /* the ray, its origin moved to t0 (guard "local distances") */
+    lfloat t0, t1;    /* the segment of the original ray the walk covers */
+    lint tech;        /* TRACK_*: what the walk is */
+    lmask use_control; /* free flight and track length: the segment's minorant as control */
+    lvec3 beta;       /* free flight: the path's throughput (hero: its ratios) */
+    lint hero;        /* free flight: the hero channel, or -1 */
+    MajorantIter it;  /* the majorant segments */
+    /* The current segment, the technique for it, and the walk's place in it */
+    lfloat tb, s_maj, control, rate, inv_rate;
+    lmask in_seg, homogeneous, flight;
+    lfloat t;         /* distance from o */
+    lfloat budget;    /* optical depth left to the next tentative collision; < 0: not drawn */
+    lint steps;
+    spec w, acc;      /* next flight: the current vertex's weight, this segment's estimate */
+    /* The outcome: T is the transmittance estimate or the flight's weight, E the emission
+     * gathered per unit beta (free flight); event and t_end are final once the lane is no
+     * longer live. */
+    spec T;
+    lvec3 E;
+    lint event;
+    lfloat t_end;
+    lmask live;
+} Walk;
+
+/* Bit of technique X in a `may` set. */
+#define TRACK_BIT(X) (1 << (X))
+#define TRACK_ANY 0x3F
+
+/* Starts a walk of o + t d over [t0, t1] in the active lanes, with technique tech (per lane)
+ * and, for free flight and track length, use_control (decomposition tracking: the minorant
+ * decides where it covers the majorant). */
+static inline void walk_begin(Walk *wk, const MediumData *med, lvec3 o, lvec3 d, lfloat t0,
+                              lfloat t1, lint tech, lmask use_control, lvec3 beta, lint hero,
+                              lmask active) {
+    wk->o = sel3(wk->o, madd3(o, d, t0), active);
+    wk->d = sel3(wk->d, d, active);
+    wk->t0 = select(wk->t0, t0, active);
+    wk->t1 = select(wk->t1, t1, active);
+    wk->tech = select(wk->tech, tech, active);
+    wk->use_control = select(wk->use_control, use_control, active);
+    wk->beta = sel3(wk->beta, beta, active);
+    wk->hero = select(wk->hero, hero, active);
+    majorant_iter_init(&wk->it, med, wk->o, d, (lfloat)(0.0f), t1 - t0, active);
+    wk->in_seg = wk->in_seg & !active;
+    wk->budget = select(wk->budget, (lfloat)(-1.0f), active);
+    wk->steps = select(wk->steps, (lint)(0), active);
+    wk->T = spec_sel(wk->T, spec_s((lfloat)(1.0f)), active);
+    wk->E = sel3(wk->E, v3s(0.0f), active);
+    wk->event = select(wk->event, (lint)(EVENT_ESCAPE), active);
+    wk->t_end = select(wk->t_end, t1, active);
+    wk->live = wk->live | active;
+}
+
+/* Out of line: it costs nothing measurable on PoCL, and the AMDGPU compiler (LLVM 19) took
+ * 175 s for a render kernel with it inlined against 7 s (its "SI Fix SGPR copies" pass grows
+ * with the size of a function). */
+#ifndef WALK_STEP_ATTR
+#define WALK_STEP_ATTR __attribute__((noinline))
+#endif
+
+/* One event of every live walk: the start of its next segment (or the walk's end when none
+ * is left), or its next tentative collision. Returns the lanes whose walk ended. */
+static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
+                                                             int may, Rng *rng,
+                                                             lulong *counters, int max_steps) {
     /* Plain constants 0 in builds without the feature: they lead any condition they join,
      * since clang warns of a logical operator whose right operand is constant. */
     const int spectral = FEATURE_CHROMATIC ? med->m.spectral != SPECTRAL_GREY : 0;
-    const int emissive = FEATURE_EMISSION ? technique == TRACK_FREE_FLIGHT &&
+    const int emissive = FEATURE_EMISSION ? (may & TRACK_BIT(TRACK_FREE_FLIGHT)) &&
                                                 med->m.emission_kind != EMISSION_NONE : 0;
-    const spec k = medium_chroma(med);
-    o = o + t0 * d;
-    MajorantIter it;
-    majorant_iter_init(&it, med, o, d, 0.0f, t1 - t0);
-    float budget = -1.0f; /* optical depth left to the next tentative collision; < 0: not drawn */
-    spec T = 1.0f;
-    float3 E = (float3)(0.0f);
-    int steps = 0;
-    Segment seg;
-    *t_out = t1;
-    *E_out = E;
-    while (majorant_next(&it, med, &seg)) {
-        float ta = seg.t_min, tb = seg.t_max, s_maj = seg.sigma_maj;
-        int homogeneous = seg.sigma_min == s_maj;
+    const int may_fly = may & (TRACK_BIT(TRACK_FREE_FLIGHT) | TRACK_BIT(TRACK_LENGTH) |
+                               TRACK_BIT(TRACK_AUTO));
+    const int may_ratio = may & (TRACK_BIT(TRACK_RATIO) | TRACK_BIT(TRACK_RESIDUAL_RATIO) |
+                                 TRACK_BIT(TRACK_AUTO));
+    const uspec k = medium_chroma(med);
+    /* The lanes of each technique (0 for those the call site cannot meet). */
+    const lmask ff = lanes_if(may & TRACK_BIT(TRACK_FREE_FLIGHT)) & (wk->tech == TRACK_FREE_FLIGHT);
+    const lmask length = lanes_if(may & TRACK_BIT(TRACK_LENGTH)) & (wk->tech == TRACK_LENGTH);
+    const lmask next = lanes_if(may & TRACK_BIT(TRACK_NEXT_FLIGHT)) &
+                       (wk->tech == TRACK_NEXT_FLIGHT);
+    const lmask autos = lanes_if(may & TRACK_BIT(TRACK_AUTO)) & (wk->tech == TRACK_AUTO);
+    const lmask live0 = wk->live;
+    counters[C_LANE_ROUNDS] += lane_ones(LANE_IOTA == 0);
+    counters[C_LANE_ACTIVE] += lane_ones(live0);
+    /* Lanes between segments start their next one (or end: no segment left). */
+    lmask need = wk->live & !wk->in_seg;
+    if (ANY(need)) {
+        Segment seg; /* written in the lanes that get a segment, read only there */
+        lmask ok = majorant_next(&wk->it, med, &seg, need);
+        wk->live = wk->live & !(need & !ok);
+        lfloat ta = seg.t_min, sm = seg.sigma_maj, smin = seg.sigma_min;
+        lfloat L = seg.t_max - ta;
+        lmask hom = smin == sm;
         /* This segment's technique: the walk's own, or auto's choice for it. */
-        const int tech = technique == TRACK_AUTO ? auto_segment_technique(s_maj, seg.sigma_min,
-                                                                           tb - ta)
-                                                 : technique;
-        const int flight = tech == TRACK_FREE_FLIGHT || tech == TRACK_LENGTH;
+        lint tech = ANY(autos) ? select(wk->tech, auto_segment_technique(sm, smin, L), autos)
+                               : wk->tech;
+        lmask fl = tech == TRACK_FREE_FLIGHT || tech == TRACK_LENGTH;
+        lmask res = tech == TRACK_RESIDUAL_RATIO;
         /* Roulette on the product so far before spending work on another segment (a no-op
          * while T >= TR_RR_THRESHOLD, so on the first segment). Grey track length keeps its
          * estimate 0 or 1: a fraction left by homogeneous segments goes on with probability T
-         * as 1, so a shadow ray stops in a dense homogeneous core as soon as delta tracking
-         * would, while a homogeneous medium (one segment) stays exact. */
-        if (!spectral && technique == TRACK_LENGTH && spec_first(T) < 1.0f) {
-            if (rng_next(rng) >= spec_first(T)) {
-                *T_out = 0.0f;
-                *E_out = E;
-                return EVENT_ESCAPE;
-            }
-            T = 1.0f;
-        }
-        if (technique != TRACK_FREE_FLIGHT && !spec_roulette(&T, rng)) {
-            *T_out = T;
-            *E_out = E;
-            return EVENT_ESCAPE;
-        }
-        if (homogeneous && technique != TRACK_FREE_FLIGHT) {
-            T *= exp(-(k * s_maj) * (tb - ta));
-            continue;
-        }
-        float control = (homogeneous || tech == TRACK_RESIDUAL_RATIO || (flight && use_control))
-                            ? seg.sigma_min : 0.0f;
-        float rate = tech == TRACK_RESIDUAL_RATIO ? s_maj - control : s_maj;
-        float inv_rate = 1.0f / rate; /* a multiplication per step instead of a division */
-        if (tech == TRACK_RESIDUAL_RATIO) T *= exp(-(k * control) * (tb - ta));
-        spec w = 1.0f;                        /* next flight: weight of the current vertex */
-        /* next flight: this segment's estimate (no exp for the other techniques) */
-        spec acc = technique == TRACK_NEXT_FLIGHT ? exp(-s_maj * (tb - ta)) : 0.0f;
-        float t = ta;
-        float pdf;
-        if (budget < 0.0f) budget = sample_exponential(rng_next(rng), 1.0f, &pdf);
-        while (true) {
-            float step = budget * inv_rate;
-            if (t + step >= tb) {
-                /* >= 0: rounding must not turn what is left into the "not drawn" marker */
-                budget = fmax(budget - rate * (tb - t), 0.0f);
-                break;
-            }
-            t += step;
-            float3 p = o + t * d;
-#if FEATURE_CHROMATIC
-            if (flight && spectral) {
-                /* Spectral tracking: the density of a homogeneous segment needs no lookup. */
-                float mu = homogeneous ? s_maj : extinction(med, p, s_maj, counters);
-                float3 W;
-                if (hero >= 0) {
-                    /* The hero's one-hot weights: its delta tracking decides (tracking.py). */
-                    W = (float3)(hero == 0 ? 1.0f : 0.0f, hero == 1 ? 1.0f : 0.0f,
-                                 hero == 2 ? 1.0f : 0.0f);
-                    if (emissive) E += emission_term(med, p, mu, s_maj, mis_weights(T * beta));
-                } else {
-                    W = technique == TRACK_FREE_FLIGHT ? T * beta : T;
-                    if (emissive) E += emission_term(med, p, mu, s_maj, T);
-                }
-                float3 f;
-                int real = spectral_choice(W, k, mu, s_maj, rng_next(rng), &f);
-                if (real) {
-                    *t_out = t0 + t;
-                    *T_out = tech == TRACK_LENGTH ? (float3)(0.0f) : T * f;
-                    *E_out = E;
-                    return EVENT_SCATTER;
-                }
-                T *= f;
-                if (spec_max(T) <= 0.0f) {
-                    *T_out = 0.0f;
-                    *E_out = E;
-                    return EVENT_ESCAPE;
-                }
-                /* Only the ratios matter to hero MIS: keep them from overflowing. */
-                if (hero >= 0) T *= 1.0f / spec_max(T);
-            } else
-#endif
-            if (flight) {
-                /* Real for sure where the control covers the majorant (no draw, no lookup). */
-                int real = control >= s_maj;
-                float mu = real ? s_maj : -1.0f; /* -1: not looked up */
-                if (!real) {
-                    float um = rng_next(rng) * s_maj;
-                    real = um < control;
-                    if (!real) {
-                        mu = extinction(med, p, s_maj, counters);
-                        real = um < mu;
-                    }
-                }
-                if (emissive) {
-                    if (mu < 0.0f) mu = extinction(med, p, s_maj, counters);
-                    E += emission_term(med, p, mu, s_maj, (float3)(1.0f));
-                }
-                if (real) {
-                    *t_out = t0 + t;
-                    *T_out = technique == TRACK_FREE_FLIGHT ? 1.0f : 0.0f;
-                    *E_out = E;
-                    return EVENT_SCATTER;
-                }
-            } else if (technique == TRACK_NEXT_FLIGHT) {
-                w *= 1.0f - k * (extinction(med, p, s_maj, counters) / s_maj);
-                if (!spec_roulette(&w, rng)) {
-                    budget = -1.0f; /* the next segment draws afresh */
-                    break;
-                }
-                acc += w * exp(-s_maj * (tb - t));
-            } else {
-                T *= 1.0f - k * ((extinction(med, p, s_maj, counters) - control) / rate);
-                if (!spec_roulette(&T, rng)) {
-                    *T_out = T;
-                    *E_out = E;
-                    return EVENT_ESCAPE;
-                }
-            }
-            budget = sample_exponential(rng_next(rng), 1.0f, &pdf);
-            if (++steps >= max_steps) {
-                counters[C_CAPPED] += 1;
-                if (technique == TRACK_NEXT_FLIGHT) T *= acc;
-                if (technique == TRACK_LENGTH) T = 0.0f;
-                *t_out = t0 + t;
-                *T_out = T;
-                *E_out = E;
-                return EVENT_CAPPED;
+         * as 1 (tracking.py). */
+        if (!spectral && (may & TRACK_BIT(TRACK_LENGTH))) {
+            lmask frac = ok & length & (spec_first(wk->T) < 1.0f);
+            if (ANY(frac)) {
+                lmask end = frac & (rng_next(rng, frac) >= spec_first(wk->T));
+                wk->T = spec_sel(wk->T, spec_s(select((lfloat)(1.0f), (lfloat)(0.0f), end)),
+                                 frac);
+                wk->live = wk->live & !end;
+                ok = ok & !end;
             }
         }
-        if (technique == TRACK_NEXT_FLIGHT) T *= acc;
+        if (may & ~TRACK_BIT(TRACK_FREE_FLIGHT)) {
+            lmask tr = ok & !ff;
+            lmask go_on = spec_roulette(&wk->T, rng, tr);
+            wk->live = wk->live & !(tr & !go_on);
+            ok = ok & !(tr & !go_on);
+            /* Homogeneous segments are exact; the lane goes on to its next one. */
+            lmask exact = ok & !ff & hom;
+            wk->T = spec_sel(wk->T, spec_mul(wk->T, spec_exp_neg(k, sm * L)), exact);
+            ok = ok & !exact;
+        }
+        lfloat ctl = select((lfloat)(0.0f), smin, hom | res | (fl & wk->use_control));
+        lfloat rt = select(sm, sm - ctl, res);
+        if (may_ratio)
+            wk->T = spec_sel(wk->T, spec_mul(wk->T, spec_exp_neg(k, ctl * L)), ok & res);
+        if (may & TRACK_BIT(TRACK_NEXT_FLIGHT)) {
+            wk->w = spec_sel(wk->w, spec_s((lfloat)(1.0f)), ok & next);
+            wk->acc = spec_sel(wk->acc, spec_s(exp(-sm * L)), ok & next);
+        }
+        wk->t = select(wk->t, ta, ok);
+        wk->tb = select(wk->tb, seg.t_max, ok);
+        wk->s_maj = select(wk->s_maj, sm, ok);
+        wk->control = select(wk->control, ctl, ok);
+        wk->rate = select(wk->rate, rt, ok);
+        wk->inv_rate = select(wk->inv_rate, 1.0f / rt, ok); /* a multiplication per step */
+        wk->homogeneous = select(wk->homogeneous, hom, ok);
+        wk->flight = select(wk->flight, fl, ok);
+        lmask draw = ok & (wk->budget < 0.0f);
+        if (ANY(draw)) {
+            lfloat pdf;
+            wk->budget = select(wk->budget,
+                                sample_exponential(rng_next(rng, draw), (lfloat)(1.0f), &pdf),
+                                draw);
+        }
+        wk->in_seg = wk->in_seg | ok;
     }
-    *T_out = T;
-    *E_out = E;
-    return EVENT_ESCAPE;
+    /* Lanes inside a segment: the next tentative collision, or the segment's end. */
+    lmask in = wk->live & wk->in_seg;
+    if (!ANY(in)) return live0 & !wk->live;
+    lfloat t = wk->t, s_maj = wk->s_maj, control = wk->control;
+    lfloat step = wk->budget * wk->inv_rate;
+    lmask cross = in & (t + step >= wk->tb);
+    /* >= 0: rounding must not turn what is left into the "not drawn" marker */
+    wk->budget = select(wk->budget, fmax(wk->budget - wk->rate * (wk->tb - t), 0.0f), cross);
+    wk->in_seg = wk->in_seg & !cross;
+    if (may & TRACK_BIT(TRACK_NEXT_FLIGHT))
+        wk->T = spec_sel(wk->T, spec_mul(wk->T, wk->acc), cross & next);
+    lmask col = in & !cross;
+    if (!ANY(col)) return live0 & !wk->live;
+    t = select(t, t + step, col);
+    wk->t = t;
+    lvec3 p = madd3(wk->o, wk->d, t);
+    spec T = wk->T;
+    /* Lanes whose walk ends here, and those that go on to the next tentative collision. */
+    lmask scatter = (lmask)(0), end = (lmask)(0), go_on = col;
+#if FEATURE_CHROMATIC
+    if (spectral && may_fly && ANY(col & wk->flight)) {
+        lmask fly = col & wk->flight;
+        /* Spectral tracking: the density of a homogeneous segment needs no lookup. */
+        lfloat mu = select(extinction(med, p, s_maj, counters, fly & !wk->homogeneous), s_maj,
+                           wk->homogeneous);
+        /* The hero's one-hot weights: its delta tracking decides (tracking.py). */
+        lmask heroic = ff & (wk->hero >= 0);
+        lvec3 hot = v3(select((lfloat)(0.0f), (lfloat)(1.0f), wk->hero == 0),
+                       select((lfloat)(0.0f), (lfloat)(1.0f), wk->hero == 1),
+                       select((lfloat)(0.0f), (lfloat)(1.0f), wk->hero == 2));
+        lvec3 W = sel3(sel3(T, mul3(T, wk->beta), ff), hot, heroic);
+        if (emissive)
+            wk->E = sel3(wk->E,
+                         add3(wk->E, emission_term(med, p, mu, s_maj,
+                                                   sel3(T, mis_weights(mul3(T, wk->beta)),
+                                                        heroic),
+                                                   fly & ff)),
+                         fly & ff);
+        lvec3 f;
+        lmask real = fly & spectral_choice(W, k, mu, s_maj, rng_next(rng, fly), &f);
+        /* Track length's estimate is 0 at a real collision (auto flies only as it). */
+        T = sel3(T, sel3(v3s(0.0f), mul3(T, f), ff), real);
+        scatter = scatter | real;
+        lmask null = fly & !real;
+        T = sel3(T, mul3(T, f), null);
+        lmask dark = null & (max3(T) <= 0.0f);
+        T = sel3(T, v3s(0.0f), dark);
+        end = end | dark;
+        /* Only the ratios matter to hero MIS: keep them from overflowing. */
+        T = sel3(T, scale3(T, 1.0f / max3(T)), null & !dark & heroic);
+        go_on = (go_on & !fly) | (null & !dark);
+    }
+#endif
+    if (!spectral && may_fly && ANY(col & wk->flight)) {
+        lmask fly = col & wk->flight;
+        /* Real for sure where the control covers the majorant (no draw, no lookup). */
+        lmask sure = fly & (control >= s_maj);
+        lmask draw = fly & !sure;
+        lfloat um = rng_next(rng, draw) * s_maj;
+        lmask by_control = draw & (um < control);
+        lmask look = draw & !by_control;
+        lfloat mu = extinction(med, p, s_maj, counters, look);
+        lmask real = sure | by_control | (look & (um < mu));
+        if (emissive && ANY(fly & ff)) {
+            lmask glow = fly & ff;
+            /* -1: not looked up */
+            mu = select(select((lfloat)(-1.0f), s_maj, sure), mu, look);
+            lmask again = glow & (mu < 0.0f);
+            mu = select(mu, extinction(med, p, s_maj, counters, again), again);
+            wk->E = sel3(wk->E, add3(wk->E, emission_term(med, p, mu, s_maj, v3s(1.0f), glow)),
+                         glow);
+        }
+        /* Free flight's weight stays 1; track length's estimate is 0 at a real collision. */
+        T = spec_sel(T, spec_s(select((lfloat)(0.0f), (lfloat)(1.0f), ff)), real);
+        scatter = scatter | real;
+        go_on = go_on & !real;
+    }
+    if ((may & TRACK_BIT(TRACK_NEXT_FLIGHT)) && ANY(col & next)) {
+        lmask nf = col & next;
+        spec w = spec_mul(wk->w, spec_one_minus(k, extinction(med, p, s_maj, counters, nf) /
+                                                      s_maj));
+        lmask alive = spec_roulette(&w, rng, nf);
+        wk->w = spec_sel(wk->w, w, nf);
+        /* The rest of this segment adds nothing: its estimate is acc, and the next segment
+         * draws afresh. */
+        lmask stop = nf & !alive;
+        wk->budget = select(wk->budget, (lfloat)(-1.0f), stop);
+        wk->in_seg = wk->in_seg & !stop;
+        T = spec_sel(T, spec_mul(T, wk->acc), stop);
+        wk->acc = spec_sel(wk->acc, spec_add(wk->acc, spec_scale(w, exp(-s_maj * (wk->tb - t)))),
+                           alive);
+        go_on = go_on & !stop;
+    }
+    if (may_ratio && ANY(col & !wk->flight & !next)) {
+        lmask ratio = col & !wk->flight & !next;
+        lfloat mu = extinction(med, p, s_maj, counters, ratio);
+        T = spec_sel(T, spec_mul(T, spec_one_minus(k, (mu - control) / wk->rate)), ratio);
+        lmask alive = spec_roulette(&T, rng, ratio);
+        end = end | (ratio & !alive);
+        go_on = go_on & !(ratio & !alive);
+    }
+    wk->event = select(wk->event, (lint)(EVENT_SCATTER), scatter);
+    wk->t_end = select(wk->t_end, wk->t0 + t, scatter);
+    wk->live = wk->live & !scatter & !end;
+    /* The walk goes on: a new budget, and the step cap. */
+    if (ANY(go_on)) {
+        lfloat pdf;
+        wk->budget = select(wk->budget, sample_exponential(rng_next(rng, go_on), (lfloat)(1.0f),
+                                                           &pdf),
+                            go_on);
+        wk->steps = wk->steps + (go_on & 1);
+        lmask capped = go_on & (wk->steps >= max_steps);
+        if (ANY(capped)) {
+            counters[C_CAPPED] += lane_ones(capped);
+            if (may & TRACK_BIT(TRACK_NEXT_FLIGHT))
+                T = spec_sel(T, spec_mul(T, wk->acc), capped & next);
+            if (may & TRACK_BIT(TRACK_LENGTH))
+                T = spec_sel(T, spec_s((lfloat)(0.0f)), capped & length);
+            wk->event = select(wk->event, (lint)(EVENT_CAPPED), capped);
+            wk->t_end = select(wk->t_end, wk->t0 + t, capped);
+            wk->live = wk->live & !capped;
+        }
+    }
+    wk->T = T;
+    return live0 & !wk->live;
+}
+
+/* Walks o + t d over [t0, t1] in the active lanes with `technique`: walk_begin, then
+ * walk_step until every lane's walk has ended. Returns the event per lane; writes the
+ * distance (t1 on escape) to *t_out, the transmittance estimate or flight weight to *T_out
+ * and the emission gathered (free flight, per unit beta) to *E_out. hero < 0 in a lane:
+ * spectral tracking weighed by beta; hero = c: channel c decides, beta holds the ratios
+ * (tracking.py). Always inlined: a call site with a constant technique keeps only its code. */
+static inline __attribute__((always_inline)) lint track(
+    const MediumData *med, lvec3 o, lvec3 d, lfloat t0, lfloat t1, int technique,
+    int use_control, lvec3 beta, lint hero, Rng *rng, lulong *counters, int max_steps,
+    lmask active, lfloat *t_out, spec *T_out, lvec3 *E_out) {
+    Walk wk;
+    wk.live = (lmask)(0);
+    wk.in_seg = (lmask)(0);
+    walk_begin(&wk, med, o, d, t0, t1, (lint)(technique), lanes_if(use_control), beta, hero,
+               active);
+    while (ANY(wk.live)) walk_step(&wk, med, TRACK_BIT(technique), rng, counters, max_steps);
+    *t_out = wk.t_end;
+    *T_out = wk.T;
+    *E_out = wk.E;
+    return wk.event;
 }
 
 #endif

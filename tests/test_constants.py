@@ -27,7 +27,7 @@ def test_kernels_see_the_reference_values():
     body = "\n".join([f"    ints[{i}] = (uint)({k});" for i, k in enumerate(INTS)] +
                      [f"    reals[{i}] = (float)({k});" for i, k in enumerate(FLOATS)])
     src = ('#include "params.h"\n'
-           "kernel void t_constants(global uint *ints, global float *reals) {\n"
+           "kernel void t_constants(global uint *ints, global float *reals, int n) {\n"
            f"{body}\n}}\n")
     prg = build_source("t_constants.cl", src)
     ints, ib = out_buf(len(INTS), np.uint32)

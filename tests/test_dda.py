@@ -11,6 +11,7 @@ from volmc.constants import TRACK_FREE_FLIGHT
 from volmc.reference.dda import dda_segments
 from volmc.reference.majorant import cell_of
 
+
 BMIN = np.array([-1.0, -0.5, 0.0])
 BMAX = np.array([1.0, 1.5, 3.0])
 RES = (6, 4, 5)   # (cz, cy, cx)
@@ -143,7 +144,7 @@ def test_free_flight_over_majorant_grid_distribution():
         assert lookups[((12, 10, 8), k)] < lookups[((1, 1, 1), k)]
 
 
-def test_kernel_dda_matches_reference():
+def test_kernel_dda_matches_reference(lanes):
     """The OpenCL twin visits the same cells with the same segment ends (float32) for random
     and degenerate rays."""
     from cl_harness import f3, i3, out_buf, run, to_dev

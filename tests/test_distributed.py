@@ -15,6 +15,7 @@ import pytest
 distributed = pytest.importorskip("distributed")
 
 from volmc.film import read_exr   # noqa: E402
+from volmc.params import sample_counts   # noqa: E402
 from volmc.render import batch_schedule, chunk_schedule, render   # noqa: E402
 from volmc.resources import default_scene   # noqa: E402
 from volmc.scene import load_scene   # noqa: E402
@@ -190,7 +191,8 @@ def test_bench_render_configurations_on_the_cluster(cluster):
         a, _, ca = here.render(spp)
         b, sec, cb = there.render(spp)
         np.testing.assert_allclose(b, a, rtol=2e-6, atol=1e-9)
-        assert ca == cb and sec > 0
+        # The cluster cuts the samples into other batches: the lanes' counts may differ.
+        assert sample_counts(ca) == sample_counts(cb) and sec > 0
 
 
 def _without_times(x):

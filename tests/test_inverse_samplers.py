@@ -14,6 +14,7 @@ from volmc.reference.rng import uniforms
 from volmc.reference.sampling import (invert_exponential_sample, invert_uniform_sphere,
                                       sample_exponential, sample_uniform_sphere)
 
+
 GS = (-0.99, -0.9, -0.5, -1e-3, 0.0, 1e-6, 0.3, 0.75, 0.95, 0.999)
 D_IN = (0.36, -0.48, 0.8)
 
@@ -76,7 +77,7 @@ def test_exponential_round_trip():
         assert np.allclose(back, u, rtol=1e-12, atol=1e-15)
 
 
-def test_kernel_inverses_match_the_reference():
+def test_kernel_inverses_match_the_reference(lanes):
     """The kernels' inverses, fed the reference's directions and distances: equal to float32
     precision, and round trips close to the uniforms."""
     us = _u_pairs(2000, 5)

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+import cl_harness
 from cl_harness import f3, i3, out_buf, run, to_dev
 from stats import ALPHA, z_bound
 from volmc.reference.grid import grid_lookup
@@ -15,6 +16,9 @@ from volmc.reference.sampling import (coordinate_system, sample_exponential,
                                       sample_uniform_sphere)
 from tracking_runs import grid_media, walks
 from volmc.constants import TRACK_FREE_FLIGHT, TRACK_LENGTH, TRACK_RATIO
+
+#: Every test here runs at every lane width (tests/conftest.py, ``lanes``).
+pytestmark = pytest.mark.usefixtures("lanes")
 
 EDGE_U = np.array([0.0, 2.0**-24, 0.25, 0.5, 0.75, 1 - 2.0**-24], np.float64)
 
@@ -36,12 +40,14 @@ def test_philox_identical():
 @pytest.mark.parametrize("seed,pixel,sample,stream", [(0, 0, 0, 0), (2**40 + 3, 77, 5, 1),
                                                       (2**64 - 1, 2**32 - 1, 2**32 - 1, 2)])
 def test_uniform_streams_identical(seed, pixel, sample, stream):
-    n = 1001
-    out, ob = out_buf(n)
-    run("t_uniforms", 1, np.uint64(seed), np.uint32(pixel), np.uint32(sample),
+    """Each lane draws its own stream (pixel + lane), bit for bit the reference's."""
+    n, lanes = 1001, cl_harness.LANES
+    out, ob = out_buf((lanes, n))
+    run("t_uniforms", lanes, np.uint64(seed), np.uint32(pixel), np.uint32(sample),
         np.uint32(stream), np.uint32(n), ob, outs=[(out, ob)])
-    ref = uniforms(np.uint64(seed), pixel, sample, stream, n)
-    assert np.array_equal(out.astype(np.float64), ref)   # bit-identical, not merely close
+    for lane in range(lanes):
+        ref = uniforms(np.uint64(seed), (pixel + lane) % 2**32, sample, stream, n)
+        assert np.array_equal(out[lane].astype(np.float64), ref)   # bit-identical
     assert out.max() < 1.0
 
 

@@ -12,6 +12,7 @@ from volmc.reference.majorant import build_majorant_grid, cell_of
 from volmc.reference.octree import (OCTREE_SPLIT_THRESHOLD, build_octree, octree_depth,
                                     octree_leaf_of, octree_segments)
 
+
 BMIN = np.array([-1.0, -0.5, 0.0])
 BMAX = np.array([1.0, 1.5, 3.0])
 SCALE = 6.0
@@ -168,7 +169,7 @@ def test_walk_of_a_single_leaf_and_of_the_full_depth():
         assert np.allclose(s[:, :2], ref[:k, :2], rtol=0, atol=1e-12)
 
 
-def test_kernel_walk_matches_reference():
+def test_kernel_walk_matches_reference(lanes):
     """The OpenCL twin yields the same leaves with the same segment ends (float32) for random
     and degenerate rays."""
     from cl_harness import f3, out_buf, run, to_dev

@@ -327,11 +327,12 @@ def test_degenerate_inputs_do_not_produce_nan():
 RAY_STRIDE = 10  # kernels/testing_power_series.cl
 
 
-@pytest.fixture(scope="module")
-def cl_prog():
+@pytest.fixture
+def cl_prog(lanes):
+    """kernels/testing_power_series.cl at every lane width."""
     pytest.importorskip("pyopencl")
-    from cl_harness import clc
-    prg, _ = clc().program("testing_power_series.cl")
+    from cl_harness import clc, lane_options
+    prg, _ = clc().program("testing_power_series.cl", lane_options())
     return clc().kernel(prg, "t_power_series")
 
 
@@ -364,6 +365,7 @@ def test_kernel_matches_reference(cl_prog, kind):
     """Same rays, media and streams on both sides: per-estimate values and lookup counts agree
     for the vast majority (float32 can flip a rare roulette or rounding branch), and each
     ray's mean agrees with the reference's and with the exact transmittance."""
+    import cl_harness
     from cl_harness import clc, out_buf, to_dev
     kernel = cl_prog
     grid, cases = _kernel_cases()
@@ -377,9 +379,10 @@ def test_kernel_matches_reference(cl_prog, kind):
     n = len(cases) * n_per
     out, ob = out_buf(n, np.float32)
     counts, cb = out_buf(2 * n, np.uint64)
-    clc().run(kernel, n, None, np.int32(kind), to_dev(meds), to_dev(grid.ravel()),
-              to_dev(rays.ravel()), np.int32(n_per), np.uint64(seed),
-              np.int32(MAX_STEPS), ob, cb, outs=[(out, ob), (counts, cb)])
+    clc().run_rays(kernel, len(cases), n_per, cl_harness.LANES, np.int32(kind), to_dev(meds),
+                   to_dev(grid.ravel()), to_dev(rays.ravel()), np.int32(n_per),
+                   np.uint64(seed), np.int32(MAX_STEPS), ob, cb, np.int32(n),
+                   outs=[(out, ob), (counts, cb)])
     lk_cl = counts[0::2].astype(np.int64)
     assert counts[1::2].sum() == 0
 

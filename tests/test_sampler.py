@@ -14,6 +14,7 @@ from volmc.constants import (SAMPLER_INDEPENDENT, SAMPLER_MAX_N, SAMPLER_SOBOL,
 from volmc.reference.sampler import (hash_u32, owen_scramble, permute_index, reverse_bits32,
                                      sampler_pair, sobol_pair, sobol_u32, stratified_pair)
 
+
 KEY0, KEY1 = 0x9E3779B9, 0xF00DFACE   # a render seed with high bits set in both halves
 
 
@@ -270,7 +271,7 @@ def _edge_words(rng, count):
     return w
 
 
-def test_kernel_sampler_parts_identical():
+def test_kernel_sampler_parts_identical(lanes):
     from cl_harness import out_buf, run, to_dev
     w = _edge_words(np.random.default_rng(11), 4096)
     out, ob = out_buf((len(w), 9), np.uint32)
@@ -284,7 +285,7 @@ def test_kernel_sampler_parts_identical():
         assert [int(v) for v in row] == [int(v) for v in ref], (a, b, c, d)
 
 
-def test_kernel_sampler_pairs_identical():
+def test_kernel_sampler_pairs_identical(lanes):
     from cl_harness import out_buf, run, to_dev
     rng = np.random.default_rng(12)
     count = 6000

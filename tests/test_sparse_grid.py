@@ -15,6 +15,7 @@ from volmc.reference.sparse_grid import (brick_shape, bricks_from_blocks, bricks
                                          majorant_from_bricks, sparse_lookup, sparse_nbytes,
                                          sparse_to_dense)
 
+
 BMIN = (-1.0, -0.5, -2.0)
 BMAX = (1.0, 1.5, 0.25)
 INV_EXT = tuple(1.0 / (b - a) for a, b in zip(BMIN, BMAX))
@@ -88,7 +89,7 @@ def test_reference_lookup_in_float32_is_the_dense_float32_lookup():
 
 
 @pytest.mark.parametrize("dims", [(33, 17, 20), (16, 24, 8), (1, 9, 8)])
-def test_kernel_lookup_equals_reference_and_dense_kernel(dims):
+def test_kernel_lookup_equals_reference_and_dense_kernel(dims, lanes):
     g = _sparse_grid(dims, 0.1, 5)
     table, pool = bricks_from_dense(g)
     pts = _points(dims, 20_000, 6).astype(np.float32)
@@ -301,7 +302,7 @@ def test_memory_of_a_512_cubed_grid_at_three_percent():
     assert mx.max() == values.max() and np.count_nonzero(mx) < 0.06 * mx.size
 
 
-def test_benchmark_kernel_and_twin_read_the_same_points():
+def test_benchmark_kernel_and_twin_read_the_same_points(lanes):
     """volmc/bench/sparse.py: the kernel and its Numba twin sum lookups at the same points
     (float32 against float64 positions, so nearly equal), and a small run reports sparse sums
     equal to the dense ones on both backends (no timing is checked)."""

@@ -10,18 +10,36 @@ import pytest
 from volmc.resources import kernels_dir
 from volmc.techniques import ESTIMATORS
 
+#: Kernel headers with no Numba counterpart at all: the lane types and helpers (lanes.h: the
+#: reference is one lane, so it needs no lane plumbing) and the per-lane loads and stores
+#: of the test and benchmark kernels (lane_io.h).
+LANE_HEADERS = {"lanes.h", "lane_io.h"}
+
 #: Kernel helpers with no Numba counterpart, and why: float3 from a 3-array (Numba uses
 #: tuples throughout), a flat cell index (Numba indexes the 3-D array), and the lerp the
 #: reference writes inline in grid_lookup.
 C_ONLY = {"vec3", "vec3g", "dda_cell_index", "lerp_ab",
+          # grid.h: the cell grid_lookup and sparse_lookup share, per axis (the reference's
+          # grid.py writes it in _axis).
+          "voxel_cell", "voxel_axis",
           # kernels/spectrum.h: the kernels' per-channel type is float or float3 by build;
           # the reference always carries RGB tuples (vec.py), so it needs no conversions.
-          "spec_first", "spec_max", "spec_rgb"}
+          "spec_first", "spec_max", "spec_rgb", "spec_s", "spec_u", "spec_add", "spec_sub",
+          "spec_mul", "spec_div", "spec_scale", "spec_sel", "spec_abs", "spec_exp_neg",
+          "spec_one_minus", "rgb_times",
+          # tracking.h: a walk as a record the lanes' one loop advances an event at a time;
+          # track, the reference's twin, is walk_begin then walk_step until the walk ends.
+          "walk_begin", "walk_step",
+          # The lanes' scheduling in integrator.cl: trace_path (the reference's) cut at its
+          # walks, so a lane whose walk ends goes on to its next one, or to a new path,
+          # while the others walk; rng_swap lends a shadow ray's stream to the walk loop.
+          "path_start", "flight_begin", "flight_end", "nee_next", "shadow_add", "shadow_end",
+          "path_bounce", "path_write", "weighted_beta", "rng_swap"}
 
 
 #: Twins whose arguments differ, and why: C passes a grid's shape beside its pointer; Numba
-#: passes the four counter and two key words, and the three channels, that C packs in vectors.
-ARGUMENTS_DIFFER = {"grid_lookup", "philox4x32_10", "sample_ok"}
+#: passes the three channels that C packs in a vector.
+ARGUMENTS_DIFFER = {"grid_lookup", "sample_ok"}
 
 
 def _kernel_signatures():
@@ -29,6 +47,8 @@ def _kernel_signatures():
     integrator.cl."""
     out = {}
     for path in sorted(kernels_dir().glob("*.h")) + [kernels_dir() / "integrator.cl"]:
+        if path.name in LANE_HEADERS:
+            continue
         text = path.read_text()
         for m in re.finditer(r"^(?:static\s+)?inline\s+(?:__attribute__\(\(\w+\)\)\s+)?"
                              r"[\w\s\*]+?\b(\w+)\s*\(([^)]*)\)", text, re.M):

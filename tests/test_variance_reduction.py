@@ -84,7 +84,7 @@ def test_equiangular_inverse_round_trip(h, D, ta, tb):
     assert np.allclose(back, u, atol=1e-9)
 
 
-def test_equiangular_kernel_matches_the_reference():
+def test_equiangular_kernel_matches_the_reference(lanes):
     u = uniforms(9, 0, 0, 2, 4000).astype(np.float32)
     for h, D, ta, tb in EQ_CASES:
         out, ob = out_buf((u.size, 3))
@@ -208,7 +208,7 @@ def test_equiangular_modes():
     assert math.isfinite(equiangular_pdf(0.5, 0.5, 1e-30, 0.0, 1.0))
 
 
-def test_equiangular_on_a_segment_too_short_for_its_angles():
+def test_equiangular_on_a_segment_too_short_for_its_angles(lanes):
     """Found by `volmc bench variance` (3 dropped samples in the lamp in fog): a free flight
     that ends 5e-7 units before the box face leaves a segment whose two angles are equal in
     float32, and the equiangular pdf was D / (0 x ...) = inf, its MIS weight NaN. Such a

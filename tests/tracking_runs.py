@@ -43,12 +43,12 @@ def walks_rgb(backend, technique, use_control, media, grid, rays, n_per_ray, see
                            np.asarray(grid, np.float64), np.asarray(maj, np.float64),
                            np.asarray(mnr, np.float64), rays, n_per_ray, np.uint64(seed),
                            max_steps)
-    from cl_harness import out_buf, run, to_dev
+    from cl_harness import out_buf, run_rays, to_dev
     n = len(rays) * n_per_ray
     t, tb = out_buf(n)
     T, Tb = out_buf(3 * n)
     lk, lb = out_buf(n, np.uint64)
-    run("t_track", n, np.int32(technique), np.int32(use_control),
+    run_rays("t_track", len(rays), n_per_ray, np.int32(technique), np.int32(use_control),
         to_dev(media.astype(medium_dtype(np.float32))), to_dev(np.asarray(grid, np.float32)),
         to_dev(np.asarray(maj, np.float32)), to_dev(np.asarray(mnr, np.float32)),
         to_dev(rays.astype(np.float32).ravel()), np.int32(n_per_ray), np.uint64(seed),

@@ -162,8 +162,18 @@ def _backend_name(backend, device, where):
     return backend
 
 
+def _lanes(lanes, backend, where):
+    """``lanes`` checked (a width of volmc.cl.lanes.LANE_WIDTHS, or None: the default)."""
+    if lanes is None:
+        return None
+    from .cl.lanes import check_lanes
+    if backend != "opencl":
+        raise _error(where, "lanes", "a lane width applies to the opencl backend only")
+    return check_lanes(lanes, where, "lanes")
+
+
 def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=True,
-           client=None, checkpoint=None, checkpoint_every=60.0, resume=None):
+           client=None, checkpoint=None, checkpoint_every=60.0, resume=None, lanes=None):
     """Render a scene; returns a ``RenderedImage`` (``.image``, ``.variance``, ``.save()``).
 
     scene: a Scene (``load_scene``, ``scene_from_dict``), a scene file path or a scene dict.
@@ -171,7 +181,10 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     (default: ``render.seed``). The same scene, spp and seed give the same image, bit for
     bit, on a backend. backend: "opencl" (the kernels) or "numba" (the float64 reference).
     device: OpenCL device, a pyopencl Device or a spec string as for ``--device`` ("pocl",
-    "0:1"; default ``$VOLMC_CL_DEVICE``, else the first PoCL device). progress: show a tqdm
+    "0:1"; default ``$VOLMC_CL_DEVICE``, else the first PoCL device). lanes: OpenCL's paths
+    per work-item, 1, 4, 8 or 16 (default ``$VOLMC_LANES``, else the device's preferred float
+    vector width); the image depends on it only through the vector maths library's
+    rounding, and a checkpoint records it. progress: show a tqdm
     bar on stderr. An interrupt (Ctrl-C, or the notebook's stop button) stops after the
     current chunk and returns the samples so far with ``partial`` True. Raises VolmcError.
     A guard that fired (lookups above the majorant, walks cut by render.max_steps, dropped
@@ -197,6 +210,7 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     if keys:
         scene = scene.with_render(**keys)
     name = _backend_name(backend, device, where)
+    lanes = _lanes(lanes, name, where)
     # As on the command line, a resumed render goes on checkpointing to its file.
     resume = _path(resume, where, "resume", writable=checkpoint is None)
     checkpoint = _path(checkpoint, where, "checkpoint", writable=True) or resume
@@ -215,7 +229,7 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
         # By name: the driver checks the memory the scene needs before it builds the backend.
         result = _render(scene, backend=name, device=device, progress=bool(progress),
                          client=client, checkpoint=checkpoint, checkpoint_every=every,
-                         resume=resume)
+                         resume=resume, lanes=lanes)
     finally:
         if own:
             client.close()
@@ -400,7 +414,8 @@ def _clip(o, d, t_max, lo, hi):
 
 
 def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("inf"),
-                           estimator="auto", n=64, backend="opencl", seed=0, device=None):
+                           estimator="auto", n=64, backend="opencl", seed=0, device=None,
+                           lanes=None):
     """Estimate the transmittance along your own rays with any registered estimator.
 
     scene_or_medium: a Scene (its medium and its majorant structure: ``render.majorant``,
@@ -413,8 +428,8 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     renderer clips its rays, and estimated in the renderer's scene frame (pack.scene_frame).
     estimator: a name in ``volmc.techniques.ESTIMATORS`` ("auto": volmc's choice for a
     fixed ray; "analytic" is exact only in a homogeneous medium). n: estimates per ray.
-    backend: "opencl" or "numba"; seed: in [0, 2^64) (same seed, same estimates); device: as
-    for ``render``. Homogeneous media, and homogeneous majorant cells, are traversed exactly.
+    backend: "opencl" or "numba"; seed: in [0, 2^64) (same seed, same estimates); device,
+    lanes: as for ``render``. Homogeneous media, and homogeneous majorant cells, are traversed exactly.
 
     Returns a ``TransmittanceResult`` (estimates, stderr, lookups, t_enter, t_exit, ...).
     Raises VolmcError.
@@ -438,6 +453,7 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     n = _integer(n, where, "n", 1, 2**31 - 1)
     seed = _integer(seed, where, "seed", 0, 2**64 - 1)
     backend = _backend_name(backend, device, where)
+    lanes = _lanes(lanes, backend, where)
     o, d, t_max = _rays(origins, directions, t_max, where)
     if stores_bricks(scene):   # the runners read dense grids
         scene = scene.with_render(grid_storage="dense")
@@ -460,7 +476,7 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
         start = np.clip(o_local[hit] + t0[hit, None] * d[hit], lo, hi)
         rays = np.zeros((int(hit.sum()), 9))
         rays[:, :3], rays[:, 3:6], rays[:, 7] = start, d[hit], (t1 - t0)[hit]
-        runner = make_runner(backend, estimator, device, chromatic=chromatic)
+        runner = make_runner(backend, estimator, device, chromatic=chromatic, lanes=lanes)
         out, cnt = runner.run(pk.medium, pk.grid, rays, None, n, seed, 0, maj=pk.maj,
                               mnr=pk.mnr, nodes=pk.nodes)
         out = out.reshape((len(rays), n) + shape[1:])

@@ -32,12 +32,13 @@ from .film import Film
 from .params import COUNTER_NAMES
 from .scene.errors import SceneError
 
-#: Bumped when the layout changes; older files are refused with a message saying so.
-FORMAT_VERSION = 1
+#: Bumped when the layout changes; older files are refused with a message saying so. 2: the
+#: lane counters, and the lane width in the identity.
+FORMAT_VERSION = 2
 
 #: What must match for a checkpoint to be resumed, with the words the error uses.
 IDENTITY = (("seed", "seed"), ("sampler", "render.sampler"), ("backend", "backend"),
-            ("grids", "grids"), ("scene_toml", "scene"))
+            ("lanes", "lane width"), ("grids", "grids"), ("scene_toml", "scene"))
 
 
 def grid_hashes(scene):
@@ -53,9 +54,12 @@ def grid_hashes(scene):
     return out
 
 
-def identity(scene, backend):
-    """The identity record of a render of ``scene`` on ``backend`` (a backend name). The
-    scene's render.spp is left out: a render may resume towards more samples."""
+def identity(scene, backend, lanes=None):
+    """The identity record of a render of ``scene`` on ``backend`` (a backend name) at lane
+    width ``lanes`` (OpenCL's; None for Numba). The scene's render.spp is left out: a render
+    may resume towards more samples. The lane width is in: each lane traces its sample's path,
+    but the vector maths library may round differently from the scalar one (README,
+    "Lanes"), so another width need not give the same image bit for bit."""
     import dataclasses
     from .scene.serialize import to_toml
     spec = dataclasses.replace(scene.spec, render=dataclasses.replace(scene.spec.render, spp=1))
@@ -63,7 +67,7 @@ def identity(scene, backend):
     # TOML records where it stands and its shape.
     return {"scene_toml": to_toml(spec, array_as=_array_stand_in), "grids": grid_hashes(scene),
             "seed": str(scene.render.seed), "backend": backend,
-            "sampler": scene.render.sampler}
+            "lanes": lanes, "sampler": scene.render.sampler}
 
 
 def _array_stand_in(a):
@@ -92,11 +96,12 @@ def save(path, film, counters, seconds, ident):
         raise
 
 
-def load(path, scene, backend):
+def load(path, scene, backend, lanes=None):
     """(film, counters dict, seconds) of the checkpoint at ``path``, after checking it is a
-    checkpoint of a render of ``scene`` on ``backend`` (a backend name). Anything else --
-    no such file, not a checkpoint, another format version, another scene, grid, seed,
-    backend or sampler, another resolution -- raises SceneError(path, "--resume", ...)."""
+    checkpoint of a render of ``scene`` on ``backend`` (a backend name) at lane width
+    ``lanes``. Anything else -- no such file, not a checkpoint, another format version,
+    another scene, grid, seed, backend, lane width or sampler, another resolution -- raises
+    SceneError(path, "--resume", ...)."""
     def bad(what):
         return SceneError(path, "--resume", what)
     try:
@@ -110,7 +115,7 @@ def load(path, scene, backend):
     if header.get("format") != FORMAT_VERSION:
         raise bad(f"checkpoint format {header.get('format')}, this volmc reads "
                   f"{FORMAT_VERSION}")
-    want = identity(scene, backend)
+    want = identity(scene, backend, lanes)
     for key, words in IDENTITY:
         if header.get(key) != want[key]:
             if key == "scene_toml":

@@ -84,18 +84,31 @@ def _exposure(text):
     return v
 
 
-def _ladder_arguments(p, repeats):
+def _ladder_arguments(p, repeats, levels="4,16,64", reference_spp=1024):
     """--spp-levels, --reference-spp and --repeats of the speed-against-error benchmarks."""
-    p.add_argument("--spp-levels", default="4,16,64",
-                   help="comma-separated samples per pixel of the timed renders")
-    p.add_argument("--reference-spp", type=_positive_int, default=1024,
-                   help="samples per pixel of the reference (default 1024)")
+    p.add_argument("--spp-levels", default=levels,
+                   help=f"comma-separated samples per pixel of the timed renders (default "
+                        f"{levels})")
+    p.add_argument("--reference-spp", type=_positive_int, default=reference_spp,
+                   help=f"samples per pixel of the reference (default {reference_spp})")
     p.add_argument("--repeats", type=_positive_int, default=repeats,
                    help=f"passes over the spp ladder (default {repeats})")
 
 
+def _lanes(text):
+    from .cl.lanes import check_lanes
+    return check_lanes(text)
+
+
+def _add_lanes_option(parser):
+    parser.add_argument("--lanes", type=_lanes, metavar="W",
+                        help="OpenCL paths per work-item, 1, 4, 8 or 16 (default: $VOLMC_LANES, "
+                             "else the device's preferred float vector width)")
+
+
 def build_parser():
     from .backends import BACKENDS
+    from .cl.lanes import LANE_WIDTHS
     p = _Parser(prog="volmc", description="Monte Carlo volume path tracer")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
@@ -108,6 +121,7 @@ def build_parser():
                    help="render backend (default opencl; numba is the float64 reference)")
     r.add_argument("--device", help="OpenCL device as PLATFORM[:DEVICE] (index or name "
                                     "substring; default: $VOLMC_CL_DEVICE, else PoCL)")
+    _add_lanes_option(r)
     r.add_argument("-D", dest="defines", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a scene key (repeatable), e.g. -D medium.albedo=0.9")
     r.add_argument("--png", nargs="?", const="", default=None, metavar="PATH",
@@ -212,6 +226,19 @@ def build_parser():
     br.add_argument("--baseline", action="append", default=[], metavar="DIR",
                     help="also render with the volmc checkout in DIR (an earlier version, "
                          "OpenCL, the scene's own techniques); repeatable")
+    bl = bsub.add_parser("lanes", help="samples/s and time to equal error per lane width "
+                                       "(paths per work-item) on every shipped scene")
+    bl.add_argument("scenes", nargs="*", help="scene files (default: every shipped scene)")
+    bl.add_argument("--widths", default=",".join(map(str, LANE_WIDTHS)),
+                    help="comma-separated lane widths (default 1,4,8,16)")
+    _ladder_arguments(bl, repeats=2, levels="4,16", reference_spp=256)
+    bl.add_argument("--device", help="OpenCL device (as for render)")
+    bl.add_argument("-D", dest="defines", action="append", default=[],
+                    metavar="SECTION.KEY=VALUE", help="override a key of every scene "
+                                                      "(repeatable)")
+    bl.add_argument("--no-ceiling", action="store_true",
+                    help="skip the raw-lookup ceiling measurement")
+    bl.add_argument("--json", help="also write the reports to this JSON file")
     bv = bsub.add_parser("variance", help="relative efficiency of each variance-reduction "
                                           "switch (sampler, light samples, MIS, equiangular, "
                                           "roulette) against the plain renderer")
@@ -342,7 +369,9 @@ def cmd_render(args):
 
     if args.backend == "opencl":
         from .cl.device import select_device
+        from .cl.lanes import resolve_lanes
         select_device(args.device)   # a bad --device fails before anything is printed
+        resolve_lanes(args.lanes, args.device)   # and so does a bad $VOLMC_LANES
     from .memory import check_memory
     check_memory(scene, args.backend, args.device)   # a render that cannot fit fails now
     if not args.quiet:
@@ -358,7 +387,7 @@ def cmd_render(args):
         res = render(scene, backend=args.backend, progress=False if args.quiet else None,
                      on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
                      checkpoint_every=args.checkpoint_every, resume=args.resume,
-                     client=client, device=args.device)
+                     client=client, device=args.device, lanes=args.lanes)
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
     meta["scene_toml"] = to_toml(scene.spec)
@@ -608,12 +637,37 @@ def cmd_bench_variance(args):
     return 0
 
 
+def cmd_bench_lanes(args):
+    from .bench import lanes
+    from .bench.render import write_json
+    from .cl.device import select_device
+    from .cl.lanes import LANE_WIDTHS
+    from .scene import load_scene
+    widths = [int(w) for w in _list(args.widths, "--widths", tuple(map(str, LANE_WIDTHS)))]
+    levels = _spp_levels(args.spp_levels)
+    if args.json:
+        _check_writable(args.json, "--json")
+    select_device(args.device)   # a bad --device fails before anything is rendered
+    paths = args.scenes or [str(p) for p in lanes.default_scene_paths()]
+    scenes = [load_scene(p, args.defines) for p in paths]   # every bad scene fails now
+    out = {"widths": widths, "scenes": {}}
+    for path, scene in zip(paths, scenes):
+        report = lanes.run_scene(scene, widths, levels, args.reference_spp, args.repeats,
+                                 args.device, not args.no_ceiling, log=lambda s: None)
+        lanes.print_summary(path, report)
+        out["scenes"][path] = report
+    if args.json:
+        write_json(args.json, out)
+    return 0
+
+
 def cmd_bench(args):
+    if args.bench == "lanes":
+        return cmd_bench_lanes(args)
     if args.bench == "transmittance":
         return cmd_bench_transmittance(args)
     if args.bench == "variance":
         return cmd_bench_variance(args)
-        return cmd_bench_transmittance(args)
     if args.bench == "render":
         return cmd_bench_render(args)
     if args.bench == "sparse":
@@ -686,7 +740,12 @@ def cmd_info(args):
             print(f"  device {i}:{j}: {d.name} ({d.version}, driver {d.driver_version}, "
                   f"{d.max_compute_units} compute units, {d.global_mem_size >> 20} MiB)")
     try:
-        print(f"default device: {describe(select_device())}")
+        from .cl.lanes import ENV_VAR as LANES_VAR, device_lanes, resolve_lanes
+        dev = select_device()
+        print(f"default device: {describe(dev)}")
+        print(f"lanes: {resolve_lanes(None, dev)} paths per work-item (the device prefers "
+              f"{dev.preferred_vector_width_float} floats a vector, so "
+              f"{device_lanes(dev)} by default; --lanes or ${LANES_VAR} set it)")
     except SceneError as e:
         print(f"default device: none ({e})")
     print(f"select another with --device PLATFORM[:DEVICE] or ${ENV_VAR}")

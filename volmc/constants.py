@@ -163,6 +163,10 @@ ESTIMATOR_AUTO = 10
 ESTIMATOR_AUTO_SHADOW = 11
 #: Biased ray marching's comb: points per majorant mean free path (ceil(this x sigma_maj L)).
 RAYMARCH_SAMPLES_PER_MFP = 1.0
+#: The most points a comb asks for before an estimator's max_steps cap (comb_count in
+#: medium.py): the largest float32 below 2^31, so the kernels' float-to-int conversion stays
+#: defined.
+COMB_COUNT_LIMIT = 2147483520.0
 
 # --- Multiple importance sampling (volmc/reference/sampling.py) ------------------------------
 

@@ -34,21 +34,22 @@ _WORKER_BACKENDS = {}
 _WORKER_LOCK = threading.Lock()
 
 
-def render_task(scene, token, backend, device, chunk):
+def render_task(scene, token, backend, device, chunk, lanes=None):
     """Runs on a worker: ``render.render_chunk`` of ``chunk`` with the backend of render
-    ``token`` (built on first use in this process). Returns (sum, sum_sq) float64
-    [h, w, 3] of the chunk and the counts int64 [N_COUNTERS] it made."""
+    ``token`` (built on first use in this process, at the client's lane width ``lanes``).
+    Returns (sum, sum_sq) float64 [h, w, 3] of the chunk and the counts int64 [N_COUNTERS]
+    it made."""
     with _WORKER_LOCK:
-        return _render_task(scene, token, backend, device, chunk)
+        return _render_task(scene, token, backend, device, chunk, lanes)
 
 
-def _render_task(scene, token, backend, device, chunk):
+def _render_task(scene, token, backend, device, chunk, lanes):
     from .backends import make_backend
     from .render import render_chunk
     be = _WORKER_BACKENDS.get(token)
     if be is None:
         _WORKER_BACKENDS.clear()   # one render at a time per worker process
-        be = make_backend(backend, scene, device)
+        be = make_backend(backend, scene, device, lanes=lanes)
         be.warm_up()
         _WORKER_BACKENDS[token] = be
     before = np.asarray(be.counter_totals(), np.int64).copy()
@@ -62,12 +63,14 @@ class ClusterChunks:
     chunk's sums to the film in schedule order and yields its samples per pixel (the
     protocol of render.LocalChunks)."""
 
-    def __init__(self, client, scene, backend, device, film, chunks):
+    def __init__(self, client, scene, backend, device, film, chunks, lanes=None):
         from .backends.base import techniques
         self.client, self.scene, self.film = client, scene, film
-        self.backend, self.device = backend, device
+        self.backend, self.device, self.lanes = backend, device, lanes
         self.name = f"{backend} on dask"
         self.techniques = techniques(scene)
+        if lanes is not None:
+            self.techniques["lanes"] = str(lanes)
         self.tasks = chunks
         self.token = uuid.uuid4().hex
         self.counts = np.zeros(len(COUNTER_NAMES), np.int64)
@@ -81,8 +84,8 @@ class ClusterChunks:
         self.scene_future = hold(self.client, self.scene, "volmc-scene")
         self.futures = [
             self.client.submit(render_task, self.scene_future, self.token, self.backend,
-                               self.device, r, key=f"volmc-{self.token}-{i}", retries=3,
-                               pure=False)
+                               self.device, r, self.lanes, key=f"volmc-{self.token}-{i}",
+                               retries=3, pure=False)
             for i, r in enumerate(self.tasks)]
 
     def __iter__(self):

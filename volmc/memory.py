@@ -5,8 +5,9 @@ allocates on the host and on the OpenCL device: the film (float64 sums and squar
 peak of writing the EXR, variance EXR and PNG at the end), the density grid as the backend
 holds it (the scene's float32 copy, the packed copy in the backend's precision, the device
 buffer or brick pool), the emission field, the majorant structure (grid or octree, with its
-build), and the per-launch buffers of one band of pixels (Film counters per pixel, the
-kernel's batch mean and M2, and the host's float64 temporaries). ``check_memory`` compares
+build), and the per-launch buffers of one band of pixels (Numba's counters per pixel; the
+OpenCL kernel's samples, at most ``params.launch_spp`` per pixel, their host copy and the
+host's float64 temporaries). ``check_memory`` compares
 the sums with the host memory available (``host_available``: $VOLMC_MEMORY_LIMIT, else
 /proc/meminfo MemAvailable, else os.sysconf) and, for OpenCL, with the device's
 global_mem_size and max_mem_alloc_size (one buffer may not exceed it), and raises the
@@ -26,7 +27,7 @@ import math
 from dataclasses import dataclass
 
 from .scene.hostmem import ENV_VAR, fmt_bytes, host_available, parse_size  # noqa: F401
-from .params import N_COUNTERS
+from .params import N_COUNTERS, launch_spp
 from .scene.errors import SceneError
 
 #: Per-launch buffers of one band at most this many bytes...
@@ -41,12 +42,15 @@ FILM_BYTES_PER_PIXEL = 2 * 3 * 8
 #: (74 B/pixel with --variance) or the PNG (the mean, its 8-bit copy and matplotlib's RGBA:
 #: about 64 B/pixel). Measured with tracemalloc on a 512^2 film (tests/test_memory.py).
 OUTPUT_BYTES_PER_PIXEL = 80
-#: Per pixel of a launch: the per-pixel counters (int64 or uint64).
+#: Numba, per pixel of a launch: the per-pixel counters (int64).
 COUNTER_BYTES_PER_PIXEL = N_COUNTERS * 8
-#: OpenCL, per pixel of a launch: batch mean and M2 (float32 x 3 each) on the device and
-#: their host copies, and the host's float64 temporaries of the accumulation (about 4).
-CL_BATCH_BYTES_PER_PIXEL = 2 * 3 * 4
-CL_TEMP_BYTES_PER_PIXEL = 4 * 3 * 8
+#: OpenCL, per sample of a launch (the kernel writes every sample, kernels/integrator.cl):
+#: float32 RGB on the device and its host copy, and the host's float64 temporaries of the
+#: accumulation (the samples and their squares). The per-work-item counters are a few bytes
+#: per sample more, counted with the samples.
+CL_SAMPLE_BYTES = 3 * 4
+CL_TEMP_BYTES_PER_SAMPLE = 2 * 3 * 8
+CL_COUNTER_BYTES_PER_SAMPLE = 1
 
 
 
@@ -102,12 +106,15 @@ def _emission_key(scene):
     return "medium.emission.field" if e.radiance is not None else "medium.emission.temperature"
 
 
-def launch_bytes_per_pixel(backend):
-    """(host, device) bytes per pixel of one launch of ``backend``."""
+def launch_bytes_per_pixel(backend, width, height):
+    """(host, device, largest device buffer) bytes per pixel of one launch of ``backend``
+    for a width x height image: OpenCL keeps every sample of a launch, of which a pixel has
+    at most ``params.launch_spp`` (the render's batch schedule)."""
     if backend == "numba":
-        return COUNTER_BYTES_PER_PIXEL, 0
-    return (COUNTER_BYTES_PER_PIXEL + CL_BATCH_BYTES_PER_PIXEL + CL_TEMP_BYTES_PER_PIXEL,
-            COUNTER_BYTES_PER_PIXEL + CL_BATCH_BYTES_PER_PIXEL)
+        return COUNTER_BYTES_PER_PIXEL, 0, 0
+    spp = launch_spp(width * height)
+    return (spp * (CL_SAMPLE_BYTES + CL_TEMP_BYTES_PER_SAMPLE),
+            spp * (CL_SAMPLE_BYTES + CL_COUNTER_BYTES_PER_SAMPLE), spp * CL_SAMPLE_BYTES)
 
 
 def band_rows(width, height, backend, available=None, max_alloc=None):
@@ -116,13 +123,13 @@ def band_rows(width, height, backend, available=None, max_alloc=None):
     buffer, ``max_alloc``; at least one row."""
     if available is None:
         available = host_available()[0]
-    host, device = launch_bytes_per_pixel(backend)
+    host, device, buffer = launch_bytes_per_pixel(backend, width, height)
     budget = LAUNCH_BUDGET
     if available is not None:
         budget = min(budget, available // LAUNCH_FRACTION)
     pixels = budget // (host + device)
-    if max_alloc is not None and device:
-        pixels = min(pixels, max_alloc // COUNTER_BYTES_PER_PIXEL)   # the largest buffer
+    if max_alloc is not None and buffer:
+        pixels = min(pixels, max_alloc // buffer)   # the largest buffer
     return int(max(1, min(height, pixels // max(width, 1))))
 
 
@@ -211,12 +218,11 @@ def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
     if scene_data:
         comps += _density_components(scene, backend)
         comps += _emission_components(scene, backend)
-    host, device = launch_bytes_per_pixel(backend)
+    host, device, buffer = launch_bytes_per_pixel(backend, w, h)
     px = rows * w
     comps.append(Component("camera.resolution",
                            f"the launch buffers of {rows} row{'s' if rows > 1 else ''}",
-                           host=px * host, device=px * device,
-                           buffer=px * COUNTER_BYTES_PER_PIXEL if device else 0))
+                           host=px * host, device=px * device, buffer=px * buffer))
     return Estimate(comps, rows, h, device_is_host)
 
 

@@ -78,7 +78,30 @@ LIGHT_FIELDS = (
     ("color", "real", 3, "directional: irradiance; point: intensity (per steradian)"),
 )
 
-#: Counter slots accumulated per pixel by every backend.
+#: Samples (pixels x samples per pixel) per batch once the render's schedule has ramped up
+#: (volmc/render.py, batch_schedule): about a second of work at the default scene's speed,
+#: so Ctrl-C answers within about a second. A launch renders at most one batch.
+BATCH_SAMPLES = 1 << 16
+
+
+def launch_spp(n_pixels):
+    """The most samples per pixel one batch (and so one launch) of an n-pixel image holds."""
+    return max(1, BATCH_SAMPLES // max(n_pixels, 1))
+
+
+#: One launch of the OpenCL render kernel (kernels/integrator.cl, render_batch): which pixels
+#: and samples it renders and how they are cut among work-items.
+LAUNCH_FIELDS = (
+    ("pix_start", "u4", 1, "first pixel of the launch (row-major index)"),
+    ("n_pix", "u4", 1, "pixels of the launch"),
+    ("sample_start", "u4", 1, "first sample index of every pixel"),
+    ("n_samples", "u4", 1, "samples per pixel of the launch"),
+    ("jobs_per_item", "u4", 1, "samples (pixel, sample) each work-item renders"),
+    ("rec_capacity", "i4", 1, "segments recorded per pixel (0: not recording)"),
+)
+
+#: Counter slots accumulated by every backend (the lane counters by the OpenCL kernels only:
+#: the reference is one path at a time).
 COUNTER_NAMES = (
     "lookups",          # density lookups
     "scatter_events",   # real scattering events (sum of path lengths)
@@ -86,9 +109,20 @@ COUNTER_NAMES = (
     "dropped",          # NaN/Inf/negative sample contributions caught and dropped
     "over_majorant",    # lookups whose extinction exceeded the majorant
     "shadow_rays",      # transmittance estimates for next-event estimation
+    "lane_rounds",      # iterations of the lane-generic kernels' tracking loop (per work-item)
+    "lane_active",      # lanes active in those iterations, summed (occupancy: / (rounds x W))
 )
-C_LOOKUPS, C_SCATTER, C_CAPPED, C_DROPPED, C_OVER_MAJORANT, C_SHADOW = range(len(COUNTER_NAMES))
+(C_LOOKUPS, C_SCATTER, C_CAPPED, C_DROPPED, C_OVER_MAJORANT, C_SHADOW, C_LANE_ROUNDS,
+ C_LANE_ACTIVE) = range(len(COUNTER_NAMES))
 N_COUNTERS = len(COUNTER_NAMES)
+#: The counters of the lanes' work rather than of the samples: they depend on how a render's
+#: samples are grouped into launches (its batches), which a resumed render may change.
+LANE_COUNTERS = ("lane_rounds", "lane_active")
+
+
+def sample_counts(counters):
+    """A {counter: count} dict without LANE_COUNTERS: the counts the samples decide."""
+    return {k: v for k, v in counters.items() if k not in LANE_COUNTERS}
 
 
 def _dtype(fields, real):
@@ -107,6 +141,11 @@ def params_dtype(real=np.float64):
 def medium_dtype(real=np.float64):
     """Structured dtype of the medium record with reals of type ``real``."""
     return _dtype(MEDIUM_FIELDS, real)
+
+
+def launch_dtype():
+    """Structured dtype of the launch record (no reals)."""
+    return _dtype(LAUNCH_FIELDS, np.float32)
 
 
 def light_dtype(real=np.float64):

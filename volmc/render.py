@@ -21,12 +21,7 @@ import numpy as np
 from .backends import make_backend
 from .film import Film
 from .memory import check_memory
-from .params import COUNTER_NAMES
-
-#: Samples (pixels x samples per pixel) per batch once the schedule has ramped up: about a
-#: second of work at the default scene's speed, so Ctrl-C answers within about a second.
-BATCH_SAMPLES = 1 << 16
-
+from .params import BATCH_SAMPLES, COUNTER_NAMES, launch_spp  # noqa: F401 (re-exported)
 
 def batch_schedule(n_pixels, spp, start=0):
     """Samples per pixel of each batch: 1, 2, 4, ... up to BATCH_SAMPLES / n_pixels.
@@ -34,7 +29,7 @@ def batch_schedule(n_pixels, spp, start=0):
     start: samples per pixel already done (a resumed render); the batches returned cover
     [start, spp) and are the schedule's own batches from there on (the rest of the batch
     ``start`` falls in first, when it is not at a batch boundary)."""
-    cap = max(1, BATCH_SAMPLES // max(n_pixels, 1))
+    cap = launch_spp(n_pixels)
     out, size, done = [], 1, 0
     while done < spp:
         n = min(size, cap, spp - done)
@@ -101,7 +96,7 @@ class RenderResult:
         """Derived statistics: samples/s, mean path length, lookups per sample, counters."""
         n = self.film.width * self.film.height * self.film.spp
         c = self.counters
-        return {
+        out = {
             "samples": n,
             "samples_per_second": n / self.seconds if self.seconds > 0 else float("nan"),
             "mean_path_length": c["scatter_events"] / max(n, 1),
@@ -111,6 +106,13 @@ class RenderResult:
             "dropped_contributions": c["dropped"],
             "lookups_over_majorant": c["over_majorant"],
         }
+        # OpenCL: the lane width and the lanes' occupancy, the mean fraction of them active
+        # in an iteration of the tracking loop.
+        lanes = int(self.techniques.get("lanes", 0))
+        if lanes and c.get("lane_rounds"):
+            out["lanes"] = lanes
+            out["lane_occupancy"] = c["lane_active"] / (c["lane_rounds"] * lanes)
+        return out
 
     def guard_warnings(self):
         """One message per guard that fired during the render (lookups above the majorant,
@@ -162,7 +164,7 @@ class _StopFlag:
 
 def render(scene, backend="opencl", spp=None, progress=None, on_start=None, checkpoint=None,
            checkpoint_every=60.0, resume=None, client=None, device=None,
-           chunk_samples=CHUNK_SAMPLES, band_rows=None):
+           chunk_samples=CHUNK_SAMPLES, band_rows=None, lanes=None):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
@@ -176,7 +178,9 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     name, ``device`` the OpenCL device there) and the image is the same bit for bit.
     chunk_samples: the chunk size of ``chunk_schedule``; progress, Ctrl-C and checkpoints
     act between chunks. band_rows: rows of pixels per launch of a backend made here (None:
-    volmc.memory.band_rows).
+    volmc.memory.band_rows). lanes: OpenCL's paths per work-item (None:
+    volmc.cl.lanes.resolve_lanes here, also for a cluster, whose workers render with it); it
+    is part of a checkpoint's identity.
 
     Before any work, ``volmc.memory.check_memory`` raises SceneError (naming the key, the
     memory needed and the memory there is) when the render would not fit; given a backend
@@ -194,17 +198,23 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     else:
         check_memory(scene, backend.name, getattr(backend, "device", None),
                      getattr(backend, "band_rows", None), scene_data=False)
+    if name == "opencl":
+        from .cl.lanes import resolve_lanes
+        lanes = backend.lanes if not isinstance(backend, str) else \
+            resolve_lanes(lanes, None if client is not None else device)
+    else:
+        lanes = None
     w, h = scene.camera.resolution
     film, prior, elapsed = Film(w, h), dict.fromkeys(COUNTER_NAMES, 0), 0.0
     if resume is not None:
-        film, prior, elapsed = ckpt.load(resume, scene, name)
-    ident = ckpt.identity(scene, name) if checkpoint is not None else None
+        film, prior, elapsed = ckpt.load(resume, scene, name, lanes)
+    ident = ckpt.identity(scene, name, lanes) if checkpoint is not None else None
     chunks = chunk_schedule(w * h, spp, film.spp, chunk_samples)
     if client is not None:
         from .distributed import ClusterChunks
-        runner = ClusterChunks(client, scene, name, device, film, chunks)
+        runner = ClusterChunks(client, scene, name, device, film, chunks, lanes)
     else:
-        be = (make_backend(backend, scene, device, band_rows=band_rows)
+        be = (make_backend(backend, scene, device, band_rows=band_rows, lanes=lanes)
               if isinstance(backend, str) else backend)
         runner = LocalChunks(be, film, chunks)
     runner.warm_up()

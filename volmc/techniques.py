@@ -52,6 +52,16 @@ class Estimator:
     #: whether a render's samples can be negative (None: ``signed``; "auto" renders with
     #: tracking estimators, which never are)
     render_signed: bool = None
+    #: the TRACK_* technique of ``function`` and of ``shadow_function`` where they are
+    #: techniques of the one tracking loop (-1: a per-segment estimator): the render kernel
+    #: walks such shadow rays in the same loop as its free flights (SHADOW_TECHNIQUE)
+    track: int = -1
+    shadow_track: int = -1
+
+    @property
+    def shadow_technique(self):
+        """The TRACK_* technique of the shadow rays of scattering paths, or -1."""
+        return self.shadow_track if self.shadow_function else self.track
 
     @property
     def signed_in_renders(self):
@@ -95,16 +105,16 @@ _RECORDS = (
               homogeneous_only=True, chromatic=True,
               summary="exp(-sigma L) per majorant segment: exact on homogeneous segments only"),
     Estimator("track_length", C.ESTIMATOR_TRACK_LENGTH, "transmittance_track_length", True,
-              chromatic=True,
+              chromatic=True, track=C.TRACK_LENGTH,
               summary="delta tracking: 1 if the walk escapes, 0 at the first real collision"),
     Estimator("ratio", C.ESTIMATOR_RATIO, "transmittance_ratio_tracking", True,
-              chromatic=True,
+              chromatic=True, track=C.TRACK_RATIO,
               summary="ratio tracking: product of (1 - mu / sigma_maj) over tentative collisions"),
     Estimator("residual_ratio", C.ESTIMATOR_RESIDUAL_RATIO, "transmittance_residual_ratio", True,
-              chromatic=True,
+              chromatic=True, track=C.TRACK_RESIDUAL_RATIO,
               summary="residual ratio tracking with each segment's minorant as control"),
     Estimator("next_flight", C.ESTIMATOR_NEXT_FLIGHT, "transmittance_next_flight", True,
-              chromatic=True,
+              chromatic=True, track=C.TRACK_NEXT_FLIGHT,
               summary="next-flight ratio tracking: every vertex adds the chance to escape"),
     Estimator("biased_raymarch", C.ESTIMATOR_BIASED_RAYMARCH, "transmittance_biased_raymarch",
               False, chromatic=True,
@@ -129,6 +139,7 @@ _RECORDS = (
                       "cannot scatter residual ratio tracking; on a fixed ray unbiased ray "
                       "marching (grey) or telescoping (colour)",
               shadow_function="transmittance_auto_shadow", shadow_id=C.ESTIMATOR_AUTO_SHADOW,
+              shadow_track=C.TRACK_AUTO,
               view_function="transmittance_residual_ratio",
               view_id=C.ESTIMATOR_RESIDUAL_RATIO, render_signed=False),
 )

@@ -28,10 +28,13 @@ VALUES = BAD + GOOD
 
 _SOURCE = """
 #include "params.h"
+#include "lane_io.h"
 #include "guards.h"
-kernel void t_sample_ok(global const float *c, int signed_samples, global int *out) {
-    int i = get_global_id(0);
-    out[i] = sample_ok(vload3(i, c), signed_samples);
+kernel void t_sample_ok(global const float *c, int signed_samples, global int *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lmask ok = sample_ok(load_float3(c, i, 3, 0), signed_samples);
+    store_uint((global uint *)out, i, 1, 0, as_luint(ok & 1), on);
 }
 """
 
@@ -53,7 +56,7 @@ def _samples():
 
 
 @pytest.mark.parametrize("options", [(), (FAST_MATH,)], ids=["default", "fast-relaxed-math"])
-def test_case20_opencl_guard_survives_fast_math(options):
+def test_case20_opencl_guard_survives_fast_math(options, lanes):
     """robustness case 20, OpenCL: sample_ok (kernels/guards.h) built with and without
     -cl-fast-relaxed-math rejects NaN, +-Inf and negative channels (unless signed) and keeps
     zeros, -0.0, subnormals and the largest finite values; then whole renders with NaN, +Inf
@@ -72,14 +75,15 @@ def test_case20_opencl_guard_survives_fast_math(options):
 
     for env in ([math.nan] * 3, [math.inf, 1.0, 1.0], [1.0, -1.0, 1.0]):
         scene = scene_from_dict(_furnace())
-        be = OpenCLBackend(scene, options=options)
+        be = OpenCLBackend(scene, options=options, lanes=lanes)
         be.params[0]["env"] = env
         res = render(scene, backend=be, progress=False)
         n = res.film.spp * 16
         assert res.counters["dropped"] == n, (env, res.counters)
         assert np.all(res.film.mean() == 0.0)
     scene = scene_from_dict(_furnace(spp=128))
-    res = render(scene, backend=OpenCLBackend(scene, options=options), progress=False)
+    res = render(scene, backend=OpenCLBackend(scene, options=options, lanes=lanes),
+                 progress=False)
     _check_furnace(res)
 
 

@@ -128,7 +128,7 @@ def _case6_grid():
     return 0.2 + np.random.default_rng(61).random((8, 8, 8)) ** 2
 
 
-def test_case06_dda_degenerate_rays_never_stall_or_skip(backend):
+def test_case06_dda_degenerate_rays_never_stall_or_skip(backend, lanes):
     """robustness case 6: for axis-parallel rays, rays with -0.0 components, rays starting on box
     faces, corners and voxel faces, and rays lying in faces or edges, over majorant grids of
     8^3, 4^3 and 3 x 5 x 2 cells: the DDA segments tile [t0, t1] exactly (first enters at
@@ -216,7 +216,7 @@ def _estimate(backend, name, med, grid, rays, bounds, n):
     return OpenCLEstimator(name).run(med, grid, rays, bounds, n, 81)
 
 
-def test_case08_all_zero_grid_functions(backend):
+def test_case08_all_zero_grid_functions(backend, lanes):
     """robustness case 8, function level: in an all-zero grid every majorant cell is empty, so
     delta tracking over the majorant grid escapes every walk with zero lookups, and every
     transmittance estimator of the registry given the (zero) majorant returns exactly 1 with

@@ -18,6 +18,7 @@ from test_sampling import _exp_samples, _hg_samples
 from volmc.reference.phase import hg_sample, hg_sample_cos
 from volmc.reference.rng import uniforms
 
+
 AXIS = np.array([0.36, -0.48, 0.8])   # unit, not aligned with any coordinate axis
 CASE1_G = [0.0, 1e-6, -1e-6, 1e-4, -1e-4, 1e-3, -1e-3, 0.6, -0.6, 0.9, -0.9, 0.99, -0.99,
            0.999, -0.999]
@@ -60,7 +61,7 @@ def hg_survival(dirs, axis, g):
     return (1 + g) * omc / ((sd + 1 - g) * sd)
 
 
-def test_case01_hg_chi_square_and_mean_cosine(backend):
+def test_case01_hg_chi_square_and_mean_cosine(backend, lanes):
     """robustness case 1: HG sampling at g in {0, +-1e-6, +-1e-4, +-1e-3, +-0.6, +-0.9, +-0.99,
     +-0.999} passes a chi-square test over (HG CDF of cos, phi) cells with equal expectations
     (40 x 20 cells, 10^6 samples), and the sample mean of cos equals g within the Sidak bound.
@@ -87,7 +88,7 @@ def test_case01_hg_chi_square_and_mean_cosine(backend):
 
 
 @pytest.mark.parametrize("g", [0.95, -0.95])
-def test_case01_hg_forward_backward_ratio(backend, g):
+def test_case01_hg_forward_backward_ratio(backend, g, lanes):
     """robustness case 1: at g = +-0.95 the fraction of forward samples (cos > 0) equals the
     closed-form S(0) = (1 + g) / ((sqrt(1 + g^2) + 1 - g) sqrt(1 + g^2)) (0.989 at g = 0.95,
     0.011 at -0.95), so the forward/backward ratio is right and a sign slip at negative g,
@@ -117,7 +118,7 @@ def _hg_exact(c, s, g):
     return (1 - g) * (1 + g) / (4 * math.pi * D * math.sqrt(D))
 
 
-def test_case02_hg_extreme_g_and_u(backend):
+def test_case02_hg_extreme_g_and_u(backend, lanes):
     """robustness case 2: g in {+-0.9999, +-(1 - 2^-24)} (and tiny g +-1e-6, +-1e-12, where a
     naive inversion divides by g) with u in {0, 2^-24, 0.5, 1 - 2^-24}: cos in [-1, 1],
     sin in [0, 1], cos^2 + sin^2 = 1; the direction is finite and unit, at angle (cos, sin)
@@ -177,7 +178,7 @@ def _kernel_exponential(u, a):
     return out[:, 0].astype(np.float64), out[:, 1].astype(np.float64)
 
 
-def test_case03_uniforms_never_one(backend):
+def test_case03_uniforms_never_one(backend, lanes):
     """robustness case 3: uniforms are never exactly 1.0, even for the largest Philox word (where
     uint32 * 2^-32 rounds to 1.0 in float32): that draw gives 1 - 2^-24 and a finite
     exponential distance 24 ln 2 / a; 2^20 draws of each of 4 streams lie in [0, 1)."""
@@ -199,7 +200,7 @@ def test_case03_uniforms_never_one(backend):
         assert u.min() >= 0.0 and u.max() < 1.0 and np.all(np.isfinite(u))
 
 
-def test_case03_exponential_distances_ks(backend):
+def test_case03_exponential_distances_ks(backend, lanes):
     """robustness case 3: exponential distances -log(1 - u) / a from the generator's uniforms pass
     a Kolmogorov-Smirnov test against Exp(a) at rates a in {1e-3, 2.5, 1e3} (2 * 10^5
     samples each, Sidak over the rates); all are finite and >= 0."""

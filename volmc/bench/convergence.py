@@ -35,13 +35,15 @@ from ..render import batch_schedule
 @dataclass(frozen=True)
 class Config:
     """One renderer configuration. Backends "mitsuba" (the peer) and "baseline" (an earlier
-    volmc at ``path``, rendering the scene as it is written) ignore the technique fields."""
+    volmc at ``path``, rendering the scene as it is written) ignore the technique fields;
+    ``lanes`` is OpenCL's lane width (0: the default)."""
     backend: str
     majorant: str = ""
     free_flight: str = ""
     transmittance: str = ""
     path: str = ""
     spectral: str = ""
+    lanes: int = 0
 
     @property
     def name(self):
@@ -50,7 +52,13 @@ class Config:
         if self.backend == "baseline":
             return f"baseline {self.path}"
         name = f"{self.backend} {self.majorant} {self.free_flight} {self.transmittance}"
-        return f"{name} {self.spectral}" if self.spectral else name
+        name = f"{name} {self.spectral}" if self.spectral else name
+        return f"{name} W{self.lanes}" if self.lanes else name
+
+    @property
+    def ceiling_key(self):
+        """The key of this configuration's lookup ceiling (``lookups.lookup_ceiling``)."""
+        return f"{self.backend} W{self.lanes}" if self.lanes else self.backend
 
 
 def unbiased_grid_estimators():
@@ -116,7 +124,8 @@ def config_scene(scene, cfg):
 class _VolmcRunner:
     def __init__(self, scene, cfg, device):
         self.scene = config_scene(scene, cfg)
-        self.be = make_backend(cfg.backend, self.scene, device)
+        self.be = make_backend(cfg.backend, self.scene, device, lanes=cfg.lanes or None)
+        self.lanes = getattr(self.be, "lanes", 0)
         self.be.warm_up()
         w, h = self.scene.camera.resolution
         self.w, self.h = w, h
@@ -135,8 +144,10 @@ class _ClusterRunner:
     from submission to the last merge, so scheduling and transfer are in the figure."""
 
     def __init__(self, scene, cfg, device, client):
+        from ..cl.lanes import resolve_lanes
         self.scene = config_scene(scene, cfg)
         self.cfg, self.device, self.client = cfg, device, client
+        self.lanes = resolve_lanes(cfg.lanes or None) if cfg.backend == "opencl" else 0
         self.w, self.h = self.scene.camera.resolution
         self.next_sample = 0
         self.render(1)  # the workers build their backends: not measured
@@ -149,7 +160,7 @@ class _ClusterRunner:
         chunks = chunk_schedule(self.w * self.h, start + spp, start)
         t = time.perf_counter()
         runner = ClusterChunks(self.client, self.scene, self.cfg.backend, self.device, film,
-                               chunks)
+                               chunks, self.lanes or None)
         runner.warm_up()
         for n in runner:
             film.spp += n
@@ -274,7 +285,7 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
         spp_total = sum(p["spp"] for p in pts)
         row = {"name": cfg.name, "backend": cfg.backend, "majorant": cfg.majorant,
                "free_flight": cfg.free_flight, "transmittance": cfg.transmittance,
-               "points": pts, "mse_seconds": c,
+               "lanes": cfg.lanes, "points": pts, "mse_seconds": c,
                "samples_per_second": pixels * spp_total / secs}
         if pts[0]["lookups"] is not None:
             row["guards"] = guard_totals(pts)
@@ -282,9 +293,16 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
             row["lookups_per_sample"] = lk / (pixels * spp_total)
             row["lookups_per_second"] = lk / secs
             row["segments_per_camera_ray"] = segments[cfg.majorant]
-            if ceiling and cfg.backend in ceiling:
+            if ceiling and cfg.ceiling_key in ceiling:
                 row["fraction_of_lookup_ceiling"] = row["lookups_per_second"] / ceiling[
-                    cfg.backend]
+                    cfg.ceiling_key]
+            # The lanes' occupancy: the mean fraction active per iteration of the walk loop.
+            w = getattr(runners[cfg], "lanes", 0)
+            rounds = sum(p["counters"]["lane_rounds"] for p in pts)
+            if w and rounds:
+                row["lanes"] = w
+                row["lane_occupancy"] = sum(p["counters"]["lane_active"]
+                                            for p in pts) / (rounds * w)
         results.append(row)
     for runner in runners.values():
         if hasattr(runner, "close"):

@@ -77,10 +77,12 @@ def camera_segments(scene):
 class OpenCLLookups:
     """The lookup kernel built for one device, bound to one grid and its segments."""
 
-    def __init__(self, grid, bmin, bmax, segs, device=None, local_size=1):
+    def __init__(self, grid, bmin, bmax, segs, device=None, local_size=1, lanes=None):
         from ..cl.context import cl_context
+        from ..cl.lanes import resolve_lanes
         self.clc = cl_context(device)
-        prg, _ = self.clc.program("bench.cl")
+        self.lanes = resolve_lanes(lanes, self.clc.device)
+        prg, _ = self.clc.program("bench.cl", [f"-DLANES={self.lanes}"])
         self.kernel = self.clc.kernel(prg, "lookup_throughput")
         g = np.ascontiguousarray(grid, np.float32)
         nz, ny, nx = g.shape
@@ -94,18 +96,21 @@ class OpenCLLookups:
         self.local_size = local_size
 
     def sums(self, n_lookups, passes, seed):
-        self.clc.run(self.kernel, self.n, self.local_size, self.grid_buf, self.dims, self.bmin,
+        items = -(-self.n // self.lanes)
+        self.clc.run(self.kernel, items, self.local_size, self.grid_buf, self.dims, self.bmin,
                      self.bmax, self.seg_buf, np.uint32(n_lookups), np.uint32(passes),
-                     np.uint32(seed), self.out_buf, outs=[(self.out, self.out_buf)])
+                     np.uint32(seed), self.out_buf, np.int32(self.n),
+                     outs=[(self.out, self.out_buf)])
         return self.out.copy()
 
 
 def lookup_ceiling(scene, backends=("opencl", "numba"), lookups_per_backend=1 << 24,
-                   n_lookups=64, repeats=3, device=None):
+                   n_lookups=64, repeats=3, device=None, lanes=None):
     """{backend: lookups per second}: median of ``repeats`` timed launches of about
     ``lookups_per_backend`` lookups each (first launch, with compilation, not timed). OpenCL
     is timed at work-group size 1 (the renderer's) and at the driver's choice; the faster
-    counts, as a ceiling should."""
+    counts, as a ceiling should. OpenCL's lookups run at lane width ``lanes`` (None: the
+    renderer's default), so a render's fraction of the ceiling compares like with like."""
     segs, bmin, bmax = camera_segments(scene)
     if len(segs) == 0:
         return {}
@@ -114,7 +119,7 @@ def lookup_ceiling(scene, backends=("opencl", "numba"), lookups_per_backend=1 <<
     runners = {}
     if "opencl" in backends:
         for ls in (1, None):
-            r = OpenCLLookups(scene.grid, bmin, bmax, segs, device, local_size=ls)
+            r = OpenCLLookups(scene.grid, bmin, bmax, segs, device, local_size=ls, lanes=lanes)
             runners[("opencl", ls)] = lambda seed, r=r: r.sums(n_lookups, passes, seed)
     if "numba" in backends:
         g64 = np.ascontiguousarray(scene.grid, np.float64)

@@ -190,19 +190,22 @@ def bench_sums(kind, grid, table, pool, dims, bmin, bmax, bricks, mode, n_items,
 
 # --- OpenCL ----------------------------------------------------------------------------------
 
-def lookup_options(kind):
-    """Build options of kernels/bench_sparse.cl for lookup ``kind`` (an index of LOOKUPS)."""
-    return (f"-DLOOKUP_KIND={kind}",)
+def lookup_options(kind, lanes=1):
+    """Build options of kernels/bench_sparse.cl for lookup ``kind`` (an index of LOOKUPS)
+    at lane width ``lanes``."""
+    return (f"-DLOOKUP_KIND={kind}", f"-DLANES={lanes}")
 
 
 class OpenCLSparseBench:
     """kernels/bench_sparse.cl built for each lookup kind, with the grid uploaded once."""
 
-    def __init__(self, grid, table, pool, bricks, bmin, bmax, device=None):
+    def __init__(self, grid, table, pool, bricks, bmin, bmax, device=None, lanes=None):
         from ..cl.context import cl_context
+        from ..cl.lanes import resolve_lanes
         self.clc = cl_context(device)
+        self.lanes = resolve_lanes(lanes, self.clc.device)
         self.kernels = [self.clc.kernel(self.clc.program("bench_sparse.cl",
-                                                         lookup_options(k))[0],
+                                                         lookup_options(k, self.lanes))[0],
                                         "sparse_bench") for k in range(len(LOOKUPS))]
         nz, ny, nx = grid.shape
         self.dims = np.array([nx, ny, nz, 0], np.int32)
@@ -215,9 +218,10 @@ class OpenCLSparseBench:
 
     def sums(self, kind, mode, n_items, n_per_item, seed):
         out, ob = self.clc.output(n_items)
-        self.clc.run(self.kernels[kind], n_items, None, *self.bufs, self.dims, self.bmin,
-                     self.bmax, self.bricks, self.n_bricks, np.int32(mode),
-                     np.uint32(n_per_item), np.uint32(seed), ob, outs=[(out, ob)])
+        self.clc.run(self.kernels[kind], -(-n_items // self.lanes), None, *self.bufs, self.dims,
+                     self.bmin, self.bmax, self.bricks, self.n_bricks, np.int32(mode),
+                     np.uint32(n_per_item), np.uint32(seed), ob, np.int32(n_items),
+                     outs=[(out, ob)])
         return out
 
 

@@ -90,13 +90,16 @@ class OpenCLEstimator:
 
     backend = "opencl"
 
-    def __init__(self, name, device=None, chromatic=False, shadow=False):
+    def __init__(self, name, device=None, chromatic=False, shadow=False, lanes=None):
         from ..cl.context import cl_context
+        from ..cl.lanes import resolve_lanes
         self.est = ESTIMATORS[name]
         self.chromatic = chromatic
         self.clc = cl_context(device)
+        self.lanes = resolve_lanes(lanes, self.clc.device)
         self.program, _ = self.clc.program("estimators.cl",
-                                           estimator_options(name, chromatic, shadow))
+                                           estimator_options(name, chromatic, shadow)
+                                           + [f"-DLANES={self.lanes}"])
         self.kernel = self.clc.kernel(self.program, "estimate_batch")
 
     def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
@@ -107,18 +110,20 @@ class OpenCLEstimator:
         n = len(rays) * n_per_ray
         out, ob = clc.output((n, 3) if self.chromatic else n, np.float32)
         cnt, cb = clc.output((n, N_COUNTERS), np.uint64)
-        clc.run(self.kernel, n, 1, clc.to_device(media), clc.to_device(grid, np.float32),
-                clc.to_device(maj), clc.to_device(mnr), clc.to_device(nodes),
-                clc.to_device(rays, np.float32), np.int32(n_per_ray),
-                np.uint64(seed), np.uint32(sample_offset), np.int32(MAX_STEPS), ob, cb,
-                outs=[(out, ob), (cnt, cb)])
+        clc.run_rays(self.kernel, len(rays), n_per_ray, self.lanes, clc.to_device(media),
+                     clc.to_device(grid, np.float32), clc.to_device(maj), clc.to_device(mnr),
+                     clc.to_device(nodes), clc.to_device(rays, np.float32), np.int32(n_per_ray),
+                     np.uint64(seed), np.uint32(sample_offset), np.int32(MAX_STEPS), ob, cb,
+                     outs=[(out, ob), (cnt, cb)])
         return out.astype(np.float64), cnt.astype(np.int64)
 
 
-def estimator(backend, name, device=None, chromatic=False, shadow=False):
-    """The runner of estimator ``name`` on ``backend`` ("numba" or "opencl")."""
-    return (NumbaEstimator if backend == "numba" else OpenCLEstimator)(name, device, chromatic,
-                                                                      shadow)
+def estimator(backend, name, device=None, chromatic=False, shadow=False, lanes=None):
+    """The runner of estimator ``name`` on ``backend`` ("numba" or "opencl"; ``lanes``: its
+    lane width, None: the default)."""
+    if backend == "numba":
+        return NumbaEstimator(name, device, chromatic, shadow)
+    return OpenCLEstimator(name, device, chromatic, shadow, lanes)
 
 
 def run_numba(name, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0,

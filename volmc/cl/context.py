@@ -65,6 +65,18 @@ class ClContext:
         self.queue.finish()
         return [h for h, _ in outs]
 
+    def run_lanes(self, kernel, n, lanes, *args, outs=()):
+        """Launch a lane-generic test or benchmark kernel (kernels/lane_io.h,
+        ``lane_element``) over a batch of n elements at lane width ``lanes``: ceil(n / lanes)
+        work-items of work-group size 1, with n appended as the last argument."""
+        return self.run(kernel, -(-int(n) // lanes), 1, *args, np.int32(n), outs=outs)
+
+    def run_rays(self, kernel, n_rays, n_per_ray, lanes, *args, outs=()):
+        """Launch a lane-generic kernel over batches of rays (``ray_lanes`` in
+        kernels/lane_io.h): ceil(n_per_ray / lanes) work-items per ray, so the lanes of a
+        work-item share a ray and its medium."""
+        return self.run(kernel, int(n_rays) * -(-int(n_per_ray) // lanes), 1, *args, outs=outs)
+
     def read(self, host, buf):
         """Copy a device buffer into ``host`` and wait."""
         self.cl.enqueue_copy(self.queue, host, buf)

@@ -38,7 +38,7 @@ def c_literal(value):
 
 def params_header():
     """Text of the generated ``params.h``: every constant of volmc/constants.py, the counter
-    indices, and the Params and Light structs."""
+    indices, and the Params, Medium, Light and Launch structs."""
     out = ["/* Generated from volmc/constants.py and volmc/params.py by volmc/cl/structs.py: "
            "do not edit. */", "#ifndef VOLMC_PARAMS_H", "#define VOLMC_PARAMS_H", ""]
     consts = dict(kernel_constants())
@@ -47,7 +47,8 @@ def params_header():
     for k, v in consts.items():
         out.append(f"#define {k} {c_literal(v)}")
     out += ["", c_struct("Params", P.PARAM_FIELDS), "", c_struct("Medium", P.MEDIUM_FIELDS), "",
-            c_struct("Light", P.LIGHT_FIELDS), "", "#endif", ""]
+            c_struct("Light", P.LIGHT_FIELDS), "", c_struct("Launch", P.LAUNCH_FIELDS), "",
+            "#endif", ""]
     return "\n".join(out)
 
 

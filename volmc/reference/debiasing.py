@@ -30,7 +30,8 @@ from ..constants import (JACKKNIFE_GROUPS, JACKKNIFE_SAMPLES_PER_MFP, TELESCOPE_
                          TELESCOPE_MAX_LEVEL, TELESCOPE_SAMPLES_PER_MFP)
 from ..params import C_CAPPED
 from .guards import finite_bits
-from .medium import extinction, medium_chroma, optical_depth_comb, segment_degenerate
+from .medium import (comb_count, extinction, medium_chroma, optical_depth_comb,
+                     segment_degenerate)
 from .rng import rng_next
 from .tracking import ONE3
 from .vec import exp_neg3, madd3
@@ -90,7 +91,7 @@ def telescoping_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps)
     if segment_degenerate(L, mbar, counters, max_steps, 1):
         return ONE3
     k = medium_chroma(med)
-    n = max(1, int(math.ceil(TELESCOPE_SAMPLES_PER_MFP * mbar * L)))
+    n = comb_count(TELESCOPE_SAMPLES_PER_MFP * mbar * L)
     v = 1.0 - rng_next(rng)
     capped = n > max_steps
     if capped:
@@ -164,7 +165,7 @@ def jackknife_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
     g = JACKKNIFE_GROUPS
     if segment_degenerate(L, mbar, counters, max_steps, g):
         return ONE3
-    m = max(1, int(math.ceil(JACKKNIFE_SAMPLES_PER_MFP * mbar * L / g)))
+    m = comb_count(JACKKNIFE_SAMPLES_PER_MFP * mbar * L / g)
     if g * m > max_steps:
         counters[C_CAPPED] += 1
         m = max_steps // g

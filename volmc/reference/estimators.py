@@ -43,7 +43,8 @@ from ..constants import (ESTIMATOR_ANALYTIC, ESTIMATOR_AUTO, ESTIMATOR_AUTO_SHAD
                          TRACK_LENGTH,
                          TRACK_NEXT_FLIGHT, TRACK_RATIO, TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, N_COUNTERS
-from .medium import (ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next,
+from .medium import (ITER_STATE_SIZE, MediumData, comb_count, majorant_iter_init,
+                     majorant_next,
                      medium_chroma, no_field_arrays, optical_depth_comb)
 from .debiasing import jackknife_segment, telescoping_segment
 from .power_series import power_series_segment, unbiased_raymarch_segment
@@ -62,7 +63,7 @@ def biased_raymarch_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_st
     L = max(t1 - t0, 0.0)
     if mbar <= 0.0 or L <= 0.0:
         return ONE3
-    n = max(1, int(math.ceil(RAYMARCH_SAMPLES_PER_MFP * mbar * L)))
+    n = comb_count(RAYMARCH_SAMPLES_PER_MFP * mbar * L)
     if n > max_steps:
         counters[C_CAPPED] += 1
         n = max_steps

@@ -282,6 +282,22 @@ def point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t):
     return mis_weight(prm.mis, free_flight_pdf(m, t0, t), equiangular_pdf(t, h, D, t0, t1))
 
 
+@njit(cache=True, inline="always")
+def light_ray(prm, m, ea, kind, c, o, d, t0, t1, t):
+    """The ray of next-event estimation towards a light of type ``kind`` at c (a
+    directional light's propagation direction, or a point light's position) from the vertex
+    p = o + t d of segment [t0, t1]. Returns (wl, dist, falloff): the unit direction, the
+    distance (inf for a directional light) and the falloff (1, or a point light's MIS
+    weight over the squared distance); falloff 0: this light sends nothing to p (it sits at
+    p, or equiangular sampling alone covers it)."""
+    if kind == LIGHT_DIRECTIONAL:
+        return (-c[0], -c[1], -c[2]), math.inf, 1.0
+    wl, dist = direction_to(madd3(o, d, t), c)
+    if not dist > 0.0:
+        return wl, dist, 0.0
+    return wl, dist, point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t) / (dist * dist)
+
+
 @njit(cache=True)
 def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, counters):
     """Direct light scattered at p = o + t d towards -d, per unit throughput (RGB). The
@@ -302,18 +318,10 @@ def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, 
     L = (0.0, 0.0, 0.0)
     for i in range(prm.n_lights):
         lt = lights[i]
-        c = (lt.vec[0], lt.vec[1], lt.vec[2])
-        if lt.type == LIGHT_DIRECTIONAL:
-            wl = (-c[0], -c[1], -c[2])
-            dist = math.inf
-            falloff = 1.0
-        else:
-            wl, dist = direction_to(p, c)
-            if not dist > 0.0:
-                continue
-            falloff = point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t) / (dist * dist)
-            if falloff <= 0.0:
-                continue
+        wl, dist, falloff = light_ray(prm, m, ea, lt.type, (lt.vec[0], lt.vec[1], lt.vec[2]),
+                                      o, d, t0, t1, t)
+        if not falloff > 0.0:
+            continue
         f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * falloff * inv_n
         for _ in range(n):
             tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)

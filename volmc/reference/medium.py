@@ -51,7 +51,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from ..constants import (BLACKBODY_TABLE_SIZE, DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_COSINE,
+from ..constants import (BLACKBODY_TABLE_SIZE, COMB_COUNT_LIMIT, DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_COSINE,
                          DENSITY_GAUSS_BUMP, DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP,
                          EMISSION_RADIANCE, MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
                          TWO_PI)
@@ -190,6 +190,14 @@ def majorant_next(it, med):
     if not m.sigma_maj > 0.0:
         return False, 0.0, 0.0, 0.0, 0.0
     return True, it[1], it[2], m.sigma_maj, m.sigma_min
+
+
+@njit(cache=True, inline="always")
+def comb_count(x):
+    """The points of a comb asked for x of them: ceil(x), at least 1, and at most
+    COMB_COUNT_LIMIT (the largest float32 below 2^31: float-to-int conversion past it is
+    undefined in the kernels; every estimator caps its points at max_steps anyway)."""
+    return max(1, int(math.ceil(min(x, COMB_COUNT_LIMIT))))
 
 
 @njit(cache=True, inline="always")
