@@ -24,7 +24,7 @@ static inline void dda_init(Dda *state, lvec3 o, lvec3 d, lfloat t0, lfloat t1, 
     state->t = select(state->t, t0, active);
     state->t1 = select(state->t1, t1, active);
     state->done = select(state->done, !(t1 > t0), active);
-    for (int a = 0; a < 3; ++a) {
+    LANE_UNROLL for (int a = 0; a < 3; ++a) {
         float size = (hi[a] - lo[a]) / (float)n[a];
         lfloat p = oa[a] + t0 * da[a];
         lint i = clamp(to_lint(floor((p - lo[a]) / size)), 0, n[a] - 1);
@@ -64,14 +64,14 @@ static inline lmask dda_next(Dda *state, lfloat *t_enter, lfloat *t_exit, lint3 
     lmask step = go & !end;
     lint i = (lint)(0);
     lint n = (lint)(0);
-    for (int a = 0; a < 3; ++a) {
+    LANE_UNROLL for (int a = 0; a < 3; ++a) {
         i = select(i, state->i[a] + state->step[a], axis[a]);
         n = select(n, (lint)(na[a]), axis[a]);
     }
     /* Rounding left the grid early: the last cell ends the segment (dda.py). */
     lmask out = step & (i < 0 || i >= n);
     lmask move = step & !out;
-    for (int a = 0; a < 3; ++a) {
+    LANE_UNROLL for (int a = 0; a < 3; ++a) {
         state->i[a] = select(state->i[a], i, move & axis[a]);
         state->tnext[a] = select(state->tnext[a], state->tnext[a] + state->dt[a],
                                  move & axis[a]);

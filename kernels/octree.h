@@ -24,7 +24,7 @@ static inline void octree_init(OctreeWalk *state, lvec3 o, lvec3 d, lfloat t0, l
     state->t = select(state->t, t0, active);
     state->t1 = select(state->t1, t1, active);
     state->done = select(state->done, !(t1 > t0), active);
-    for (int a = 0; a < 3; ++a) {
+    LANE_UNROLL for (int a = 0; a < 3; ++a) {
         state->o[a] = select(state->o[a], oa[a], active);
         state->d[a] = select(state->d[a], da[a], active);
         float size = (hi[a] - lo[a]) / (float)n;
@@ -56,7 +56,7 @@ static inline lmask octree_next(OctreeWalk *state, global const int *children, f
     int n = 1 << depth;
     lmask exit_axis[3];
     lfloat t_face = (lfloat)(FLT_MAX); /* finite-math-only builds may fold infinities */
-    for (int a = 0; a < 3; ++a) {
+    LANE_UNROLL for (int a = 0; a < 3; ++a) {
         lfloat da = state->d[a];
         lint lo = (state->i[a] >> span_log) << span_log;
         lint face = select(lo, lo + span, da > 0.0f);
@@ -75,14 +75,14 @@ static inline lmask octree_next(OctreeWalk *state, global const int *children, f
     lmask end = go & (te >= state->t1);
     lmask step = go & !end;
     lint i = (lint)(0);
-    for (int a = 0; a < 3; ++a) {
+    LANE_UNROLL for (int a = 0; a < 3; ++a) {
         lint lo = (state->i[a] >> span_log) << span_log;
         i = select(i, select(lo - 1, lo + span, state->d[a] > 0.0f), exit_axis[a]);
     }
     /* Rounding left the box early: the last leaf ends the segment (octree.py). */
     lmask out = step & (i < 0 || i >= n);
     lmask move = step & !out;
-    for (int a = 0; a < 3; ++a) {
+    LANE_UNROLL for (int a = 0; a < 3; ++a) {
         lfloat db = state->d[a];
         lint cur = state->i[a];
         lint lb = (cur >> span_log) << span_log;
