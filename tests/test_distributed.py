@@ -66,6 +66,24 @@ def test_cluster_render_equals_single_process(cluster):
     assert a.counters == b.counters and b.film.spp == 300
 
 
+def test_cluster_renders_at_the_clients_lane_width(cluster):
+    """The workers build at the lane width the client chose, whatever their own default (a
+    worker's $VOLMC_LANES here): the image is the local one at that width bit for bit, and
+    another width on the client gives its own."""
+    _, client = cluster
+    scene = load_scene(default_scene(), SMALL)
+    client.run(lambda: os.environ.__setitem__("VOLMC_LANES", "16"))
+    try:
+        for lanes in (4, 1):
+            a = render(scene, backend="opencl", spp=40, progress=False, lanes=lanes)
+            b = render(scene, backend="opencl", spp=40, progress=False, client=client,
+                       lanes=lanes)
+            np.testing.assert_array_equal(a.film.sum, b.film.sum)
+            assert a.counters == b.counters and b.techniques["lanes"] == str(lanes)
+    finally:
+        client.run(lambda: os.environ.pop("VOLMC_LANES", None))
+
+
 def test_api_render_on_the_cluster(cluster):
     """volmc.render(client=Client) and volmc.render(client="tcp://...") (a client opened
     and closed for the call) give the single-process image bit for bit."""

@@ -66,7 +66,10 @@ def print_summary(path, report, log=print):
     for s in report["summary"]:
         occ = s["lane_occupancy"]
         frac = s["fraction_of_lookup_ceiling"]
+        tee = s["time_to_equal_error_vs_first"]
+        # A scene rendered without noise (RMSE 0 at every spp) has no time to equal error.
+        tee = f"{tee:19.2f}x" if tee == tee else f"{'none (RMSE 0)':>20s}"
         log(f"  {s['lanes']:3d} {s['samples_per_second']:11.0f} {s['speed_vs_first']:6.2f}x "
-            f"{s['time_to_equal_error_vs_first']:19.2f}x "
+            f"{tee} "
             f"{'' if occ is None else f'{100 * occ:9.0f}%':>10s} "
             f"{'' if frac is None else f'{100 * frac:10.1f}%':>11s} {s['rmse_last']:10.3e}")
