@@ -14,45 +14,16 @@ agreement with volmc ("chromatic") skips while volmc's scene format has no RGB s
 
 import dataclasses
 
-import json
-import subprocess
-import sys
-import textwrap
-
 import numpy as np
 import pytest
 
+from peer_common import (assert_passes_match, assert_peer_cli_error_when_hidden, needs_peer,
+                         peer_scene, run_peer_cli, slab_scene)
 from volmc.peers import compare
 from volmc.peers.mitsuba import PeerUnavailable, find_libllvm, probe
 from volmc.scene import Scene, SceneError, scene_from_dict
 
-try:
-    MITSUBA = probe()
-    REASON = ""
-except PeerUnavailable as e:
-    MITSUBA, REASON = None, str(e)
-
-needs_mitsuba = pytest.mark.skipif(MITSUBA is None, reason=f"peer absent: {REASON}")
-
-
-def _scene(camera=None, medium=None, render=None, lights=None):
-    raw = {
-        "camera": {"eye": [0.3, 0.4, 4.0], "target": [0.0, 0.0, 0.0], "fov": 40.0,
-                   "resolution": [24, 16]},
-        "medium": {"bounds": [[-1.0, -0.5, -0.8], [1.2, 1.0, 0.6]],
-                   "density": {"generator": "cloud", "resolution": 20, "seed": 3},
-                   "scale": 12.0, "albedo": [0.9, 0.7, 0.5],
-                   "phase": {"type": "hg", "g": 0.6}},
-        "lights": lights or [
-            {"type": "environment", "radiance": [0.2, 0.3, 0.5]},
-            {"type": "directional", "direction": [-0.6, -0.55, -0.6],
-             "irradiance": [3.0, 2.8, 2.5]},
-            {"type": "point", "position": [0.5, 2.0, 1.0], "intensity": [4.0, 3.0, 2.0]}],
-        "render": {"spp": 256, "max_depth": -1},
-    }
-    for key, part in (("camera", camera), ("medium", medium), ("render", render)):
-        raw[key].update(part or {})
-    return scene_from_dict(raw)
+needs_mitsuba, MITSUBA = needs_peer(probe)
 
 
 def _with_scale(scene, scale):
@@ -72,28 +43,29 @@ def _chromatic():
     forward single scatters in its thin fringe outweigh the pixel many times over, beyond
     what the peer's rule-of-three variance floor allows for (false failures)."""
     try:
-        return _scene(camera={"fov": 28.0, "target": [0.1, 0.25, -0.1]},
-                      medium={"scale": [30.0, 15.0, 6.0], "albedo": 0.9},
-                      lights=[{"type": "environment", "radiance": [0.2, 0.3, 0.5]},
-                              {"type": "directional", "direction": [-0.6, -0.55, -0.6],
-                               "irradiance": [3.0, 2.8, 2.5]}])
+        return peer_scene(camera={"fov": 28.0, "target": [0.1, 0.25, -0.1]},
+                          medium={"scale": [30.0, 15.0, 6.0], "albedo": 0.9},
+                          lights=[{"type": "environment", "radiance": [0.2, 0.3, 0.5]},
+                                  {"type": "directional", "direction": [-0.6, -0.55, -0.6],
+                                   "irradiance": [3.0, 2.8, 2.5]}])
     except SceneError as e:
         return e
 
 
 CASES = {
     # Multiple scattering in a grid of non-cubic bounds, all three light types.
-    "grid": _scene(),
+    "grid": peer_scene(),
     # Single scattering with backward HG: pins the depth offset and the HG sign.
-    "single_scatter": _scene(medium={"phase": {"type": "hg", "g": -0.5}},
-                             render={"max_depth": 1}),
+    "single_scatter": peer_scene(medium={"phase": {"type": "hg", "g": -0.5}},
+                                 render={"max_depth": 1}),
     # Orthographic camera at a wide aspect ratio: pins the size convention.
-    "orthographic": _scene(camera={"type": "orthographic", "size": 2.5,
-                                   "resolution": [28, 14]}, render={"max_depth": 6}),
+    "orthographic": peer_scene(camera={"type": "orthographic", "size": 2.5,
+                                       "resolution": [28, 14]}, render={"max_depth": 6}),
     # Camera inside a homogeneous medium (Mitsuba must be told its medium).
-    "camera_inside": _scene(camera={"eye": [0.1, 0.2, 0.3], "target": [1.0, 0.0, -1.0],
-                                    "fov": 70.0, "resolution": [16, 16]},
-                            medium={"density": 1.0, "scale": 1.5, "phase": {"type": "isotropic"}}),
+    "camera_inside": peer_scene(camera={"eye": [0.1, 0.2, 0.3], "target": [1.0, 0.0, -1.0],
+                                        "fov": 70.0, "resolution": [16, 16]},
+                                medium={"density": 1.0, "scale": 1.5,
+                                        "phase": {"type": "isotropic"}}),
     # Extinction 30, 15 and 6 x density in red, green and blue, HG multiple scattering.
     "chromatic": _chromatic(),
 }
@@ -167,31 +139,6 @@ def test_wrong_chromatic_translation_is_detected(wrong, monkeypatch):
     assert not agr.passed, agr.summary("Mitsuba")
 
 
-def _slab(tmp_path, density):
-    """An absorbing slab 0.5 thick along the view axis, seen by an orthographic camera against
-    an environment of radiance 1: every pixel is exp(-tau). density: a number, or the density
-    along z of a grid that is constant across x and y (clamped trilinear interpolation)."""
-    raw = {"camera": {"type": "orthographic", "eye": [0.0, 0.0, 3.0], "size": 1.2,
-                      "resolution": [8, 8]},
-           "medium": {"bounds": [[-1.0, -1.0, -0.25], [1.0, 1.0, 0.25]], "albedo": 0.0,
-                      "density": density},
-           "lights": [{"type": "environment", "radiance": 1.0}],
-           "render": {"spp": 256, "max_depth": -1}}
-    if isinstance(density, list):
-        grid = np.repeat(np.repeat(np.asarray(density, np.float32)[:, None, None], 2, 1), 2, 2)
-        np.save(tmp_path / "slab.npy", grid)
-        raw["medium"]["density"] = {"file": "slab.npy"}
-        n = len(density)
-        # Optical depth per unit scale: the piecewise-linear profile between voxel centres,
-        # flat in the half voxels at either face (trapezoids are exact on it).
-        u = [0.0] + [(k + 0.5) / n for k in range(n)] + [1.0]
-        v = [density[0]] + list(density) + [density[-1]]
-        depth = 0.5 * sum((u[k + 1] - u[k]) * (v[k] + v[k + 1]) / 2 for k in range(n + 1))
-    else:
-        depth = 0.5 * density
-    return scene_from_dict(raw, base_dir=str(tmp_path)), depth
-
-
 @needs_mitsuba
 @pytest.mark.parametrize("split", [False, True], ids=["rgb_scene", "grey_per_channel"])
 @pytest.mark.parametrize("density", [0.1, [0.1, 0.05, 0.15, 0.1]], ids=["constant", "grid"])
@@ -200,21 +147,15 @@ def test_mitsuba_chromatic_absorber_matches_closed_form(tmp_path, density, split
     (homogeneous sigma_t, 3-channel grid) and the grey scene per channel both give
     exp(-scale[c] * optical depth) per channel. Student's t over 16 passes, Sidak over the
     three channels at 1 %."""
-    from scipy import stats
     from volmc.peers.mitsuba import MitsubaRenderer
     scale = np.array([30.0, 15.0, 6.0])
-    grey, depth = _slab(tmp_path, density)
+    grey, depth = slab_scene(tmp_path, density)
     scene = _with_scale(grey, scale)
     peer = MitsubaRenderer(scene, split_channels=split)
     assert peer.split == split
     _, _, _, pass_means = peer.render(256, seed=5, passes=16)
     exact = np.exp(-scale * depth)
-    se = pass_means.std(axis=0, ddof=1) / np.sqrt(len(pass_means))
-    t = (pass_means.mean(axis=0) - exact) / np.maximum(se, 1e-12)
-    p = 2.0 * stats.t.sf(np.abs(t), len(pass_means) - 1)
-    assert p.min() >= 1.0 - 0.99 ** (1 / 3), (pass_means.mean(axis=0), exact, t)
-    # ...and close in absolute terms, so that a wild spread cannot pass the t-test.
-    assert np.all(np.abs(pass_means.mean(axis=0) - exact) < 0.1 * exact)
+    assert_passes_match(pass_means, exact)
 
 
 @needs_mitsuba
@@ -237,49 +178,12 @@ def test_grey_rgb_scale_is_translated_as_a_float_scale(name):
 
 @needs_mitsuba
 def test_peer_cli_reports_agreement_and_speed(tmp_path):
-    scene = tmp_path / "s.toml"
-    scene.write_text(textwrap.dedent("""
-        [camera]
-        eye = [0.3, 0.4, 4.0]
-        fov = 40.0
-        resolution = [16, 16]
-        [medium]
-        bounds = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
-        density = 1.0
-        scale = 2.0
-        albedo = 0.8
-        phase = { type = "hg", g = 0.3 }
-        [[lights]]
-        type = "environment"
-        radiance = 0.5
-        [render]
-        spp = 64
-    """))
-    out = tmp_path / "r.json"
-    p = subprocess.run([sys.executable, "-m", "volmc.cli", "peer", "mitsuba", str(scene),
-                        "--reference-spp", "256", "--json", str(out), "--images", str(tmp_path)],
-                       capture_output=True, text=True)
-    assert p.returncode == 0, p.stdout + p.stderr
-    rep = json.loads(out.read_text())
-    assert rep["agreement"]["passed"] and rep["spp"] == 64 and rep["reference_spp"] == 256
-    assert rep["volmc"]["rmse"] > 0 and rep["mitsuba"]["rmse"] > 0
-    assert rep["equal_error_time_ratio"] > 0
-    assert (tmp_path / "mitsuba.exr").is_file() and (tmp_path / "reference.exr").is_file()
+    run_peer_cli("mitsuba", tmp_path)
 
 
 def test_peer_cli_without_mitsuba_is_one_line_error(tmp_path):
     """With Mitsuba hidden, the CLI says why in one line and exits 2."""
-    hide = tmp_path / "hide"
-    hide.mkdir()
-    (hide / "mitsuba.py").write_text("raise ImportError('hidden for the test')\n")
-    import os
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(hide)] + sys.path))
-    p = subprocess.run([sys.executable, "-m", "volmc.cli", "peer", "mitsuba", "--spp", "1"],
-                       capture_output=True, text=True, env=env)
-    assert p.returncode == 2
-    lines = p.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("volmc: error: command line: peer:")
-    assert "volmc[peers]" in lines[0] and "Traceback" not in p.stderr
+    assert_peer_cli_error_when_hidden("mitsuba", tmp_path, "mitsuba", "volmc[peers]")
 
 
 def test_emissive_medium_is_refused():

@@ -160,8 +160,9 @@ def build_parser():
     sub.add_parser("info", help="list OpenCL platforms and devices and the kernel cache")
 
     pe = sub.add_parser("peer", help="render a scene with volmc and with a peer renderer "
-                                     "(Mitsuba 3): agreement and speed against error")
-    pe.add_argument("peer", choices=["mitsuba"], help="the peer renderer")
+                                     "(Mitsuba 3, Blender Cycles): agreement and speed "
+                                     "against error")
+    pe.add_argument("peer", choices=["mitsuba", "cycles"], help="the peer renderer")
     pe.add_argument("scene", nargs="?", help="scene .toml (default: the bundled cloud scene)")
     pe.add_argument("--spp", type=_positive_int, help="samples per pixel of both renders "
                                                       "(default: the scene's)")
@@ -176,7 +177,7 @@ def build_parser():
                     metavar="SECTION.KEY=VALUE", help="override a scene key (repeatable)")
     pe.add_argument("--json", help="write the report to this JSON file")
     pe.add_argument("--images", metavar="DIR",
-                    help="write volmc.exr, mitsuba.exr (and reference.exr) into DIR")
+                    help="write volmc.exr, PEER.exr (and reference.exr) into DIR")
 
     b = sub.add_parser("bench", help="benchmarks (speed of backends, builds, work-group sizes)")
     bsub = b.add_subparsers(dest="bench", required=True, parser_class=_Parser)
@@ -213,8 +214,10 @@ def build_parser():
     br.add_argument("--transmittances", default=None,
                     help="shadow-ray estimators (default: every unbiased grid estimator; "
                          "'scene' = the scene's own)")
-    br.add_argument("--peer", choices=["mitsuba", "none", "auto"], default="auto",
-                    help="include Mitsuba 3 (auto: when it can run; mitsuba: required)")
+    br.add_argument("--peer", choices=["mitsuba", "cycles", "all", "none", "auto"],
+                    default="auto",
+                    help="include peer renderers (auto: every one that can run; mitsuba, "
+                         "cycles or all: required)")
     _ladder_arguments(br, repeats=1)
     br.add_argument("--device", help="OpenCL device (as for render)")
     br.add_argument("-D", dest="defines", action="append", default=[],
@@ -437,8 +440,7 @@ def cmd_check(args):
 
 
 def cmd_peer(args):
-    from .peers import compare_with_mitsuba
-    from .peers.mitsuba import PeerUnavailable
+    from .peers import PeerUnavailable, compare_with_peer
     from .resources import default_scene
     from .scene import load_scene
     if args.reference_spp is not None and args.reference_spp < 0:
@@ -450,10 +452,10 @@ def cmd_peer(args):
         raise SceneError("command line", "--images", f"not a directory: {args.images}")
     scene_path = str(default_scene()) if args.scene is None else args.scene
     scene = load_scene(scene_path, args.defines)   # rejects a box of zero thickness
-    print(f"volmc peer mitsuba: {scene_path}", flush=True)
+    print(f"volmc peer {args.peer}: {scene_path}", flush=True)
     try:
-        report, images = compare_with_mitsuba(scene, args.spp, args.passes, args.reference_spp,
-                                              args.device)
+        report, images = compare_with_peer(args.peer, scene, args.spp, args.passes,
+                                           args.reference_spp, args.device)
     except PeerUnavailable as e:
         raise SceneError("command line", "peer", str(e)) from None
     if args.json:
@@ -570,21 +572,21 @@ def cmd_bench_render(args):
         from .techniques import ESTIMATORS
         exact = [n for n, e in ESTIMATORS.items() if e.homogeneous_only]
         ests = (exact if homogeneous else []) + cv.unbiased_grid_estimators()
-    peer = args.peer != "none"
-    if peer:
-        from .peers.mitsuba import PeerUnavailable, check_translatable, probe
-        try:
-            version = probe()
-            check_translatable(scene)
-            print(f"peer: Mitsuba {version}", flush=True)
-        except PeerUnavailable as e:
-            if args.peer == "mitsuba":
-                raise SceneError("command line", "--peer", str(e)) from None
-            print(f"peer: none ({e})", flush=True)
-            peer = False
+    peers = []
+    if args.peer != "none":
+        from .peers import PEERS, available
+        wanted = list(PEERS) if args.peer in ("auto", "all") else [args.peer]
+        for name in wanted:
+            version, why = available(name, scene)
+            if version is None and args.peer != "auto":
+                raise SceneError("command line", "--peer", why)
+            print(f"peer: {PEERS[name][0]} " + (version if version else f"none ({why})"),
+                  flush=True)
+            if version:
+                peers.append(name)
     spectrals = ([""] if args.spectral is None else
                  _list(args.spectral, "--spectral", SPECTRAL_MODES))
-    configs = cv.make_configs(backends, majorants, flights, ests, peer, args.baseline,
+    configs = cv.make_configs(backends, majorants, flights, ests, peers, args.baseline,
                               spectrals)
     w, h = scene.camera.resolution
     print(f"volmc bench render: {scene_path}: {w}x{h}, {len(configs)} configurations",

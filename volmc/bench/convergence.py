@@ -1,7 +1,8 @@
 """Speed against error: RMSE as a function of wall time for every render configuration.
 
-A configuration is backend x majorant x free-flight x shadow-ray estimator (and the Mitsuba 3
-peer when it can run). Each one renders the scene at a ladder of sample counts; every render
+A configuration is backend x majorant x free-flight x shadow-ray estimator (and the peers,
+Mitsuba 3 and Blender Cycles, when they can run). A peer's time is its tracing time; Cycles'
+scene sync, which every Cycles render repeats, is recorded apart ("sync_seconds"). Each one renders the scene at a ladder of sample counts; every render
 is timed (compilation excluded: each renderer is built and launched once before timing) and
 its RMSE is taken against a high-spp reference rendered by volmc with an independent seed.
 The reference's own noise adds its mean variance of the mean to every MSE; that known amount
@@ -34,8 +35,8 @@ from ..render import batch_schedule
 
 @dataclass(frozen=True)
 class Config:
-    """One renderer configuration. Backends "mitsuba" (the peer) and "baseline" (an earlier
-    volmc at ``path``, rendering the scene as it is written) ignore the technique fields;
+    """One renderer configuration. Backends "mitsuba", "cycles" (peers) and "baseline" (an
+    earlier volmc at ``path``, rendering the scene as it is written) ignore the technique fields;
     ``lanes`` is OpenCL's lane width (0: the default)."""
     backend: str
     majorant: str = ""
@@ -49,6 +50,8 @@ class Config:
     def name(self):
         if self.backend == "mitsuba":
             return "mitsuba volpath"
+        if self.backend == "cycles":
+            return "cycles cpu"
         if self.backend == "baseline":
             return f"baseline {self.path}"
         name = f"{self.backend} {self.majorant} {self.free_flight} {self.transmittance}"
@@ -67,13 +70,18 @@ def unbiased_grid_estimators():
     return [n for n, e in ESTIMATORS.items() if e.unbiased and not e.homogeneous_only]
 
 
-def make_configs(backends, majorants, free_flights, transmittances, peer, baselines=(),
+#: Backends of configurations rendered by another renderer than volmc.
+PEER_BACKENDS = ("mitsuba", "cycles")
+NOT_VOLMC = PEER_BACKENDS + ("baseline",)
+
+
+def make_configs(backends, majorants, free_flights, transmittances, peers=(), baselines=(),
                  spectrals=("",)):
-    """Every combination of the technique lists; a spectral mode "" keeps the scene's."""
+    """Every combination of the technique lists; a spectral mode "" keeps the scene's;
+    ``peers``: names of peer renderers to add (volmc.peers.PEERS)."""
     out = [Config(b, m, f, t, spectral=sp) for b in backends for m in majorants
            for f in free_flights for t in transmittances for sp in spectrals]
-    if peer:
-        out.append(Config("mitsuba"))
+    out += [Config(p) for p in (peers or ())]
     out += [Config("baseline", path=str(p)) for p in baselines]
     return out
 
@@ -217,17 +225,26 @@ def mse_seconds(points, spp_levels):
     return math.exp(float(np.mean([math.log(p["rmse"] ** 2 * p["seconds"]) for p in fit])))
 
 
-class _MitsubaRunner:
-    def __init__(self, scene):
-        from ..peers.mitsuba import MitsubaRenderer
-        self.r = MitsubaRenderer(scene)
+class _PeerRunner:
+    def __init__(self, name, scene):
+        from ..peers import make_renderer
+        self.r = make_renderer(name, scene)
         self.r.warm_up()
         self.seed = 1000
+
+    @property
+    def sync_seconds(self):
+        """The peer's scene sync in its last render (Cycles), else None."""
+        return getattr(self.r, "last_sync_seconds", None)
 
     def render(self, spp):
         self.seed += 1
         mean, _, sec, _ = self.r.render(spp, seed=self.seed)
         return mean, sec, None
+
+    def close(self):
+        if hasattr(self.r, "close"):
+            self.r.close()
 
 
 def guard_totals(points):
@@ -250,8 +267,8 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
     runners = {}
     for cfg in configs:
         t = time.perf_counter()
-        if cfg.backend == "mitsuba":
-            runners[cfg] = _MitsubaRunner(scene)
+        if cfg.backend in PEER_BACKENDS:
+            runners[cfg] = _PeerRunner(cfg.backend, scene)
         elif cfg.backend == "baseline":
             from .baseline import BaselineRunner
             runners[cfg] = BaselineRunner(cfg.path, scene.file, defines)
@@ -262,7 +279,7 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
         log(f"  {cfg.name}: ready in {time.perf_counter() - t:.1f} s")
 
     segments = {c.majorant: segments_per_camera_ray(scene, c.majorant) for c in configs
-                if c.backend not in ("mitsuba", "baseline")}
+                if c.backend not in NOT_VOLMC}
     points = {cfg: [] for cfg in configs}
     order = list(configs)
     for rep in range(repeats):
@@ -273,6 +290,9 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
                 points[cfg].append({"spp": spp, "seconds": sec, "rmse": e,
                                     "lookups": counts and counts["lookups"],
                                     "counters": counts})
+                sync = getattr(runners[cfg], "sync_seconds", None)
+                if sync is not None:
+                    points[cfg][-1]["sync_seconds"] = sync
             order = order[1:] + order[:1]
         log(f"  repetition {rep + 1}/{repeats} done")
 
@@ -287,6 +307,8 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
                "free_flight": cfg.free_flight, "transmittance": cfg.transmittance,
                "lanes": cfg.lanes, "points": pts, "mse_seconds": c,
                "samples_per_second": pixels * spp_total / secs}
+        if "sync_seconds" in pts[0]:
+            row["sync_seconds"] = sum(p["sync_seconds"] for p in pts)
         if pts[0]["lookups"] is not None:
             row["guards"] = guard_totals(pts)
             lk = sum(p["lookups"] for p in pts)
@@ -297,17 +319,17 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
                 row["fraction_of_lookup_ceiling"] = row["lookups_per_second"] / ceiling[
                     cfg.ceiling_key]
             # The lanes' occupancy: the mean fraction active per iteration of the walk loop.
-            w = getattr(runners[cfg], "lanes", 0)
+            lanes = getattr(runners[cfg], "lanes", 0)
             rounds = sum(p["counters"]["lane_rounds"] for p in pts)
-            if w and rounds:
-                row["lanes"] = w
+            if lanes and rounds:
+                row["lanes"] = lanes
                 row["lane_occupancy"] = sum(p["counters"]["lane_active"]
-                                            for p in pts) / (rounds * w)
+                                            for p in pts) / (rounds * lanes)
         results.append(row)
     for runner in runners.values():
         if hasattr(runner, "close"):
             runner.close()
-    best = min((r for r in results if r["backend"] not in ("mitsuba", "baseline")),
+    best = min((r for r in results if r["backend"] not in NOT_VOLMC),
                key=lambda r: r["mse_seconds"])
     for r in results:
         r["time_to_equal_error_vs_best_volmc"] = r["mse_seconds"] / best["mse_seconds"]
@@ -321,10 +343,10 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
     for r in results:
         if r["backend"] == "baseline" and same:
             r["time_to_equal_error_vs_current"] = r["mse_seconds"] / same[0]["mse_seconds"]
-    peer = [r for r in results if r["backend"] == "mitsuba"]
-    if peer:
-        report["mitsuba_time_to_equal_error_vs_best_volmc"] = \
-            peer[0]["mse_seconds"] / best["mse_seconds"]
+    for r in results:
+        if r["backend"] in PEER_BACKENDS:
+            report[f"{r['backend']}_time_to_equal_error_vs_best_volmc"] = \
+                r["mse_seconds"] / best["mse_seconds"]
     return report
 
 
@@ -333,7 +355,7 @@ def majorant_pairs(report):
     being the global majorant or the octree."""
     by_key = {}
     for r in report["results"]:
-        if r["backend"] not in ("mitsuba", "baseline"):
+        if r["backend"] not in NOT_VOLMC:
             by_key[(r["backend"], r["free_flight"], r["transmittance"], r["majorant"])] = r
     out = []
     for (b, f, t, m), r in by_key.items():
@@ -360,10 +382,16 @@ def print_report(report, log=print):
             f"{'' if lps is None else f'{lps:9.1f}':>9s} "
             f"{'' if frac is None else f'{100 * frac:7.1f}%':>8s} {r['mse_seconds']:10.3e} "
             f"{r['time_to_equal_error_vs_best_volmc']:14.2f} x best")
-    if "mitsuba_time_to_equal_error_vs_best_volmc" in report:
-        log(f"Mitsuba 3 needs {report['mitsuba_time_to_equal_error_vs_best_volmc']:.2f}x the "
-            f"time of the best volmc configuration ({report['best_volmc']}) to reach the "
-            f"same RMSE")
+    for name, title in (("mitsuba", "Mitsuba 3"), ("cycles", "Cycles")):
+        key = f"{name}_time_to_equal_error_vs_best_volmc"
+        if key in report:
+            log(f"{title} needs {report[key]:.2f}x the time of the best volmc configuration "
+                f"({report['best_volmc']}) to reach the same RMSE")
+    for r in report["results"]:
+        if "sync_seconds" in r:
+            total = sum(p["seconds"] for p in r["points"])
+            log(f"{r['name']}: {total:.1f} s tracing (the times above), {r['sync_seconds']:.1f} "
+                f"s scene sync besides (every render syncs the scene again)")
     for r in report["results"]:
         if "time_to_equal_error_vs_current" in r:
             log(f"{r['name']} needs {r['time_to_equal_error_vs_current']:.3f}x the time of the "

@@ -108,16 +108,18 @@ def convergence_plots(report, path_cost, path_time):
 
 def render_convergence_plot(report, path, max_lines=12):
     """`volmc bench render`: RMSE against wall time per configuration (log-log), the best
-    ``max_lines`` volmc configurations plus Mitsuba, with a 1/sqrt(t) slope for reference."""
+    ``max_lines`` volmc configurations plus the peers, with a 1/sqrt(t) slope for reference."""
+    from .convergence import PEER_BACKENDS
     plt = _plt()
     rows = sorted(report["results"], key=lambda r: r["mse_seconds"])
-    keep = [r for r in rows if r["backend"] != "mitsuba"][:max_lines]
-    keep += [r for r in rows if r["backend"] == "mitsuba"]
+    keep = [r for r in rows if r["backend"] not in PEER_BACKENDS][:max_lines]
+    keep += [r for r in rows if r["backend"] in PEER_BACKENDS]
     fig, ax = plt.subplots(figsize=(8, 5.5))
     for r in keep:
         pts = sorted((p for p in r["points"] if p["rmse"] > 0), key=lambda p: p["seconds"])
-        style = dict(color="k", lw=2.2, marker="s") if r["backend"] == "mitsuba" else \
-            dict(lw=1.2, marker="o", ms=3)
+        style = (dict(color="k", lw=2.2, marker="s") if r["backend"] == "mitsuba" else
+                 dict(color="tab:orange", lw=2.2, marker="D") if r["backend"] == "cycles" else
+                 dict(lw=1.2, marker="o", ms=3))
         ax.loglog([p["seconds"] for p in pts], [p["rmse"] for p in pts],
                   label=f"{r['name']} ({r['time_to_equal_error_vs_best_volmc']:.2f}x)", **style)
     xs = np.array(ax.get_xlim())

@@ -58,15 +58,13 @@ import time
 
 import numpy as np
 
+from .errors import PeerUnavailable
+
 VARIANT = "llvm_ad_rgb"
 #: Largest number of camera rays per Mitsuba launch (memory: Dr.Jit keeps per-lane state).
 MAX_LANES = 1 << 22
 _LIB_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64",
              "/usr/lib", "/usr/local/lib", "/opt/homebrew/opt/llvm/lib")
-
-
-class PeerUnavailable(RuntimeError):
-    """Mitsuba cannot be used here; the message says why and how to fix it."""
 
 
 def find_libllvm():
