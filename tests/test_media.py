@@ -226,7 +226,8 @@ def test_planck_integrates_to_stefan_boltzmann():
     """Integral of B over wavelength = sigma T^4 / pi (radiance)."""
     lam = np.linspace(50.0, 200000.0, 400001)
     for T in (800.0, 1500.0, 6000.0):
-        total = np.trapezoid(planck(lam, T), lam)
+        b = planck(lam, T)
+        total = np.sum((b[1:] + b[:-1]) * np.diff(lam)) / 2   # numpy 1.26: no np.trapezoid
         assert total == pytest.approx(5.670374419e-8 * T**4 / math.pi, rel=2e-3)
 
 

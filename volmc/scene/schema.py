@@ -152,7 +152,7 @@ class Render:
     rr_depth: int = 5
     seed: int = 0
     max_steps: int = 1_000_000
-    transmittance: str = "ratio"
+    transmittance: str = "auto"
     majorant: str = "grid"
     free_flight: str = "delta"
     majorant_resolution: tuple = ()
