@@ -287,10 +287,11 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
     return L;
 }
 
-/* Russian roulette's survival probability (render.rr; twin in integrator.py). */
+/* Russian roulette's survival probability (render.rr; twin in integrator.py): the cap is
+   RR_MAX_SURVIVAL only where nothing else ends the path (max_depth = -1). */
 static inline lfloat survival_probability(const Params *prm, lvec3 beta_w, float3 albedo) {
     lvec3 x = prm->rr == RR_ALBEDO ? mul3(beta_w, v3u(albedo)) : beta_w;
-    return fmin(max3(x), RR_MAX_SURVIVAL);
+    return fmin(max3(x), prm->max_depth < 0 ? RR_MAX_SURVIVAL : 1.0f);
 }
 
 

@@ -182,7 +182,11 @@ def test_roulette_survival_probabilities():
         prm[0]["rr"] = rule
         assert survival_probability(prm[0], (0.5, 0.2, 0.1), (0.5, 0.5, 0.9)) == want
     prm[0]["rr"] = RR_THROUGHPUT
-    assert survival_probability(prm[0], (8.0, 0.0, 0.0), (1.0, 1.0, 1.0)) == RR_MAX_SURVIVAL
+    # The cap: 1 under a depth bound, RR_MAX_SURVIVAL without one.
+    for depth, cap in ((64, 1.0), (0, 1.0), (-1, RR_MAX_SURVIVAL)):
+        prm[0]["max_depth"] = depth
+        assert survival_probability(prm[0], (8.0, 0.0, 0.0), (1.0, 1.0, 1.0)) == cap
+        assert survival_probability(prm[0], (0.97, 0.0, 0.0), (1.0, 1.0, 1.0)) == min(0.97, cap)
 
 
 @pytest.mark.parametrize("key,value", [("light_samples", "0"), ("light_samples", "2.5"),

@@ -96,5 +96,6 @@ def techniques(scene):
                      "blackbody temperature") + (", at every tentative collision"
                                                   if scene.medium.emission is not None else ""),
         "nee": f"all lights; environment by uniform sphere + {r.mis}-heuristic MIS",
-        "russian_roulette": f"from depth {r.rr_depth}, q = min(max(beta), {RR_MAX_SURVIVAL})",
+        "russian_roulette": f"from depth {r.rr_depth}, q = min(max(beta), "
+                            f"{RR_MAX_SURVIVAL if r.max_depth < 0 else 1})",
     }

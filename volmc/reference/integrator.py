@@ -22,10 +22,10 @@ path:
    A medium that cannot scatter into the image (all albedos 0, or max_depth = 0) skips
    steps 2-6: the pixel is the environment times the transmittance along the camera ray.
 5. Russian roulette from ``rr_depth`` scattering events on: the path survives with
-   probability q = min(max_rgb(throughput), RR_MAX_SURVIVAL) (render.rr = "albedo": of
-   throughput x albedo; ``survival_probability``) and is divided by q
-   (unbiased); the cap makes every path end even with albedo 1 in an infinitely dense
-   medium.
+   probability q = min(max_rgb(throughput), cap) (render.rr = "albedo": of
+   throughput x albedo; ``survival_probability``) and is divided by q (unbiased). The cap
+   is 1 when max_depth bounds the path and RR_MAX_SURVIVAL when it does not, so that every
+   path ends even with albedo 1 in an infinitely dense medium.
 6. A new direction is importance-sampled from the phase function; go to 2.
 
 Random numbers: stream STREAM_PATH for all decisions of the path (in the order above),
@@ -387,14 +387,16 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
 
 @njit(cache=True, inline="always")
 def survival_probability(prm, beta_w, albedo):
-    """Russian roulette's survival probability q (render.rr), capped at RR_MAX_SURVIVAL:
-    the largest channel of the throughput ("throughput"), or of the throughput the path
-    will carry after its next scattering, throughput x albedo ("albedo": the expected
-    contribution of going on). Survivors are divided by q; in the general form
+    """Russian roulette's survival probability q (render.rr): the largest channel of the
+    throughput ("throughput"), or of the throughput the path will carry after its next
+    scattering, throughput x albedo ("albedo": the expected contribution of going on),
+    capped at 1, or at RR_MAX_SURVIVAL when the depth is unbounded (max_depth = -1), so
+    that every path ends. Survivors are divided by q; in the general form
     F' = (F - (1 - q) c) / q for survivors and c for the rest, volmc uses c = 0."""
+    cap = RR_MAX_SURVIVAL if prm.max_depth < 0 else 1.0
     if prm.rr == RR_ALBEDO:
-        return min(max3(mul3(beta_w, albedo)), RR_MAX_SURVIVAL)
-    return min(max3(beta_w), RR_MAX_SURVIVAL)
+        return min(max3(mul3(beta_w, albedo)), cap)
+    return min(max3(beta_w), cap)
 
 
 @njit(cache=True)
