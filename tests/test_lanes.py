@@ -111,10 +111,10 @@ CONFIGS = [
 ]
 
 
-def _samples(scene, lanes, spp):
+def _samples(scene, lanes, spp, jobs_per_item=None):
     """(every sample of one launch [pixels x spp, 3], the counters) at lane width ``lanes``."""
     w, h = scene.camera.resolution
-    be = OpenCLBackend(scene, lanes=lanes)
+    be = OpenCLBackend(scene, lanes=lanes, jobs_per_item=jobs_per_item)
     be._reserve(w * h * spp)
     be.render(0, spp, Film(w, h))
     return be.out_host[:w * h * spp].copy(), be.counter_totals()
@@ -140,6 +140,26 @@ def test_every_width_traces_the_same_paths(name, path, overrides):
         assert np.all(out == base, axis=1).mean() > 0.9
         # Occupancy: the lanes active per iteration of the walk loop, at most all of them.
         assert 0 < c[C_LANE_ACTIVE] <= w * c[C_LANE_ROUNDS]
+
+
+def test_samples_per_work_item_do_not_change_the_samples():
+    """However many samples a work-item renders (1 or 3 per lane, or the per-launch default,
+    which a launch this small gets at its minimum and a large one at its maximum), every
+    sample and every counter but the lanes' are the same, bit for bit."""
+    from volmc.backends import opencl
+    scene = load_scene(SCENES / "cloud.toml", ["camera.resolution=[12, 12]"])
+    base, c0 = _samples(scene, 16, 6)
+    keep = [i for i, n in enumerate(COUNTER_NAMES) if n not in LANE_COUNTERS]
+    for jobs in (16, 48, 7):
+        out, c = _samples(scene, 16, 6, jobs)
+        np.testing.assert_array_equal(out, base)
+        np.testing.assert_array_equal(c[keep], c0[keep])
+    be = OpenCLBackend(scene, lanes=16)
+    units = be.device.max_compute_units
+    assert be.launch_jobs_per_item(1) == opencl.MIN_JOB_ROUNDS * 16
+    assert be.launch_jobs_per_item(10**8) == opencl.JOB_ROUNDS * 16
+    n = opencl.ITEMS_PER_UNIT * units * 16 * 8     # 8 rounds give ITEMS_PER_UNIT per unit
+    assert be.launch_jobs_per_item(n) == 8 * 16
 
 
 def test_lane_width_choice(monkeypatch):
