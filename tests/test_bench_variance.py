@@ -11,6 +11,7 @@ from volmc.bench import variance
 from volmc.bench.variance import PLAIN, Switch
 from volmc.resources import scenes_dir
 from volmc.scene import load_scene
+from volmc.scene.schema import Render
 
 from test_cli import run
 
@@ -152,8 +153,9 @@ def test_cli_end_to_end(tmp_path, monkeypatch, capsys):
     # Every timed render was built with render.spp = its total and the repetition's seed
     # (the reference, with the plain keys and its own seed, is built outside variance).
     timed = [(b.spp, b.seed, b.mis, b.transmittance) for b in builds]
+    default = Render().transmittance       # the scene names none
     assert sorted(timed) == sorted((n, 17, mis, est) for n in (1, 2) for mis, est in (
-        ("balance", "ratio"), ("power", "ratio"), ("balance", "track_length")))
+        ("balance", default), ("power", default), ("balance", "track_length")))
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

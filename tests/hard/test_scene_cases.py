@@ -215,20 +215,25 @@ def test_case18_roulette_terminates_dense_white_medium(backend):
 
 #: Roulette on (rr_depth 0) against off (rr_depth 1000) under a depth cap: the dense white
 #: cube of roulette.toml, and a thinner coloured one (q follows the throughput there).
+#: (overrides, whether roulette can end a path): under a depth cap the survival probability
+#: is the throughput's largest channel capped at 1, so in a white medium roulette never ends
+#: a path (it still draws), and below albedo 1 it ends some.
 RR_SETTINGS = [
-    ["camera.eye=[0, 0, 4]", "camera.target=[0, 0, 0]", "render.max_depth=24"],
-    ["camera.eye=[0, 0, 4]", "camera.target=[0, 0, 0]", "render.max_depth=40",
-     "medium.albedo=[0.9, 0.7, 0.5]", "medium.scale=2.0"],
+    (["camera.eye=[0, 0, 4]", "camera.target=[0, 0, 0]", "render.max_depth=24"], False),
+    (["camera.eye=[0, 0, 4]", "camera.target=[0, 0, 0]", "render.max_depth=24",
+      "medium.albedo=0.99"], True),
+    (["camera.eye=[0, 0, 4]", "camera.target=[0, 0, 0]", "render.max_depth=40",
+      "medium.albedo=[0.9, 0.7, 0.5]", "medium.scale=2.0"], True),
 ]
 
 
 def test_case18_roulette_on_off_same_mean(backend):
     """robustness case 18: with a depth cap, Russian roulette from depth 0 and no roulette give the
-    same image (two-sample z per pixel and channel and of the image means, Sidak over both
-    settings) on roulette.toml and on a coloured, thinner variant, while roulette shortens
-    the paths."""
+    same image (two-sample z per pixel and channel and of the image means, Sidak over the
+    settings) on roulette.toml, on it at albedo 0.99 and on a coloured, thinner variant, while
+    roulette shortens the paths wherever the albedo is below 1."""
     bound = z_bound(ALPHA, len(RR_SETTINGS) * (8 * 8 * 3 + 3))
-    for overrides in RR_SETTINGS:
+    for overrides, shortens in RR_SETTINGS:
         on = render_checked(load_scene(SCENES / "roulette.toml",
                                        overrides + ["render.rr_depth=0"]), backend)
         off = render_checked(load_scene(SCENES / "roulette.toml",
@@ -238,4 +243,5 @@ def test_case18_roulette_on_off_same_mean(backend):
         assert np.abs(z).max() < bound, (overrides, float(np.abs(z).max()))
         (ma, sa), (mb, sb) = mean_and_stderr(on), mean_and_stderr(off)
         assert np.all(np.abs(ma - mb) < bound * np.sqrt(sa ** 2 + sb ** 2)), (overrides, ma, mb)
-        assert on.counters["scatter_events"] < off.counters["scatter_events"]
+        if shortens:
+            assert on.counters["scatter_events"] < off.counters["scatter_events"], overrides
