@@ -107,8 +107,9 @@ def test_multithreaded_worker_renders_the_same_image():
     time on its one backend: the image and counters are the single-process ones."""
     scene = load_scene(default_scene(), SMALL)
     a = render(scene, backend="opencl", spp=300, progress=False, chunk_samples=20_000)
+    # Dashboard on a free port: the module's cluster may hold the default one.
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=True,
-                                  dashboard_address=None, host="127.0.0.1") as c, \
+                                  dashboard_address=":0", host="127.0.0.1") as c, \
             distributed.Client(c) as client:
         b = render(scene, backend="opencl", spp=300, progress=False, client=client,
                    chunk_samples=20_000)
