@@ -115,8 +115,3 @@ def compare_with_peer(name, scene, spp=None, passes=16, reference_spp=None, devi
             peer.close()
     return report, images
 
-
-def compare_with_mitsuba(scene, spp=None, passes=16, reference_spp=None, device=None,
-                         log=print):
-    """``compare_with_peer("mitsuba", ...)``."""
-    return compare_with_peer("mitsuba", scene, spp, passes, reference_spp, device, log)

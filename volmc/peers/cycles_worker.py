@@ -328,9 +328,6 @@ def render_passes(bpy, sc, job):
         first = next((t for t, s in stamps if "Sample 0/" in s), t0)
         done = next((t for t, s in stamps if "Finished" in s), t1)
         trace = done - first
-        if os.environ.get("VOLMC_CYCLES_STATS"):
-            for t, text in stamps:
-                print(f"{t - t0:8.3f} {text}", file=sys.stderr)
         tracing.append(trace)
         sync.append((t1 - t0) - trace)
         with OpenEXR.File(out, separate_channels=True) as f:
