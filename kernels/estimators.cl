@@ -28,8 +28,7 @@ kernel void estimate_batch(global const Medium *media, global const float *grid,
     MediumData med = {media[r], grid, maj, mnr, grid, grid, 0, grid, nodes, 0, 0, (lint)(-1)};
     lvec3 o = v3u(vload3(3 * r, rays)), d = v3u(vload3(3 * r + 1, rays));
     lfloat t0 = (lfloat)(rays[9 * r + 6]), t1 = (lfloat)(rays[9 * r + 7]);
-    Rng rng;
-    rng.preset = (lmask)(0);
+    Rng rng = rng_empty();
     rng_init(&rng, seed, (luint)(r), sample_offset + as_luint(j), STREAM_TEST, on);
     lulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = (lulong)(0);

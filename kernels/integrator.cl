@@ -667,8 +667,7 @@ kernel void render_batch(const Params prm, const Medium medium, const Launch lau
     ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
     lulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = (lulong)(0);
-    Rng rng, rng_s;
-    rng.preset = rng_s.preset = (lmask)(0);
+    Rng rng = rng_empty(), rng_s = rng_empty();
     Walk wk;
     wk.live = wk.in_seg = (lmask)(0);
     Path path;

@@ -12,6 +12,16 @@
 #include "params.h" /* PHILOX_*, UNIFORM_SCALE, STREAM_* (volmc/constants.py) */
 #include "lanes.h"
 
+/* With several lanes, one Philox call fills every lane's next block: the lanes' draw indices
+ * drift apart, so without it nearly every draw finds some lane at a block boundary and runs
+ * Philox for all, a quarter of them useful. The prefetch (p0..p3, the block (n + 3) >> 2 that
+ * lane refills from next) keeps the numbers as they are and measured 1.19x samples/s on the
+ * default cloud at W = 16 and 1.07x at W = 8, but 0.96x at W = 1, where no call is wasted.
+ * The reference has no counterpart: it changes when a block is computed, not its words. */
+#ifndef RNG_PREFETCH
+#define RNG_PREFETCH (LANES > 1)
+#endif
+
 /* Mirrors the reference's uint32 state array [key0, key1, pixel, sample, stream, n, w0..w3,
  * preset, word]. */
 typedef struct {
@@ -21,6 +31,10 @@ typedef struct {
     luint w0, w1, w2, w3; /* current block */
     lmask preset;         /* the next draw is `word` (rng_preset) */
     luint word;
+#if RNG_PREFETCH
+    luint p0, p1, p2, p3; /* block (n + 3) >> 2, the next one a lane refills from */
+    lmask ready;          /* p0..p3 hold it */
+#endif
 } Rng;
 
 /* Four 32-bit words per lane. */
@@ -59,6 +73,19 @@ static inline void rng_init(Rng *rng, ulong seed, luint pixel, luint sample, uin
     rng->sample = select(rng->sample, sample, active);
     rng->n = select(rng->n, (luint)(0u), active);
     rng->preset = rng->preset & !active;
+#if RNG_PREFETCH
+    rng->ready = rng->ready & !active;
+#endif
+}
+
+/* A stream with no lane started (no preset draw, no prefetched block). */
+static inline Rng rng_empty(void) {
+    Rng r;
+    r.preset = (lmask)(0);
+#if RNG_PREFETCH
+    r.ready = (lmask)(0);
+#endif
+    return r;
 }
 
 /* The next draw of the active lanes returns u24 * 2^-24 (twin in rng.py, which says why). */
@@ -76,6 +103,23 @@ static inline luint rng_next_u32(Rng *rng, lmask active) {
     lmask draw = active & !rng->preset;
     luint word = rng->n & 3u;
     lmask refill = draw & (word == 0u);
+#if RNG_PREFETCH
+    if (ANY(refill & !rng->ready)) {
+        LaneWords b = philox4x32_10((rng->n + 3u) >> 2, rng->pixel, rng->sample, rng->stream,
+                                    rng->key0, rng->key1);
+        lmask fill = !rng->ready;
+        rng->p0 = select(rng->p0, b.x, fill);
+        rng->p1 = select(rng->p1, b.y, fill);
+        rng->p2 = select(rng->p2, b.z, fill);
+        rng->p3 = select(rng->p3, b.w, fill);
+        rng->ready = LANES_ALL;
+    }
+    rng->w0 = select(rng->w0, rng->p0, refill);
+    rng->w1 = select(rng->w1, rng->p1, refill);
+    rng->w2 = select(rng->w2, rng->p2, refill);
+    rng->w3 = select(rng->w3, rng->p3, refill);
+    rng->ready = rng->ready & !refill;
+#else
     if (ANY(refill)) {
         LaneWords b = philox4x32_10(rng->n >> 2, rng->pixel, rng->sample, rng->stream,
                                     rng->key0, rng->key1);
@@ -84,6 +128,7 @@ static inline luint rng_next_u32(Rng *rng, lmask active) {
         rng->w2 = select(rng->w2, b.z, refill);
         rng->w3 = select(rng->w3, b.w, refill);
     }
+#endif
     rng->n += as_luint(draw & 1);
     rng->preset = rng->preset & !active;
     luint out = select(select(rng->w2, rng->w3, word == 3u), select(rng->w0, rng->w1, word == 1u),
@@ -109,6 +154,17 @@ static inline void rng_swap(Rng *a, Rng *b, lmask m) {
     RNG_SWAP_FIELD(w2)
     RNG_SWAP_FIELD(w3)
     RNG_SWAP_FIELD(word)
+#if RNG_PREFETCH
+    RNG_SWAP_FIELD(p0)
+    RNG_SWAP_FIELD(p1)
+    RNG_SWAP_FIELD(p2)
+    RNG_SWAP_FIELD(p3)
+    {
+        lmask r = a->ready;
+        a->ready = select(a->ready, b->ready, m);
+        b->ready = select(b->ready, r, m);
+    }
+#endif
 #undef RNG_SWAP_FIELD
     lmask p = a->preset;
     a->preset = select(a->preset, b->preset, m);

@@ -42,11 +42,33 @@ kernel void t_uniforms(ulong seed, uint pixel, uint sample, uint stream, uint co
                        global float *out, int n) {
     lmask on;
     lint i = lane_element(n, &on);
-    Rng rng;
-    rng.preset = (lmask)(0);
+    Rng rng = rng_empty();
     rng_init(&rng, seed, pixel + as_luint(i), (luint)(sample), stream, on);
     for (uint k = 0; k < count; ++k)
         store_float(out, i, (int)count, (int)k, rng_next(&rng, on), on);
+}
+
+/* Ragged draws: plan[l][k] is lane l's step k, 0 nothing, 1 draw from stream A (stream id 0),
+ * 2 draw from B (id 1), 3 exchange A and B then draw from A, 4 restart A at sample + 1 then
+ * draw from it; out[l][k] is the draw (-1 for none). Lanes that draw at different times take
+ * different paths through rng_next_u32 (its prefetch at W > 1), as the render's lanes do. */
+kernel void t_uniforms_ragged(ulong seed, uint pixel, uint sample, uint count,
+                              global const uint *plan, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    Rng a = rng_empty(), b = rng_empty();
+    rng_init(&a, seed, pixel + as_luint(i), (luint)(sample), 0u, on);
+    rng_init(&b, seed, pixel + as_luint(i), (luint)(sample), 1u, on);
+    for (uint k = 0; k < count; ++k) {
+        luint op = load_uint(plan, i, (int)count, (int)k);
+        rng_swap(&a, &b, on & (op == 3u));
+        rng_init(&a, seed, pixel + as_luint(i), (luint)(sample + 1u), 0u, on & (op == 4u));
+        lmask from_a = on & (op == 1u || op == 3u || op == 4u), from_b = on & (op == 2u);
+        lfloat u = (lfloat)(-1.0f);
+        u = select(u, rng_next(&a, from_a), from_a);
+        u = select(u, rng_next(&b, from_b), from_b);
+        store_float(out, i, (int)count, (int)k, u, on);
+    }
 }
 
 kernel void t_exponential(global const float *u, float a, global float *out, int n) {
@@ -184,8 +206,7 @@ kernel void t_track(int technique, int use_control, global const Medium *media,
     MediumData med = {media[r], grid, maj, mnr, grid, grid, 0, grid, 0, 0, 0, (lint)(-1)};
     lvec3 o = v3u(vload3(3 * r, rays)), d = v3u(vload3(3 * r + 1, rays));
     lfloat t0 = (lfloat)(rays[9 * r + 6]), t1 = (lfloat)(rays[9 * r + 7]);
-    Rng rng;
-    rng.preset = (lmask)(0);
+    Rng rng = rng_empty();
     rng_init(&rng, seed, (luint)(r), as_luint(j), STREAM_TEST, on);
     lulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = (lulong)(0);

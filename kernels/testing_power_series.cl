@@ -24,8 +24,7 @@ kernel void t_power_series(int kind, global const Medium *media, global const fl
     MediumData med = {media[r], grid, grid, grid, grid, grid, 0, grid, 0, 0, 0, (lint)(-1)};
     lvec3 o = v3((lfloat)(ray[0]), (lfloat)(ray[1]), (lfloat)(ray[2]));
     lvec3 d = v3((lfloat)(ray[3]), (lfloat)(ray[4]), (lfloat)(ray[5]));
-    Rng rng;
-    rng.preset = (lmask)(0);
+    Rng rng = rng_empty();
     rng_init(&rng, seed, (luint)(r), as_luint(j), STREAM_TEST, on);
     lulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = (lulong)(0);

@@ -11,7 +11,7 @@ from cl_harness import f3, i3, out_buf, run, to_dev
 from stats import ALPHA, z_bound
 from volmc.reference.grid import grid_lookup
 from volmc.reference.phase import hg_eval, hg_sample, hg_sample_cos
-from volmc.reference.rng import philox4x32_10, uniforms
+from volmc.reference.rng import philox4x32_10, rng_new, rng_next, uniforms
 from volmc.reference.sampling import (coordinate_system, sample_exponential,
                                       sample_uniform_sphere)
 from tracking_runs import grid_media, walks
@@ -49,6 +49,31 @@ def test_uniform_streams_identical(seed, pixel, sample, stream):
         ref = uniforms(np.uint64(seed), (pixel + lane) % 2**32, sample, stream, n)
         assert np.array_equal(out[lane].astype(np.float64), ref)   # bit-identical
     assert out.max() < 1.0
+
+
+def test_ragged_draws_identical():
+    """Lanes that draw at different times, from two streams they exchange and restart, each
+    draw their own streams bit for bit (the prefetch of kernels/rng.h at W > 1)."""
+    seed, pixel, sample, count = 2**33 + 9, 40, 3, 300
+    n = 3 * cl_harness.LANES
+    plan = np.random.default_rng(5).choice(5, size=(n, count), p=[0.4, 0.3, 0.2, 0.05, 0.05])
+    plan = plan.astype(np.uint32)
+    out, ob = out_buf((n, count))
+    run("t_uniforms_ragged", n, np.uint64(seed), np.uint32(pixel), np.uint32(sample),
+        np.uint32(count), to_dev(plan), ob, outs=[(out, ob)])
+    for e in range(n):
+        a, b = (rng_new(seed, pixel + e, sample, s) for s in (0, 1))
+        ref = np.full(count, -1.0)
+        for k, op in enumerate(plan[e]):
+            if op == 3:
+                a, b = b, a
+            if op == 4:
+                a = rng_new(seed, pixel + e, sample + 1, 0)
+            if op in (1, 3, 4):
+                ref[k] = rng_next(a)
+            elif op == 2:
+                ref[k] = rng_next(b)
+        assert np.array_equal(out[e].astype(np.float64), ref), e
 
 
 def test_exponential():
