@@ -65,8 +65,11 @@ static inline lfloat medium_density(const MediumData *med, lvec3 p, lmask active
     return profile_density(kind, m->profile, p.x);
 }
 
-/* The counted lookup, in the active lanes (the others' results are not to be used). */
-static inline lfloat extinction(const MediumData *med, lvec3 p, lfloat sigma_maj,
+/* The counted lookup, in the active lanes (the others' results are not to be used). Always
+ * inlined, as rng_next is: PoCL's inliner kept both out of line, and inlining them measured
+ * 1.14x and 1.12x samples/s at W = 1 and 16 on an fbm cloud (1.06x and 1.02x on the default
+ * cloud). */
+static inline __attribute__((always_inline)) lfloat extinction(const MediumData *med, lvec3 p, lfloat sigma_maj,
                                 lulong *counters, lmask active) {
     lfloat mu = med->m.scale * medium_density(med, p, active);
     counters[C_LOOKUPS] += lane_ones(active);

@@ -78,13 +78,12 @@ static inline void rng_init(Rng *rng, ulong seed, luint pixel, luint sample, uin
 #endif
 }
 
-/* A stream with no lane started (no preset draw, no prefetched block). */
+/* A stream with no lane started: every field 0, so no preset draw and no prefetched block.
+ * All of it, not just the masks: rng_swap reads every field of both streams, and with
+ * rng_next inlined, PoCL (LLVM 15) at W = 1 dropped a test kernel's stores when some were
+ * never written (tests/test_kernels.py, ragged draws). */
 static inline Rng rng_empty(void) {
-    Rng r;
-    r.preset = (lmask)(0);
-#if RNG_PREFETCH
-    r.ready = (lmask)(0);
-#endif
+    Rng r = {0};
     return r;
 }
 
@@ -98,7 +97,7 @@ static inline void rng_drop_preset(Rng *rng, lmask active) {
     rng->preset = rng->preset & !active;
 }
 
-static inline luint rng_next_u32(Rng *rng, lmask active) {
+static inline __attribute__((always_inline)) luint rng_next_u32(Rng *rng, lmask active) {
     lmask taken = active & rng->preset;
     lmask draw = active & !rng->preset;
     luint word = rng->n & 3u;
@@ -171,7 +170,7 @@ static inline void rng_swap(Rng *a, Rng *b, lmask m) {
     b->preset = select(b->preset, p, m);
 }
 
-static inline lfloat rng_next(Rng *rng, lmask active) {
+static inline __attribute__((always_inline)) lfloat rng_next(Rng *rng, lmask active) {
     return to_lfloat(rng_next_u32(rng, active) >> 8) * UNIFORM_SCALE;
 }
 
