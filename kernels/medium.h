@@ -69,8 +69,9 @@ static inline lfloat medium_density(const MediumData *med, lvec3 p, lmask active
  * inlined, as rng_next is: PoCL's inliner kept both out of line, and inlining them measured
  * 1.14x and 1.12x samples/s at W = 1 and 16 on an fbm cloud (1.06x and 1.02x on the default
  * cloud). */
-static inline __attribute__((always_inline)) lfloat extinction(const MediumData *med, lvec3 p, lfloat sigma_maj,
-                                lulong *counters, lmask active) {
+static inline __attribute__((always_inline)) lfloat extinction(const MediumData *med, lvec3 p,
+                                                               lfloat sigma_maj,
+                                                               lulong *counters, lmask active) {
     lfloat mu = med->m.scale * medium_density(med, p, active);
     counters[C_LOOKUPS] += lane_ones(active);
     counters[C_OVER_MAJORANT] += lane_ones(active & (mu > sigma_maj));

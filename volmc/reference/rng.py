@@ -121,9 +121,16 @@ def rng_next(rng):
 
 
 @njit(cache=True)
+def rng_empty():
+    """A stream state with nothing started: every word 0, so no preset draw (the kernel's
+    twin, which also holds the lanes' prefetched blocks, has none prefetched)."""
+    return np.zeros(RNG_STATE_SIZE, np.uint32)
+
+
+@njit(cache=True)
 def rng_new(seed, pixel, sample, stream):
     """Allocate and initialise a stream state (convenience for tests and host code)."""
-    rng = np.empty(RNG_STATE_SIZE, np.uint32)
+    rng = rng_empty()
     rng_init(rng, seed, pixel, sample, stream)
     return rng
 
