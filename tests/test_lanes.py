@@ -6,8 +6,9 @@ Where vector and scalar arithmetic can differ, and what is tested here:
 * The vector maths library. PoCL evaluates exp, log, log1p, expm1 and atan2 on a vector with
   other code than on a scalar; the results differ by at most 1 ulp (about 1 % of exp's
   arguments, 0.5 % of atan2's, a few in a million of the logarithms' on this machine), and
-  the other functions the kernels call (sqrt, rsqrt, sin, cos, tan, cbrt, pown, division)
-  agree bit for bit. ``test_vector_maths_differs_by_at_most_one_ulp``.
+  the other functions the kernels call (sqrt, rsqrt, sin, cos, sincos, tan, cbrt, pown,
+  division) agree bit for bit; sincos equals sin and cos at every width.
+  ``test_vector_maths_differs_by_at_most_one_ulp``.
 * Contraction into FMA: the source is the same at every width, so the compiler contracts the
   same expressions; a*b + c agrees bit for bit (same test).
 * Everything else -- comparisons, selects, integer hashing (Philox, the samplers), the order
