@@ -138,36 +138,30 @@ static inline __attribute__((always_inline)) luint rng_next_u32(Rng *rng, lmask 
 /* Exchanges the streams of a and b in the lanes of m (a shadow ray's walk draws from the
  * stream its walk loop uses; kernels/integrator.cl). */
 static inline void rng_swap(Rng *a, Rng *b, lmask m) {
-#define RNG_SWAP_FIELD(f)                 \
+#define RNG_SWAP_FIELD(T, f)              \
     {                                     \
-        luint x = a->f;                   \
+        T x = a->f;                       \
         a->f = select(a->f, b->f, m);     \
         b->f = select(b->f, x, m);        \
     }
-    RNG_SWAP_FIELD(pixel)
-    RNG_SWAP_FIELD(sample)
-    RNG_SWAP_FIELD(stream)
-    RNG_SWAP_FIELD(n)
-    RNG_SWAP_FIELD(w0)
-    RNG_SWAP_FIELD(w1)
-    RNG_SWAP_FIELD(w2)
-    RNG_SWAP_FIELD(w3)
-    RNG_SWAP_FIELD(word)
+    RNG_SWAP_FIELD(luint, pixel)
+    RNG_SWAP_FIELD(luint, sample)
+    RNG_SWAP_FIELD(luint, stream)
+    RNG_SWAP_FIELD(luint, n)
+    RNG_SWAP_FIELD(luint, w0)
+    RNG_SWAP_FIELD(luint, w1)
+    RNG_SWAP_FIELD(luint, w2)
+    RNG_SWAP_FIELD(luint, w3)
+    RNG_SWAP_FIELD(luint, word)
+    RNG_SWAP_FIELD(lmask, preset)
 #if RNG_PREFETCH
-    RNG_SWAP_FIELD(p0)
-    RNG_SWAP_FIELD(p1)
-    RNG_SWAP_FIELD(p2)
-    RNG_SWAP_FIELD(p3)
-    {
-        lmask r = a->ready;
-        a->ready = select(a->ready, b->ready, m);
-        b->ready = select(b->ready, r, m);
-    }
+    RNG_SWAP_FIELD(luint, p0)
+    RNG_SWAP_FIELD(luint, p1)
+    RNG_SWAP_FIELD(luint, p2)
+    RNG_SWAP_FIELD(luint, p3)
+    RNG_SWAP_FIELD(lmask, ready)
 #endif
 #undef RNG_SWAP_FIELD
-    lmask p = a->preset;
-    a->preset = select(a->preset, b->preset, m);
-    b->preset = select(b->preset, p, m);
 }
 
 static inline __attribute__((always_inline)) lfloat rng_next(Rng *rng, lmask active) {
