@@ -85,6 +85,17 @@ static inline lvec3 enter_box(lvec3 o, lvec3 d, float3 bmin, float3 bmax, lfloat
     return sel3(o, p, enter);
 }
 
+/* enter_box for the medium's box, in its own space (twin in integrator.py): the origin
+ * returned is in the scene frame; a placed medium's moves along d to its entry point. */
+static inline lvec3 enter_medium(const Medium *m, lvec3 o, lvec3 d, lfloat *t0, lfloat *t1,
+                                 lfloat *shift) {
+    if (!FEATURE_TRANSFORM || !m->transformed)
+        return enter_box(o, d, vec3(m->bmin), vec3(m->bmax), t0, t1, shift);
+    enter_box(to_medium(m, o), to_medium_dir(m, d), vec3(m->bmin), vec3(m->bmax), t0, t1,
+              shift);
+    return sel3(o, madd3(o, d, *shift), *shift > 0.0f);
+}
+
 /* x with the components where beta is 0 set to 0 (twin in integrator.py). */
 static inline lvec3 keep_carried(lvec3 beta, lvec3 x) {
     return v3(select((lfloat)(0.0f), x.x, beta.x != 0.0f),
@@ -112,7 +123,7 @@ static inline spec shadow_transmittance(const Params *prm, const MediumData *med
                                         lvec3 d, lfloat t_max, int view, Rng *rng_s,
                                         lulong *counters, lmask active) {
     lfloat t0, t1, shift;
-    o = enter_box(o, d, vec3(med->m.bmin), vec3(med->m.bmax), &t0, &t1, &shift);
+    o = enter_medium(&med->m, o, d, &t0, &t1, &shift);
     t1 = fmin(t1, t_max - shift);
     lmask go = active & (t1 > t0);
     if (!ANY(go)) return spec_s((lfloat)(1.0f));
@@ -424,7 +435,7 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
                                 Rng *rng_s, lulong *counters, lmask m) {
     const Medium *md = &med->m;
     lfloat t0, t1, shift;
-    lvec3 o = enter_box(path->o, path->d, vec3(md->bmin), vec3(md->bmax), &t0, &t1, &shift);
+    lvec3 o = enter_medium(md, path->o, path->d, &t0, &t1, &shift);
     path->o = sel3(path->o, o, m);
     path->t0 = select(path->t0, t0, m);
     path->t1 = select(path->t1, t1, m);
@@ -578,7 +589,7 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
         if (!ANY(ray)) continue;
         /* shadow_transmittance's clip, then the walk (or the estimate) of each ray. */
         lfloat t0, t1, shift;
-        lvec3 o = enter_box(p, wl, vec3(md->bmin), vec3(md->bmax), &t0, &t1, &shift);
+        lvec3 o = enter_medium(md, p, wl, &t0, &t1, &shift);
         t1 = fmin(t1, dist - shift);
         lmask go = ray & (t1 > t0);
         shadow_add(path, spec_s((lfloat)(1.0f)), ray & !go);

@@ -52,8 +52,28 @@ static inline lfloat profile_density(int kind, const float prof[5], lfloat x) {
     return a * (1.0f + b * cos(TWO_PI * c * x / L + s));
 }
 
+/* Point p of the scene frame in the medium's own space (twin in medium.py): p itself unless a
+ * transform places the medium. */
+static inline lvec3 to_medium(const Medium *m, lvec3 p) {
+    if (!FEATURE_TRANSFORM || !m->transformed) return p;
+    const float *x = m->xform;
+    return v3(x[0] * p.x + x[1] * p.y + x[2] * p.z + x[3],
+              x[4] * p.x + x[5] * p.y + x[6] * p.z + x[7],
+              x[8] * p.x + x[9] * p.y + x[10] * p.z + x[11]);
+}
+
+/* Direction d in the medium's space, not renormalised: t stays a distance of the scene
+ * frame (twin in medium.py). */
+static inline lvec3 to_medium_dir(const Medium *m, lvec3 d) {
+    if (!FEATURE_TRANSFORM || !m->transformed) return d;
+    const float *x = m->xform;
+    return v3(x[0] * d.x + x[1] * d.y + x[2] * d.z, x[4] * d.x + x[5] * d.y + x[6] * d.z,
+              x[8] * d.x + x[9] * d.y + x[10] * d.z);
+}
+
 static inline lfloat medium_density(const MediumData *med, lvec3 p, lmask active) {
     const Medium *m = &med->m;
+    p = to_medium(m, p);
     int kind = m->density_kind;
     if (kind == DENSITY_GRID)
         return grid_lookup(med->grid, (int3)(m->dims[0], m->dims[1], m->dims[2]), vec3(m->bmin),
@@ -91,6 +111,7 @@ static inline uspec medium_chroma(const MediumData *med) {
 static inline lvec3 emitted_radiance(const MediumData *med, lvec3 p, lmask active) {
     const Medium *m = &med->m;
     float3 e = vec3(m->emission_rgb);
+    p = to_medium(m, p);
     lfloat f = grid_lookup(med->emis, (int3)(m->emission_dims[0], m->emission_dims[1],
                                              m->emission_dims[2]),
                            vec3(m->bmin), vec3(m->inv_extent), p, active);
@@ -171,6 +192,8 @@ typedef struct {
 static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, lvec3 o, lvec3 d,
                                       lfloat t0, lfloat t1, lmask active) {
     const Medium *m = &med->m;
+    o = to_medium(m, o);
+    d = to_medium_dir(m, d);
     it->done = select(it->done, !(t1 > t0), active);
     it->t0 = select(it->t0, t0, active);
     it->t1 = select(it->t1, t1, active);

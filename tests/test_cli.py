@@ -84,6 +84,7 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["render", "{tiny}", "-D", "medium.scale=[1, 2]"], "medium.scale"),
     (["render", "{tiny}", "-D", "medium.emission={radiance=1, field={file='nope.vdb'}}"],
      "nope.vdb"),
+    (["render", "{tiny}", "-D", "medium.transform={scale=[1, 0, 1]}"], "medium.transform"),
     (["render", "missing.toml"], "missing.toml"),
     (["render", "{tiny}", "--exposure", "nan"], "--exposure"),
     (["frobnicate"], "invalid choice"),

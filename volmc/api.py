@@ -462,7 +462,12 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     centre, unit = scene_frame(scene)
     lo, hi = np.asarray(m["bmin"], np.float64), np.asarray(m["bmax"], np.float64)
     o_local = (o - np.asarray(centre)) / unit
-    t0, t1 = _clip(o_local, d, t_max / unit, lo, hi)
+    placed = bool(m["transformed"])
+    if placed:   # clipped in the medium's own space (pack.medium_space), as the renderer does
+        x = np.asarray(m["xform"], np.float64).reshape(3, 4)
+        t0, t1 = _clip(o_local @ x[:, :3].T + x[:, 3], d @ x[:, :3].T, t_max / unit, lo, hi)
+    else:
+        t0, t1 = _clip(o_local, d, t_max / unit, lo, hi)
     hit = t1 > t0
     t0, t1 = np.where(hit, t0, np.nan), np.where(hit, t1, np.nan)
     k = len(o)
@@ -473,7 +478,9 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     if hit.any():
         # Each segment starts at its entry point (kept inside the box), as the renderer's
         # entry re-basing does: float32 sees short distances from nearby numbers.
-        start = np.clip(o_local[hit] + t0[hit, None] * d[hit], lo, hi)
+        start = o_local[hit] + t0[hit, None] * d[hit]
+        if not placed:
+            start = np.clip(start, lo, hi)
         rays = np.zeros((int(hit.sum()), 9))
         rays[:, :3], rays[:, 3:6], rays[:, 7] = start, d[hit], (t1 - t0)[hit]
         runner = make_runner(backend, estimator, device, chromatic=chromatic, lanes=lanes)

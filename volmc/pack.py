@@ -56,8 +56,10 @@ def pack_octree(scene, real=np.float64, grid=None):
     else:
         fmx, fmn = build_majorant_grid(grid, res)
     lo, hi = scene.medium.bounds
-    mx, mn, children = build_octree(fmx, fmn, [hi[i] - lo[i] for i in range(3)],
-                                    max(scene.medium.scale))
+    diag = np.subtract(hi, lo)
+    if scene.medium.transform is not None:   # the octree splits by the world's diagonal
+        diag = np.asarray(scene.medium.transform)[:3, :3] @ diag
+    mx, mn, children = build_octree(fmx, fmn, diag, max(scene.medium.scale))
     return (np.ascontiguousarray(mx.reshape(1, 1, -1), real),
             np.ascontiguousarray(mn.reshape(1, 1, -1), real), children, depth)
 
@@ -88,10 +90,48 @@ def scene_frame(scene):
     half-size in [0.7, 1.4] at the origin: a scene translated 1e7 units away (where float32
     has an ulp of 1) or scaled by 1e-4 or 1e4 renders from the same numbers as at the origin.
     A power of two scales without rounding. Counters (lookups, steps) are unchanged too."""
-    lo, hi = scene.medium.bounds
+    lo, hi, _ = placement(scene.medium)
+    return box_frame(lo, hi)
+
+
+def box_frame(lo, hi):
+    """(centre, unit) of the box [lo, hi]: its centre and a power of two close to its largest
+    half-extent (``scene_frame``; a placed medium's local space gets one too)."""
     centre = tuple(0.5 * (lo[i] + hi[i]) for i in range(3))
     half = max(0.5 * (hi[i] - lo[i]) for i in range(3))
     return centre, 2.0 ** round(math.log2(half))
+
+
+def placement(medium):
+    """(lo, hi, M): the world's axis-aligned box around the placed medium, and the transform
+    the kernels must apply (4x4 float64 array), or None when the box alone places the medium:
+    no transform, or one that only scales axes by positive factors and translates (then
+    [lo, hi] is the placed box itself and the grid keeps its orientation)."""
+    from .scene.transform import is_axis_scale, world_box
+    lo, hi = medium.bounds
+    m = medium.transform
+    if m is None:
+        return tuple(lo), tuple(hi), None
+    wlo, whi = world_box(m, lo, hi)
+    return wlo, whi, (None if is_axis_scale(m) else np.array(m, float))
+
+
+def medium_space(medium, centre, unit):
+    """(bmin, bmax, xform) of a medium placed by a transform (``placement``), packed for the
+    kernels: the box in the medium's local space, itself centred and scaled by a power of two
+    as the scene frame is (so float32 sees a box of half-size near 1 wherever the user put
+    it), and the 3x4 map from the scene frame to that space, composed in float64."""
+    lo, hi = medium.bounds
+    _, _, m = placement(medium)
+    c_l, u_l = box_frame(lo, hi)
+    inv = np.linalg.inv(m)
+    # scene frame f -> world centre + unit f -> local inv(M) world -> packed (local - c_l) / u_l
+    lin = inv[:3, :3] * (unit / u_l)
+    off = (inv[:3, :3] @ np.asarray(centre, float) + inv[:3, 3] - np.asarray(c_l)) / u_l
+    xform = np.concatenate([lin, off[:, None]], axis=1).ravel()
+    bmin = [(lo[i] - c_l[i]) / u_l for i in range(3)]
+    bmax = [(hi[i] - c_l[i]) / u_l for i in range(3)]
+    return bmin, bmax, xform
 
 
 #: A scene packed for a backend: the parameter record [1], the light array, the medium record
@@ -212,7 +252,12 @@ def pack_medium(scene, real, local, unit, maj_res, stored=None):
     bricks, pool = np.zeros((1, 1, 1), np.int32), np.zeros((1, 8, 8, 8), real)
     med, rnd = scene.medium, scene.render
     m = np.zeros(1, medium_dtype(real))[0]
-    lo, hi = local(med.bounds[0]), local(med.bounds[1])
+    wlo, whi, placed = placement(med)
+    if placed is None:
+        lo, hi = local(wlo), local(whi)
+    else:
+        lo, hi, m["xform"] = medium_space(med, scene_frame(scene)[0], unit)
+        m["transformed"] = 1
     m["bmin"], m["bmax"] = lo, hi
     m["inv_extent"] = [1.0 / (hi[i] - lo[i]) for i in range(3)]
     # Extinction is scale * density per channel: the record holds the largest channel's

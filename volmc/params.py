@@ -50,6 +50,8 @@ MEDIUM_FIELDS = (
     ("density_kind", "i4", 1, "DENSITY_CONSTANT, DENSITY_GRID, DENSITY_BRICKS or a profile"),
     ("majorant_kind", "i4", 1, "MAJORANT_GLOBAL (one segment), MAJORANT_GRID (DDA cells) or "
                                "MAJORANT_OCTREE (octree leaves)"),
+    ("transformed", "i4", 1, "1: a transform places the medium (xform), 0: its box is as given"),
+    ("xform", "real", 12, "transformed: scene frame to the medium's space, 3x4 row-major"),
     ("bmin", "real", 3, "medium box minimum corner"),
     ("bmax", "real", 3, "medium box maximum corner"),
     ("inv_extent", "real", 3, "1 / (bmax - bmin) per axis"),

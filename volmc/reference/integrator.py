@@ -66,7 +66,8 @@ from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
 from .estimators import transmittance
 from .free_flight import free_flight
 from .guards import sample_ok
-from .medium import MediumData, extinction, medium_chroma, record_segment
+from .medium import (MediumData, extinction, medium_chroma, record_segment, to_medium,
+                     to_medium_dir)
 from .phase import phase_eval, phase_sample
 from .tracking import mis_weights
 from .rng import RNG_STATE_SIZE, rng_drop_preset, rng_init, rng_next, rng_preset
@@ -136,6 +137,22 @@ def enter_box(o, d, bmin, bmax):
 
 
 @njit(cache=True, inline="always")
+def enter_medium(m, o, d):
+    """enter_box for the medium's box, in its own space (to_medium): (origin, t0, t1, shift)
+    as enter_box returns them, with the origin in the scene frame. A placed medium's origin
+    moves along d to its entry point, snapped onto the face only in the medium's space."""
+    if not m.transformed:
+        return enter_box(o, d, (m.bmin[0], m.bmin[1], m.bmin[2]),
+                         (m.bmax[0], m.bmax[1], m.bmax[2]))
+    _, t0, t1, shift = enter_box(to_medium(m, o), to_medium_dir(m, d),
+                                 (m.bmin[0], m.bmin[1], m.bmin[2]),
+                                 (m.bmax[0], m.bmax[1], m.bmax[2]))
+    if shift > 0.0:
+        o = (o[0] + shift * d[0], o[1] + shift * d[1], o[2] + shift * d[2])
+    return o, t0, t1, shift
+
+
+@njit(cache=True, inline="always")
 def keep_carried(beta, x):
     """x with the components where beta is 0 set to 0 (RGB)."""
     return (x[0] if beta[0] != 0.0 else 0.0, x[1] if beta[1] != 0.0 else 0.0,
@@ -166,10 +183,7 @@ def shadow_transmittance(prm, med, o, d, t_max, view, rng_s, counters):
     shadow rays of scattering paths (view = 0), prm.view_estimator for camera rays that
     cannot scatter (view = 1), whose transmittance is the sample. They differ only for
     "auto" (techniques.py)."""
-    m = med.m
-    bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
-    bmax = (m.bmax[0], m.bmax[1], m.bmax[2])
-    o, t0, t1, shift = enter_box(o, d, bmin, bmax)
+    o, t0, t1, shift = enter_medium(med.m, o, d)
     t1 = min(t1, t_max - shift)
     if t1 <= t0:
         return (1.0, 1.0, 1.0)
@@ -403,8 +417,6 @@ def survival_probability(prm, beta_w, albedo):
 def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
     """Radiance (r, g, b) carried by sample s of pixel (px, py)."""
     m = med.m
-    bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
-    bmax = (m.bmax[0], m.bmax[1], m.bmax[2])
     albedo = (m.albedo[0], m.albedo[1], m.albedo[2])
     env = (prm.env[0], prm.env[1], prm.env[2])
     L = (0.0, 0.0, 0.0)
@@ -434,7 +446,7 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
     ea = equiangular_mode(prm, m)
     n_env = prm.light_samples * uniform_sphere_pdf()   # light sampling's n p for MIS
     while True:
-        o, t0, t1, _ = enter_box(o, d, bmin, bmax)
+        o, t0, t1, _ = enter_medium(m, o, d)
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:

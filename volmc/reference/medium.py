@@ -92,9 +92,37 @@ def profile_density(kind, prof, x):
 
 
 @njit(cache=True, inline="always")
+def to_medium(m, p):
+    """Point p of the scene frame in the medium's own space, where its box, grids and
+    majorants live: p itself unless a transform places the medium (``m.transformed``; the
+    packing is in pack.medium_space)."""
+    if not m.transformed:
+        return p
+    x = m.xform
+    return (x[0] * p[0] + x[1] * p[1] + x[2] * p[2] + x[3],
+            x[4] * p[0] + x[5] * p[1] + x[6] * p[2] + x[7],
+            x[8] * p[0] + x[9] * p[1] + x[10] * p[2] + x[11])
+
+
+@njit(cache=True, inline="always")
+def to_medium_dir(m, d):
+    """Direction d of the scene frame in the medium's space, not renormalised: o + t d maps
+    to to_medium(o) + t to_medium_dir(d), so t stays a distance of the scene frame and
+    extinction stays per unit of it."""
+    if not m.transformed:
+        return d
+    x = m.xform
+    return (x[0] * d[0] + x[1] * d[1] + x[2] * d[2],
+            x[4] * d[0] + x[5] * d[1] + x[6] * d[2],
+            x[8] * d[0] + x[9] * d[1] + x[10] * d[2])
+
+
+@njit(cache=True, inline="always")
 def medium_density(med, p):
-    """Density at world point p (a 3-tuple), before the scale: "what is here"."""
+    """Density at point p (a 3-tuple) of the scene frame, before the scale: "what is
+    here"."""
     m = med.m
+    p = to_medium(m, p)
     kind = m.density_kind
     if kind == DENSITY_GRID:
         return grid_lookup(med.grid, (m.bmin[0], m.bmin[1], m.bmin[2]),
@@ -128,12 +156,13 @@ def medium_chroma(med):
 
 @njit(cache=True, inline="always")
 def emitted_radiance(med, p):
-    """Emitted radiance Le at world point p, RGB: ``emission_rgb`` x field(p) for
+    """Emitted radiance Le at point p of the scene frame, RGB: ``emission_rgb`` x field(p) for
     EMISSION_RADIANCE; ``emission_rgb`` x the blackbody table at temperature(p) (linear in
     kelvin between entries, 0 at or below 0 K, the last entry above the table) for
     EMISSION_TEMPERATURE. The field is trilinear in the emission grid over the medium box."""
     m = med.m
     e = m.emission_rgb
+    p = to_medium(m, p)
     f = grid_lookup(med.emis, (m.bmin[0], m.bmin[1], m.bmin[2]),
                     (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), p)
     if m.emission_kind == EMISSION_RADIANCE:
@@ -151,6 +180,7 @@ def emitted_radiance(med, p):
 def majorant_iter_init(it, med, o, d, t0, t1):
     """Start walking the majorant segments of ray o + t d over [t0, t1] (clipped to the box)."""
     m = med.m
+    o, d = to_medium(m, o), to_medium_dir(m, d)
     it[0] = 0.0 if t1 > t0 else 1.0
     it[1] = t0
     it[2] = t1

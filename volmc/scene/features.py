@@ -9,7 +9,9 @@ octree walk (docs/bench_specialise_issue13.json). CHROMATIC and EMISSION measure
 (0.98-1.015 on the cloud, homogeneous, sunset and plume scenes,
 docs/bench_specialise_issue11.json) but stay for what they guarantee rather than for speed:
 a grey scene runs exactly the scalar arithmetic it ran before colour existed (the same
-image bit for bit), and a scene without emission compiles none of it. A BRICKS switch
+image bit for bit), and a scene without emission compiles none of it. TRANSFORM (issue 22)
+stays for the same guarantee: a medium that is not turned, mirrored or sheared runs exactly
+the code it ran before placement existed. A BRICKS switch
 measured neutral too and was not kept: brick lookups are one more density kind. PROFILES is not a
 scene's: render builds always compile the 1-D test profiles out (3.5 % on the cloud with a
 global majorant), and the test and benchmark kernels keep them.
@@ -27,6 +29,8 @@ FEATURES = {
                  "channels): RGB transmittance and spectral tracking",
     "EMISSION": "an emitting medium (medium.emission): its source term at every tentative "
                 "collision",
+    "TRANSFORM": "a medium placed by a transform that turns, mirrors or shears it "
+                 "(medium.transform): points and rays enter its space",
 }
 
 
@@ -57,6 +61,9 @@ def features(scene) -> frozenset:
         out.add("CHROMATIC")
     if m.emission is not None:
         out.add("EMISSION")
+    from ..pack import placement
+    if m.bounds is not None and placement(m)[2] is not None:
+        out.add("TRANSFORM")
     return frozenset(out)
 
 

@@ -16,6 +16,7 @@ from typing import Optional, Union
 
 from ..techniques import ESTIMATORS, chromatic_estimators, grid_estimators
 from .errors import SceneError
+from .transform import parse as parse_transform
 
 Vec3 = tuple[float, float, float]
 RGB = tuple[float, float, float]
@@ -103,14 +104,17 @@ class Emission:
 
 @dataclass(frozen=True)
 class Medium:
-    """Axis-aligned box of medium: extinction = scale * density per channel (1/world unit).
-    ``bounds`` is None only before a VDB file has given it (loading.py)."""
+    """A box of medium: extinction = scale * density per channel (1/world unit). ``bounds`` is
+    the box in the medium's local space, None only before a VDB file has given it
+    (loading.py); ``transform`` places that space in the world (a 4x4 row-major affine matrix,
+    world = M x local; None: the identity; convention in transform.py)."""
     bounds: Optional[tuple[Vec3, Vec3]]
     density: Density
     scale: RGB = (1.0, 1.0, 1.0)
     albedo: RGB = (1.0, 1.0, 1.0)
     phase: Phase = Phase()
     emission: Optional[Emission] = None
+    transform: Optional[tuple] = None
 
     @property
     def chromatic(self):
@@ -178,7 +182,7 @@ class SceneSpec:
 # (key, default or REQUIRED); the kind of each key is checked in the section functions.
 REQUIRED = object()
 CAMERA_KEYS = ("type", "eye", "target", "up", "fov", "size", "resolution")
-MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase", "emission")
+MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase", "emission", "transform")
 EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
@@ -436,7 +440,9 @@ def _medium(c, raw, file_dir):
     elif "g" in ph:
         c.fail(p + "phase.g", "only the 'hg' phase function takes g")
     emission = _emission(c, raw["emission"], file_dir) if "emission" in raw else None
-    return Medium(bounds, density, scale, albedo, Phase(ptype, g), emission)
+    transform = parse_transform(c, raw["transform"], p + "transform") \
+        if "transform" in raw else None
+    return Medium(bounds, density, scale, albedo, Phase(ptype, g), emission, transform)
 
 
 def _bounds(c, b):

@@ -35,6 +35,8 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
               "albedo": list(m.albedo), "phase": phase}
     if m.bounds is not None:
         medium = {"bounds": [list(m.bounds[0]), list(m.bounds[1])], **medium}
+    if m.transform is not None:
+        medium["transform"] = {"matrix": [list(row) for row in m.transform]}
     if m.emission is not None:
         e = m.emission
         if e.radiance is not None:
