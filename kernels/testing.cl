@@ -190,6 +190,17 @@ kernel void t_grid_lookup(global const float *grid, int3 dims, float3 bmin, floa
                 on);
 }
 
+/* to_medium of point i (p[6 i ...]) and to_medium_dir of direction i (p[6 i + 3 ...]) in
+ * media[0], to out in the same layout. */
+kernel void t_to_medium(global const Medium *media, global const float *p, global float *out,
+                        int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    Medium m = media[0];
+    store_float3(out, i, 6, 0, to_medium(&m, load_float3(p, i, 6, 0)), on);
+    store_float3(out, i, 6, 3, to_medium_dir(&m, load_float3(p, i, 6, 3)), on);
+}
+
 /* The tracking loop with technique TRACK_* (use_control: the minorant as control in free
  * flight). Walk j of ray r (ray_lanes: the lanes of a work-item share a ray) goes through
  * media[r] with sample index j; rays are 9 floats (o, d, t0, t1, pad). Writes, at

@@ -186,6 +186,43 @@ def test_grid_lookup_including_faces():
     assert np.allclose(out, ref, rtol=1e-5, atol=1e-6)
 
 
+def test_to_medium_maps_points_and_directions():
+    """The scene frame to a placed medium's space (a turn, a mirror, a shear, a scale and a
+    translation): the kernels, the reference and the packed 3x4 matrix agree, and the
+    reference's map inverts the scene's transform (through the frames pack.medium_space
+    composes)."""
+    from volmc.pack import box_frame, pack_scene, scene_frame
+    from volmc.reference.medium import to_medium, to_medium_dir
+    from volmc.scene import scene_from_dict
+    t = {"matrix": [[0.8, 0.3, 0.1, 2.0], [-0.2, 0.0, 1.1, -1.0], [0.4, -0.9, 0.2, 0.5],
+                    [0, 0, 0, 1]]}
+    box = [[-1.0, 0.0, 2.0], [3.0, 1.0, 2.5]]
+    sc = scene_from_dict({"camera": {}, "medium": {"bounds": box, "density": 1.0,
+                                                   "transform": t}})
+    m64 = pack_scene(sc, np.float64).medium
+    m32 = pack_scene(sc, np.float32).medium
+    assert m64[0]["transformed"] == 1
+    rng = np.random.default_rng(9)
+    pd = rng.normal(size=(3000, 6)).astype(np.float32)
+    out, ob = out_buf(pd.shape)
+    run("t_to_medium", len(pd), to_dev(m32), to_dev(pd.ravel()), ob, outs=[(out, ob)])
+    out = out.reshape(pd.shape)
+    x = np.asarray(m64[0]["xform"]).reshape(3, 4)
+    ref = np.array([to_medium(m64[0], tuple(map(float, r[:3]))) +
+                    to_medium_dir(m64[0], tuple(map(float, r[3:]))) for r in pd])
+    assert np.allclose(ref[:, :3], pd[:, :3] @ x[:, :3].T + x[:, 3], rtol=1e-12, atol=1e-12)
+    assert np.allclose(ref[:, 3:], pd[:, 3:] @ x[:, :3].T, rtol=1e-12, atol=1e-12)
+    assert np.allclose(out, ref, rtol=1e-5, atol=1e-5)
+    # A world point: the scene frame's, then the medium's packed space, equals the inverse
+    # of the transform followed by the box's own frame.
+    centre, unit = scene_frame(sc)
+    c_l, u_l = box_frame(*box)
+    w = rng.normal(size=3) * 2.0
+    local = np.linalg.solve(np.array(t["matrix"])[:3, :3], w - np.array(t["matrix"])[:3, 3])
+    got = to_medium(m64[0], tuple((w - centre) / unit))
+    assert np.allclose(got, (local - c_l) / u_l, rtol=1e-12, atol=1e-12)
+
+
 def _rays(n, seed):
     rng = np.random.default_rng(seed)
     rays = np.zeros((n, 9))

@@ -18,6 +18,7 @@ import numpy as np
 from .hostmem import require_host
 from .errors import SceneError
 from .bricks import BrickGrid
+from .transform import as_tuple
 from .grids import load_grid, load_peak_bytes, shape_text, validate_grid
 from .schema import (FLOAT32_MAX, GENERATORS, ArrayDensity, ConstantDensity, FileDensity,
                      GeneratedDensity, SceneSpec, check_box, validate)
@@ -209,11 +210,12 @@ def _dense(vg, path, key):
 def _align_vdb(vg, density, path, key):
     """Grid ``vg`` resampled onto the voxels of the VDB density grid (same voxel size and
     voxel-centre lattice required): the overlap is copied, the rest is vg's background."""
-    if not np.allclose(vg.voxel_size, density.voxel_size, rtol=1e-6, atol=0.0):
+    lin = np.asarray(density.linear)
+    if not np.allclose(vg.linear, lin, rtol=1e-6, atol=1e-6 * float(np.abs(lin).max())):
         raise SceneError(path, key, f"grid '{vg.name}' has voxel size {tuple(vg.voxel_size)}, "
-                                    f"the density {tuple(density.voxel_size)}: they must match")
-    shift = (np.asarray(vg.index_to_world) - np.asarray(density.index_to_world)) \
-        / np.asarray(density.voxel_size)
+                                    f"the density {tuple(density.voxel_size)} (index-to-world "
+                                    "maps): they must match")
+    shift = np.linalg.solve(lin, np.subtract(vg.index_to_world, density.index_to_world))
     if not np.allclose(shift, np.round(shift), atol=1e-4):
         raise SceneError(path, key, f"grid '{vg.name}' is offset from the density by a "
                                     "fraction of a voxel; the voxels must line up")
@@ -298,12 +300,18 @@ def _complete(spec: SceneSpec):
     cache = {}
     grid, vg = load_density(spec, cache)
     if spec.medium.bounds is None:
-        lo, hi = vg.world_bounds()
+        # The file's own placement: its world box, or (a turned, mirrored or sheared map) its
+        # index box with the map as a transform, under the medium's transform if any.
+        lo, hi, vdb_map = vg.placement()
+        transform = spec.medium.transform
+        if vdb_map is not None:
+            transform = as_tuple(vdb_map if transform is None else np.array(transform) @ vdb_map)
 
         def fail(key, msg):
             raise SceneError(spec.medium.density.resolved, key, msg)
         check_box(fail, lo, hi)
-        spec = replace(spec, medium=replace(spec.medium, bounds=(tuple(lo), tuple(hi))))
+        spec = replace(spec, medium=replace(spec.medium, bounds=(tuple(lo), tuple(hi)),
+                                            transform=transform))
     return Scene(spec, grid, load_emission(spec, vg, cache))
 
 

@@ -12,11 +12,19 @@ API
 
 ``VdbGrid`` (a frozen dataclass):
     name            the grid's name.
-    voxel_size      (sx, sy, sz) floats, world units: the world extent of one voxel.
+    linear          3x3 tuple of rows: the index-to-world map's linear part (any
+                    invertible one: scale, rotation, shear, mirror).
     index_to_world  (tx, ty, tz) floats, world units: the world position of index
                     coordinate (0, 0, 0). OpenVDB puts voxel CENTRES at integer index
                     coordinates, so voxel (i, j, k) is centred at
-                    index_to_world + (i, j, k) * voxel_size.
+                    index_to_world + linear @ (i, j, k).
+    ``voxel_size``      (sx, sy, sz): the world length of one voxel's edge along each index
+                        axis (the diagonal of ``linear`` when the map is axis-aligned).
+    ``axis_aligned``    True when ``linear`` is diagonal and positive.
+    ``placement()``     (lo, hi, M): the box and the transform that place the grid as OpenVDB
+                        does: an axis-aligned map gives its world box (``world_bounds``)
+                        and M None; any other gives the box in index coordinates
+                        [imin - 1/2, imax + 1/2] and M the 4x4 index-to-world matrix.
     bbox            ((imin_x, imin_y, imin_z), (imax_x, imax_y, imax_z)) ints: the index
                     bounding box of the active voxels, both corners inclusive.
     background      float: the value of every voxel outside leaves and active tiles.
@@ -40,11 +48,10 @@ Reading builds no dense array: the blocks are the file's leaf nodes, plus one bl
 8^3, 128^3 or 4096^3 region); tiles whose blocks would hold more than ``MAX_TILE_VOXELS``
 voxels are rejected. Inactive tiles are read as the background.
 
-Transforms: the map must be linear, axis-aligned, with positive scale (OpenVDB's
-UniformScaleMap, UniformScaleTranslateMap, ScaleMap, ScaleTranslateMap, TranslationMap,
-or an AffineMap/UnitaryMap whose 3x3 part is diagonal and positive). A rotation, shear,
-mirroring (negative scale), projective or frustum map is an error. Non-uniform scale is
-fine.
+Transforms: any affine map (OpenVDB's UniformScaleMap, UniformScaleTranslateMap, ScaleMap,
+ScaleTranslateMap, TranslationMap, AffineMap and UnitaryMap; NanoVDB's matrix), including
+rotation, shear and mirroring; the medium then carries it as its transform
+(scene/transform.py). A singular, non-finite, projective or frustum map is an error.
 
 Formats read (facts from OpenVDB's and NanoVDB's headers; no code of theirs):
 
@@ -98,7 +105,7 @@ class VdbGrid:
     """A sparse float grid read from a .vdb or .nvdb file (see the module docstring)."""
 
     name: str
-    voxel_size: tuple
+    linear: tuple
     index_to_world: tuple
     bbox: tuple
     background: float
@@ -126,8 +133,28 @@ class VdbGrid:
             out[az:bz, ay:by, ax:bx] = block[sz:ez, sy:ey, sx:ex]
         return out
 
+    @property
+    def voxel_size(self):
+        return tuple(float(v) for v in np.linalg.norm(np.asarray(self.linear), axis=0))
+
+    @property
+    def axis_aligned(self):
+        m = np.asarray(self.linear)
+        return bool(np.all(m == np.diag(np.diag(m))) and np.all(np.diag(m) > 0))
+
+    def placement(self):
+        """(lo, hi, M or None): see the module docstring."""
+        if self.axis_aligned:
+            return (*self.world_bounds(), None)
+        lo = tuple(i - 0.5 for i in self.bbox[0])
+        hi = tuple(i + 0.5 for i in self.bbox[1])
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = self.linear, self.index_to_world
+        return lo, hi, m
+
     def world_bounds(self):
-        """((xmin, ymin, zmin), (xmax, ymax, zmax)) in world units (module docstring)."""
+        """((xmin, ymin, zmin), (xmax, ymax, zmax)) in world units (module docstring) of an
+        axis-aligned grid."""
         lo = tuple(t + (i - 0.5) * s for t, i, s in
                    zip(self.index_to_world, self.bbox[0], self.voxel_size))
         hi = tuple(t + (i + 0.5) * s for t, i, s in
@@ -243,21 +270,20 @@ def _zlib_decompress(chunk, nbytes, cur):
 
 
 def _check_transform(m, t, cur, grid):
-    """m: 3x3 with world = m @ index + t. Returns (voxel_size, index_to_world)."""
-    m = np.asarray(m, np.float64)
-    diag = np.diag(m)
-    off = m - np.diag(diag)
+    """m: 3x3 with world = m @ index + t. Returns (linear, index_to_world) as tuples; an
+    off-diagonal entry below 1e-9 of the largest (rounding in a file's AffineMap) is 0."""
+    from .transform import singularity
+    m = np.array(m, np.float64)
     if not np.all(np.isfinite(m)) or not np.all(np.isfinite(t)):
         raise cur.error(f"grid '{grid}': transform holds NaN or infinite values")
-    scale = float(np.max(np.abs(diag))) if diag.size else 0.0
-    if np.any(np.abs(off) > 1e-9 * max(scale, 1e-300)):
-        raise cur.error(f"grid '{grid}': rotated or sheared transform (index-to-world matrix "
-                        f"{np.array2string(m.ravel(), precision=4, separator=',')}); volmc "
-                        "needs an axis-aligned scale and translation")
-    if np.any(diag <= 0):
-        raise cur.error(f"grid '{grid}': transform has a negative or zero scale "
-                        f"{tuple(float(v) for v in diag)}; volmc needs positive voxel sizes")
-    return tuple(float(v) for v in diag), tuple(float(v) for v in t)
+    scale = float(np.max(np.abs(m)))
+    m[np.abs(m) <= 1e-9 * scale] = 0.0
+    full = np.eye(4)
+    full[:3, :3] = m
+    why = singularity(full) if scale > 0 else "it is zero"
+    if why:
+        raise cur.error(f"grid '{grid}': singular transform: {why}")
+    return tuple(tuple(float(v) for v in row) for row in m), tuple(float(v) for v in t)
 
 
 class _Blocks:
@@ -277,7 +303,7 @@ class _Blocks:
                                  "blocks and refuses this much")
         self.tiles.append((tuple(int(v) for v in origin), size, float(value)))
 
-    def to_grid(self, leaf_origins, values, active, voxel_size, translation, background):
+    def to_grid(self, leaf_origins, values, active, linear, translation, background):
         """The VdbGrid of these tiles and the leaves at ``leaf_origins`` (n index triples),
         whose ``values`` (float, (n, 512)) and ``active`` masks (bool, (n, 512)) come in the
         files' leaf order, x-major ((x << 6) | (y << 3) | z). The active bbox covers the
@@ -295,7 +321,7 @@ class _Blocks:
             act_blocks.append(np.ones((2, 8, 8, 8), bool))
         bbox = _bbox_of_active(np.concatenate(act_origins), np.concatenate(act_blocks),
                                self.cur, self.grid)
-        return VdbGrid(self.grid, voxel_size, translation, bbox, background, origins, vals)
+        return VdbGrid(self.grid, linear, translation, bbox, background, origins, vals)
 
     def build(self):
         """(origins int32 (n, 3), values float32 (n, 8, 8, 8)) sorted by (x, y, z); each
@@ -415,7 +441,7 @@ class _VdbReader:
                             "and blosc)")
         self.comp, self.half = comp, half
         self._skip_metadata()
-        voxel_size, translation = self._read_transform(name)
+        linear, translation = self._read_transform(name)
 
         # Topology: buffer count, root (background, tiles, children), internal nodes
         # depth first, leaf value masks.
@@ -446,7 +472,7 @@ class _VdbReader:
             mask = _bits(cur.take(64))
             active[i] = mask
             values[i] = self._read_values(512, mask)
-        return blocks.to_grid(leaf_origins, values, active, voxel_size, translation,
+        return blocks.to_grid(leaf_origins, values, active, linear, translation,
                               self.background)
 
     def _read_transform(self, name):
@@ -471,7 +497,7 @@ class _VdbReader:
             return _check_transform(m[:3, :3].T, m[3, :3], cur, name)
         if kind == "NonlinearFrustumMap":
             raise cur.error(f"grid '{name}': frustum transform unsupported; volmc needs an "
-                            "axis-aligned scale and translation")
+                            "affine one")
         raise cur.error(f"grid '{name}': unknown transform type '{kind[:40]}'")
 
     def _read_internal(self, origin, log2, blocks):
@@ -634,7 +660,7 @@ class _NanoGrid:
         taper, = self.at(296 + 256, "d")
         if taper != 1.0:
             raise cur.error(f"grid '{name}': frustum (tapered) transform unsupported")
-        voxel_size, translation = _check_transform(mat, vec, cur, name)
+        linear, translation = _check_transform(mat, vec, cur, name)
         gtype, = self.at(636, "I")
         if gtype != NANO_FLOAT:
             raise cur.error(f"corrupt {cur.what} (grid type {gtype} in the grid, Float in "
@@ -673,7 +699,7 @@ class _NanoGrid:
         masks = np.ndarray((n_leaf, 64), np.uint8, self.buf, self.leaf_base + 16,
                            (self.LEAF_SIZE, 1)) if n_leaf else np.zeros((0, 64), np.uint8)
         active = np.unpackbits(masks[idx], axis=1, bitorder="little").astype(bool)
-        return blocks.to_grid(leaf_origin, vals, active, voxel_size, translation, background)
+        return blocks.to_grid(leaf_origin, vals, active, linear, translation, background)
 
     def _internal(self, node, origin, log2, blocks, leaf_index, leaf_origin):
         cur = self.cur
