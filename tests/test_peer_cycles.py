@@ -80,6 +80,16 @@ CASES = {
                                                "seed": 8}}}, lights=LIGHTS[:1]),
     # max_depth 0: a scattering event ends the path (scattering acts as absorption).
     "no_scattering": lambda: peer_scene(render={"max_depth": 0}, lights=LIGHTS[:2]),
+    # medium.transform: a turned, mirrored, stretched grid; a turned box around the camera.
+    "placed": lambda: peer_scene(medium={"transform": {"rotate": [1, 1, 0, 35.0],
+                                                       "scale": [1.0, -1.2, 0.9],
+                                                       "translate": [0.05, 0.1, 0.0]}},
+                                 lights=LIGHTS[:2]),
+    "placed_camera_inside": lambda: peer_scene(
+        camera={"eye": [0.1, 0.2, 0.3], "target": [1.0, 0.0, -1.0], "fov": 70.0,
+                "resolution": [16, 16]},
+        medium={"density": 1.0, "scale": 1.5, "phase": {"type": "isotropic"},
+                "transform": {"rotate": [0, 0, 1, 40.0], "scale": [2.0, 1.0, -1.0]}}),
 }
 
 

@@ -68,6 +68,16 @@ CASES = {
                                         "phase": {"type": "isotropic"}}),
     # Extinction 30, 15 and 6 x density in red, green and blue, HG multiple scattering.
     "chromatic": _chromatic(),
+    # A grid turned, mirrored and stretched by medium.transform (the grid's and the cube's
+    # to_world), and a turned homogeneous box around the camera.
+    "placed": peer_scene(medium={"transform": {"rotate": [1, 1, 0, 35.0],
+                                               "scale": [1.0, -1.2, 0.9],
+                                               "translate": [0.05, 0.1, 0.0]}}),
+    "placed_camera_inside": peer_scene(
+        camera={"eye": [0.1, 0.2, 0.3], "target": [1.0, 0.0, -1.0], "fov": 70.0,
+                "resolution": [16, 16]},
+        medium={"density": 1.0, "scale": 1.5, "phase": {"type": "isotropic"},
+                "transform": {"rotate": [0, 0, 1, 40.0], "scale": [2.0, 1.0, -1.0]}}),
 }
 
 

@@ -32,6 +32,10 @@ Conventions and how the translation matches them (each checked by tests/test_pee
   one more layer of voxels copying the faces (volmc's clamping inside the box), and the
   shader multiplies the density by 1 inside ``medium.bounds`` and 0 outside (the padded
   layer's spill-over). A grid whose faces are all 0 needs neither.
+- **Placement.** ``medium.transform`` is the medium object's ``matrix_world`` (world = M x
+  object coordinates, where the box and the grid live). Cycles evaluates the volume shader at
+  object coordinates and integrates along world distances, as volmc does; its object
+  transforms handle a mirroring M (negative determinant) themselves.
 - **Homogeneous medium.** A cube mesh spanning ``medium.bounds`` with the volume material
   and no surface shader (its faces are transparent); a camera inside it is inside the
   medium, which Cycles detects itself.
@@ -150,7 +154,8 @@ def medium_job(scene, folder):
     albedo = _floats(med.albedo) if ren.max_depth != 0 else [0.0, 0.0, 0.0]
     out = {"bounds": [_floats(med.bounds[0]), _floats(med.bounds[1])], "scale": scale,
            "albedo": albedo, "g": float(med.phase.g) if med.phase.type == "hg" else 0.0,
-           "density": None, "grid": None, "clip_to_bounds": False, "emission": None}
+           "density": None, "grid": None, "clip_to_bounds": False, "emission": None,
+           "transform": None if med.transform is None else [_floats(r) for r in med.transform]}
     grids = [("density", scene.grid)]
     em = med.emission
     if em is not None:

@@ -204,12 +204,15 @@ def _material(bpy, med):
 
 
 def _medium(bpy, sc, med, folder):
+    from mathutils import Matrix
     lo, hi = med["bounds"]
+    place = Matrix(med["transform"]) if med.get("transform") else Matrix.Identity(4)
     if med["grid"] is None:
         bpy.ops.mesh.primitive_cube_add(size=2.0)
         obj = bpy.context.active_object
-        obj.location = [(lo[i] + hi[i]) / 2 for i in range(3)]
-        obj.scale = [(hi[i] - lo[i]) / 2 for i in range(3)]
+        box = Matrix.Diagonal([(hi[i] - lo[i]) / 2 for i in range(3)] + [1.0])
+        box.translation = [(lo[i] + hi[i]) / 2 for i in range(3)]
+        obj.matrix_world = place @ box
         obj.data.materials.append(_material(bpy, med))
         return
     path = os.path.join(folder, "volmc_medium.vdb")
@@ -219,6 +222,7 @@ def _medium(bpy, sc, med, folder):
     vol.render.precision = "FULL"   # not half floats
     vol.render.clipping = 0.0       # no small value dropped as empty space
     obj = bpy.data.objects.new("volmc_medium", vol)
+    obj.matrix_world = place
     sc.collection.objects.link(obj)
     vol.grids.load()
     vol.materials.append(_material(bpy, med))

@@ -12,6 +12,9 @@ or by the README's cross-check):
 - **Medium box.** A ``cube`` shape ([-1, 1]^3) scaled to ``medium.bounds`` with a ``null`` BSDF
   carries the medium as its interior. A camera inside the box gets the medium as its
   exterior medium (Mitsuba needs to be told; volmc finds it by geometry).
+- **Placement.** ``medium.transform`` (world = M x local, distances in world units on both
+  sides) is the ``to_world`` of the grid and of the cube, before their own placement in the
+  box; a mirroring M is taken off the cube (a symmetric shape) so its faces stay outward.
 - **Grid.** Both index arrays [z, y, x] with x fastest, put voxel centres at
   (i + 0.5) / n of the box, interpolate trilinearly and clamp to the edge voxels
   (Mitsuba's ``gridvolume`` with its default ``filter_type = "bilinear"``, ``wrap_mode =
@@ -134,8 +137,12 @@ def medium_scale(med):
     return tuple(float(x) for x in s) if isinstance(s, (tuple, list)) else (float(s),) * 3
 
 
-def _inside(p, bounds):
-    return all(bounds[0][i] < p[i] < bounds[1][i] for i in range(3))
+def _inside(p, medium):
+    """True when world point p is inside the (placed) medium box."""
+    if medium.transform is not None:
+        m = np.asarray(medium.transform, float)
+        p = np.linalg.solve(m[:3, :3], np.asarray(p, float) - m[:3, 3])
+    return all(medium.bounds[0][i] < p[i] < medium.bounds[1][i] for i in range(3))
 
 
 def check_translatable(scene):
@@ -158,6 +165,13 @@ def scene_dict(scene, mi=None):
     cam, med, ren = spec.camera, spec.medium, spec.render
     (x0, y0, z0), (x1, y1, z1) = med.bounds
     ext = (x1 - x0, y1 - y0, z1 - z0)   # > 0 on every axis: scene validation ensures it
+    # medium.transform places the box: Mitsuba's to_world of the grid and of the cube, both
+    # world = M x local (distances are world distances on both sides). A mirror flips the
+    # cube's faces inside out, so the cube (symmetric) takes the mirror off its own axes.
+    place = T(np.asarray(med.transform, float).tolist()) if med.transform is not None else T()
+    unmirror = T().scale([-1.0, 1.0, 1.0]) if (
+        med.transform is not None and np.linalg.det(np.asarray(med.transform)[:3, :3]) < 0) \
+        else T()
 
     phase = ({"type": "hg", "g": float(med.phase.g)} if med.phase.type == "hg"
              else {"type": "isotropic"})
@@ -181,7 +195,8 @@ def scene_dict(scene, mi=None):
         medium = {"type": "heterogeneous", "scale": float(mscale), "phase": phase,
                   "sigma_t": {"type": "gridvolume",
                               "grid": mi.VolumeGrid(np.ascontiguousarray(data, np.float32)),
-                              "to_world": T().translate([x0, y0, z0]).scale(list(ext))},
+                              "to_world": place @ T().translate([x0, y0, z0])
+                              .scale(list(ext))},
                   "albedo": {"type": "constvolume", "value": _rgb(med.albedo)}}
     medium["id"] = "volmc_medium"
 
@@ -196,7 +211,7 @@ def scene_dict(scene, mi=None):
     sensor["film"] = {"type": "hdrfilm", "width": int(w), "height": int(h),
                       "rfilter": {"type": "box"}, "pixel_format": "rgb"}
     sensor["sampler"] = {"type": "independent", "sample_count": int(ren.spp)}
-    if _inside(cam.eye, med.bounds):
+    if _inside(cam.eye, med):
         sensor["medium"] = {"type": "ref", "id": "volmc_medium"}
 
     depth = -1 if ren.max_depth < 0 else ren.max_depth + 1
@@ -207,8 +222,9 @@ def scene_dict(scene, mi=None):
          "volmc_medium": medium,
          "box": {"type": "cube", "bsdf": {"type": "null"},
                  "interior": {"type": "ref", "id": "volmc_medium"},
-                 "to_world": T().translate([(x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2])
-                 .scale([e / 2 for e in ext])}}
+                 "to_world": place @ T().translate([(x0 + x1) / 2, (y0 + y1) / 2,
+                                                    (z0 + z1) / 2])
+                 .scale([e / 2 for e in ext]) @ unmirror}}
     for i, light in enumerate(spec.lights):
         if light.type == "environment":
             d[f"light{i}"] = {"type": "constant", "radiance": _rgb(light.radiance)}
