@@ -345,7 +345,11 @@ typedef struct {
     lfloat pdf_phase;
     lint light, sample;      /* next-event estimation: light (n_lights: the environment) */
     lvec3 contrib;           /* what the pending shadow ray's transmittance adds to L */
+    lfloat alpha;            /* coverage of the camera ray (trace_path) */
 } Path;
+
+/* A = 1 - T of a camera ray's transmittance estimate T (twin in integrator.py). */
+static inline lfloat coverage(lvec3 T) { return 1.0f - (T.x + T.y + T.z) / 3.0f; }
 
 /* The shadow-ray technique of the one walk loop, when the shadow estimator is a tracking
  * technique (SHADOW_TECHNIQUE, set by the host from techniques.py); the per-segment
@@ -383,16 +387,16 @@ static inline STAGE void path_start(const Params *prm, MediumData *med, Path *pa
     path->o = sel3(path->o, o, fresh);
     path->d = sel3(path->d, d, fresh);
     path->L = sel3(path->L, v3s(0.0f), fresh);
+    path->alpha = select(path->alpha, (lfloat)(0.0f), fresh);
     float3 albedo = vec3(m->albedo);
     const int emissive = FEATURE_EMISSION ? m->emission_kind != EMISSION_NONE : 0;
     if (!emissive && (prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f)) {
         /* No scattering can contribute: environment times transmittance (see integrator.py). */
-        if (prm->has_env)
-            path->L = sel3(path->L,
-                           rgb_times(vec3(prm->env),
-                                     shadow_transmittance(prm, med, o, d, (lfloat)(NO_LIMIT), 1,
-                                                          rng_s, counters, fresh)),
-                           fresh);
+        spec T = shadow_transmittance(prm, med, o, d, (lfloat)(NO_LIMIT), 1, rng_s, counters,
+                                      fresh);
+        if (prm->has_env && !prm->transparent)
+            path->L = sel3(path->L, rgb_times(vec3(prm->env), T), fresh);
+        path->alpha = select(path->alpha, coverage(spec_rgb(T)), fresh);
         path->state = select(path->state, (lint)(PATH_DONE), fresh);
         return;
     }
@@ -499,9 +503,12 @@ static inline STAGE void flight_end(const Params *prm, const MediumData *med, Pa
     rng_drop_preset(rng, walked);
     lvec3 beta_w = weighted_beta(path);
     lmask escaped = m & (event == EVENT_ESCAPE);
+    lmask first = m & (path->depth == 0);
+    path->alpha = select(path->alpha, select((lfloat)(1.0f), coverage(beta_w), escaped), first);
     if (prm->has_env && ANY(escaped)) {
         const float n_env = (float)prm->light_samples * uniform_sphere_pdf();
-        lfloat w = select((lfloat)(1.0f), mis_weight(prm->mis, path->pdf_phase, (lfloat)(n_env)),
+        lfloat w = select((lfloat)(prm->transparent ? 0.0f : 1.0f),
+                          mis_weight(prm->mis, path->pdf_phase, (lfloat)(n_env)),
                           path->depth > 0);
         path->L = sel3(path->L, add3(path->L, mul3(beta_w, scale3(v3u(vec3(prm->env)), w))),
                        escaped);
@@ -641,20 +648,23 @@ static inline STAGE void path_bounce(const Params *prm, const Medium *md, Path *
     path->state = select(path->state, select((lint)(PATH_DONE), (lint)(PATH_START), alive), m);
 }
 
-/* The samples of the lanes of m, filtered (guard "sample filter", guards.h), to out[job]. */
+/* The samples of the lanes of m (RGBA), filtered (guard "sample filter", guards.h: a dropped
+ * sample is 0 in every channel), to out[job]. */
 static inline STAGE void path_write(const Params *prm, const Path *path, global float *out,
                               lulong *counters, lmask m) {
     lmask ok = sample_ok(path->L, prm->signed_samples);
     counters[C_DROPPED] += lane_ones(m & !ok);
     lvec3 c = sel3(v3s(0.0f), path->L, ok);
+    lfloat a = select((lfloat)(0.0f), path->alpha, ok);
     for (int l = 0; l < LANES; ++l)
-        if (lane_on(m, l)) vstore3(lane_vec3(c, l), lane_uint(path->job, l), out);
+        if (lane_on(m, l))
+            vstore4((float4)(lane_vec3(c, l), lane_float(a, l)), lane_uint(path->job, l), out);
 }
 
 /* Work-item i renders the jobs [i J, (i + 1) J) of the launch (J = launch.jobs_per_item): job
  * j is sample launch.sample_start + j % n_samples of pixel launch.pix_start + j / n_samples
  * (row-major pixel indices: a band of rows, or every pixel), and writes its value to out[j]
- * (RGB). A lane whose path ends takes the work-item's next job. A pixel's samples depend on
+ * (RGBA). A lane whose path ends takes the work-item's next job. A pixel's samples depend on
  * its index and the sample's alone, so any split into bands, launches, work-items or lanes
  * gives the same values. A NaN, infinite or negative sample is written as 0 and counted as
  * dropped, exactly as in the reference. Counters: one row per work-item. */

@@ -47,9 +47,19 @@ def test_render_writes_exr_png_and_metadata(tmp_path, tiny):
     assert meta["spp"] == 3 and meta["seed"] == "9" and meta["backend"] == "opencl"
     assert meta["partial"] == 0 and float(meta["render_time_s"]) > 0
     assert "technique.free_flight" in meta and "scale = 1.0" in meta["scene_toml"]
-    # Pure absorber, homogeneous: every pixel is exactly 0.5 exp(-tau) along its ray.
+    # Pure absorber, homogeneous: every pixel is exactly 0.5 exp(-tau) along its ray, and
+    # its coverage (the A channel) 1 - exp(-tau).
     assert np.all(img > 0) and np.all(img <= 0.5)
+    rgba, _ = read_exr(tmp_path / "out.exr", alpha=True)
+    assert np.allclose(rgba[..., 3], 1.0 - img[..., 0] / 0.5, atol=1e-6)
     assert (tmp_path / "out.png").stat().st_size > 0
+    r2 = run(["render", str(tiny), "-o", "t.exr", "--png", "--spp", "3", "--seed", "9",
+              "-D", "render.transparent_background=true", "-D", "medium.scale=1.0"], tmp_path)
+    assert r2.returncode == 0, r2.stderr
+    t, _ = read_exr(tmp_path / "t.exr", alpha=True)
+    assert np.all(t[..., :3] == 0.0) and np.allclose(t[..., 3], rgba[..., 3], atol=1e-6)
+    from matplotlib import image as mpimg
+    assert mpimg.imread(tmp_path / "t.png").shape == (8, 10, 4)
     var, _ = read_exr(tmp_path / "out.var.exr")
     assert np.all(var >= 0)
     for word in ("samples_per_second", "mean_path_length", "lookups_per_sample", "paths_capped"):

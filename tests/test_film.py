@@ -8,14 +8,17 @@ from volmc.film import Film, read_exr, rmse, srgb_encode, tonemap, write_exr, wr
 
 def test_variance_of_mean_matches_numpy():
     rng = np.random.default_rng(0)
-    samples = rng.exponential(size=(37, 5, 4, 3))
+    samples = rng.exponential(size=(37, 5, 4, 4))   # RGBA
     f = Film(4, 5)
     for s in samples:
         f.sum += s
         f.sum_sq += s * s
         f.spp += 1
-    assert np.allclose(f.mean(), samples.mean(axis=0))
-    assert np.allclose(f.variance_of_mean(), samples.var(axis=0, ddof=1) / 37)
+    assert np.allclose(f.mean(), samples[..., :3].mean(axis=0))
+    assert np.allclose(f.variance_of_mean(), samples[..., :3].var(axis=0, ddof=1) / 37)
+    assert np.allclose(f.alpha(), samples[..., 3].mean(axis=0))
+    assert np.allclose(f.variance_of_mean(alpha=True), samples[..., 3].var(axis=0, ddof=1) / 37)
+    assert np.allclose(f.rgba(), samples.mean(axis=0))
 
 
 def test_variance_undefined_below_two_samples():
@@ -42,6 +45,12 @@ def test_exr_round_trip_exact_and_from_strided_views(tmp_path):
     write_exr(tmp_path / "b.exr", t)
     back, _ = read_exr(tmp_path / "b.exr")
     assert back[0, 1, 0] == 1.0 and back[2, 0, 2] == 2.0 and back.sum() == 3.0
+    # RGBA, from a strided view too; an RGB file reads with A = 1.
+    write_exr(tmp_path / "c.exr", big[:, 1:, :])
+    back, _ = read_exr(tmp_path / "c.exr", alpha=True)
+    assert np.array_equal(back, big[:, 1:, :])
+    back, _ = read_exr(tmp_path / "b.exr", alpha=True)
+    assert np.array_equal(back[..., :3], t) and np.all(back[..., 3] == 1.0)
 
 
 def test_srgb_and_tonemap():
@@ -64,6 +73,14 @@ def test_png_written(tmp_path):
     back = mpimg.imread(tmp_path / "p.png")
     assert back.shape[:2] == (4, 6)
     assert back[0, 0, 0] == pytest.approx(1.0) and back[3, 0, 0] == 0.0
+    # With a coverage: RGBA, the colour un-premultiplied (straight alpha, as PNG has it).
+    a = np.full((4, 6), 0.5)
+    a[1] = 0.0
+    write_png(tmp_path / "q.png", img * 0.5, operator="clamp", alpha=a)
+    back = mpimg.imread(tmp_path / "q.png")
+    assert back.shape == (4, 6, 4)
+    assert back[0, 0, 0] == pytest.approx(1.0) and back[0, 0, 3] == pytest.approx(128 / 255)
+    assert back[1, 0, 3] == 0.0 and back[1, 0, 0] == 0.0
 
 
 def test_rmse():

@@ -85,6 +85,9 @@ CASES = {
                                                        "scale": [1.0, -1.2, 0.9],
                                                        "translate": [0.05, 0.1, 0.0]}},
                                  lights=LIGHTS[:2]),
+    # The world hidden from camera rays (film_transparent), still lighting the medium.
+    "transparent": lambda: peer_scene(render={"transparent_background": True},
+                                      lights=LIGHTS[:2]),
     "placed_camera_inside": lambda: peer_scene(
         camera={"eye": [0.1, 0.2, 0.3], "target": [1.0, 0.0, -1.0], "fov": 70.0,
                 "resolution": [16, 16]},

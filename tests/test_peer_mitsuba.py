@@ -73,6 +73,8 @@ CASES = {
     "placed": peer_scene(medium={"transform": {"rotate": [1, 1, 0, 35.0],
                                                "scale": [1.0, -1.2, 0.9],
                                                "translate": [0.05, 0.1, 0.0]}}),
+    # The environment hidden from camera rays (hide_emitters), still lighting the medium.
+    "transparent": peer_scene(render={"transparent_background": True}),
     "placed_camera_inside": peer_scene(
         camera={"eye": [0.1, 0.2, 0.3], "target": [1.0, 0.0, -1.0], "fov": 70.0,
                 "resolution": [16, 16]},

@@ -245,6 +245,10 @@ class RenderedImage:
     """A finished (or interrupted) render.
 
     image: linear RGB radiance, float32 [height, width, 3], row 0 at the top.
+    alpha: the coverage A = 1 - T per pixel, float32 [height, width]: T the camera ray's
+    transmittance to the background, estimated by each sample's own path (with
+    ``render.transparent_background``, ``image`` is premultiplied by it: composite with
+    ``image + (1 - alpha) x plate``).
     variance: per-pixel variance of the mean (of ``image``), float32 [height, width, 3];
     inf with fewer than 2 samples per pixel. The standard error is ``sqrt(variance)``.
     counters: dict of the render's totals (``lookups``, ``scatter_events``, ``shadow_rays``,
@@ -261,6 +265,7 @@ class RenderedImage:
         self.result = result
         self.scene = scene
         self.image = result.film.mean().astype(np.float32)
+        self.alpha = result.film.alpha().astype(np.float32)
         self.variance = result.film.variance_of_mean().astype(np.float32)
         self.counters = dict(result.counters)
         self.seconds = result.seconds
@@ -286,11 +291,12 @@ class RenderedImage:
         return meta
 
     def save(self, path, exposure=0.0, tonemap="filmic", variance=False):
-        """Write the image: ``.exr`` (float32 RGB with metadata, as ``volmc render``) or
+        """Write the image: ``.exr`` (float32 RGBA with metadata, as ``volmc render``) or
         ``.png`` (tonemapped 8-bit sRGB: ``exposure`` in stops, ``tonemap`` "filmic" or
-        "clamp"), chosen by the extension. ``variance``: also write the per-pixel variance
+        "clamp"; RGBA with ``render.transparent_background``), chosen by the extension. ``variance``: also write the per-pixel variance
         of the mean to ``<path without its extension>.var.exr``, with the same metadata (as
         ``volmc render --variance``). Returns the path of the image. Raises VolmcError."""
+        import numpy as np
         from .cli import _check_writable
         from .film import write_exr, write_png
         where = "RenderedImage.save()"
@@ -303,9 +309,11 @@ class RenderedImage:
         if suffix == ".png" and tonemap not in ("filmic", "clamp"):
             raise _error(where, "tonemap", f"must be 'filmic' or 'clamp', got {tonemap!r}")
         if suffix == ".exr":
-            write_exr(path, self.image, self.metadata())
+            write_exr(path, np.concatenate([self.image, self.alpha[..., None]], axis=-1),
+                      self.metadata())
         else:
-            write_png(path, self.image, exposure, tonemap)
+            write_png(path, self.image, exposure, tonemap, alpha=self.alpha if
+                      self.scene.render.transparent_background else None)
         if variance:
             write_exr(os.path.splitext(path)[0] + ".var.exr", self.variance, self.metadata())
         return path

@@ -28,13 +28,13 @@ import tempfile
 
 import numpy as np
 
-from .film import Film
+from .film import CHANNELS, Film
 from .params import COUNTER_NAMES
 from .scene.errors import SceneError
 
 #: Bumped when the layout changes; older files are refused with a message saying so. 2: the
-#: lane counters, and the lane width in the identity.
-FORMAT_VERSION = 2
+#: lane counters, and the lane width in the identity. 3: the film's A channel (RGBA sums).
+FORMAT_VERSION = 3
 
 #: What must match for a checkpoint to be resumed, with the words the error uses.
 IDENTITY = (("seed", "seed"), ("sampler", "render.sampler"), ("backend", "backend"),
@@ -126,7 +126,8 @@ def load(path, scene, backend, lanes=None):
                       "the checkpoint's grids differ from the scene's (a grid file changed, "
                       "or another array was given)")
     w, h = scene.camera.resolution
-    if s.shape != (h, w, 3) or sq.shape != (h, w, 3) or len(cnt) != len(COUNTER_NAMES):
+    if s.shape != (h, w, CHANNELS) or sq.shape != (h, w, CHANNELS) or \
+            len(cnt) != len(COUNTER_NAMES):
         raise bad("the checkpoint's arrays do not match the scene's resolution")
     film = Film(w, h)
     film.sum[...] = s

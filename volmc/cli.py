@@ -394,11 +394,12 @@ def cmd_render(args):
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
     meta["scene_toml"] = to_toml(scene.spec)
-    write_exr(out, res.image, meta)
+    write_exr(out, res.film.rgba(), meta)
     if args.variance:
         write_exr(os.path.splitext(out)[0] + ".var.exr", res.film.variance_of_mean(), meta)
     if png:
-        write_png(png, res.image, args.exposure, args.tonemap)
+        write_png(png, res.image, args.exposure, args.tonemap,
+                  alpha=res.alpha if scene.render.transparent_background else None)
 
     if not args.quiet:
         w, h = scene.camera.resolution

@@ -4,7 +4,12 @@ Every render accumulates, per pixel and channel, the sum of its sample values an
 of their squares, so it knows its own noise: the variance of the pixel mean is
 ``(sum_sq / n - mean^2) / (n - 1)`` (unbiased sample variance divided by n).
 
-Images are float arrays [height, width, 3] of linear RGB, row 0 at the top.
+The channels are R, G, B and A. A sample's A is 1 - T, T the estimate of the camera ray's
+transmittance to the background that its own path makes (the medium's coverage; see
+docs/scene_format.md, ``render.transparent_background``).
+
+Images are float arrays [height, width, 3] of linear RGB, row 0 at the top; ``alpha()`` is
+[height, width].
 """
 
 import math
@@ -15,40 +20,55 @@ import numpy as np
 META_PREFIX = "volmc:"
 
 
+#: Channels a film accumulates per pixel.
+CHANNELS = 4
+
+
 class Film:
-    """Running per-pixel sums for a width x height RGB image."""
+    """Running per-pixel sums for a width x height RGBA image."""
 
     def __init__(self, width, height):
         self.width = int(width)
         self.height = int(height)
-        self.sum = np.zeros((self.height, self.width, 3), np.float64)
-        self.sum_sq = np.zeros((self.height, self.width, 3), np.float64)
+        self.sum = np.zeros((self.height, self.width, CHANNELS), np.float64)
+        self.sum_sq = np.zeros((self.height, self.width, CHANNELS), np.float64)
         self.spp = 0
 
     def mean(self):
         """Per-pixel mean radiance [h, w, 3] (zeros before the first sample)."""
+        return self.sum[..., :3] / max(self.spp, 1)
+
+    def alpha(self):
+        """Per-pixel mean coverage A = 1 - T [h, w] (zeros before the first sample)."""
+        return self.sum[..., 3] / max(self.spp, 1)
+
+    def rgba(self):
+        """[h, w, 4]: the mean radiance and the coverage."""
         return self.sum / max(self.spp, 1)
 
-    def variance_of_mean(self):
-        """Per-pixel variance of the mean [h, w, 3]; inf with fewer than 2 samples."""
+    def variance_of_mean(self, alpha=False):
+        """Per-pixel variance of the mean [h, w, 3] ([h, w] for the coverage with alpha);
+        inf with fewer than 2 samples."""
+        c = 3 if alpha else slice(0, 3)
         n = self.spp
         if n < 2:
-            return np.full_like(self.sum, np.inf)
-        m = self.sum / n
-        var = np.maximum(self.sum_sq / n - m * m, 0.0) * (n / (n - 1))
+            return np.full_like(self.sum[..., c], np.inf)
+        m = self.sum[..., c] / n
+        var = np.maximum(self.sum_sq[..., c] / n - m * m, 0.0) * (n / (n - 1))
         return var / n
 
 
 def write_exr(path, image, metadata=None):
-    """Write a float32 RGB EXR (channels R, G, B; ZIP compression) with string/number metadata.
+    """Write a float32 RGB or RGBA EXR (channels R, G, B and A for an [h, w, 4] image; ZIP
+    compression) with string/number metadata.
 
     Each channel is passed to OpenEXR as its own C-contiguous array: OpenEXR 3.5's bindings
     write wrong pixels for strided views such as ``image[..., 0]``.
     """
     import OpenEXR
     image = np.asarray(image, dtype=np.float32)
-    if image.ndim != 3 or image.shape[2] != 3:
-        raise ValueError(f"expected an [h, w, 3] image, got shape {image.shape}")
+    if image.ndim != 3 or image.shape[2] not in (3, 4):
+        raise ValueError(f"expected an [h, w, 3] or [h, w, 4] image, got shape {image.shape}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for k, v in (metadata or {}).items():
         if isinstance(v, bool):
@@ -56,17 +76,23 @@ def write_exr(path, image, metadata=None):
         elif not isinstance(v, (int, float, str)):
             v = str(v)
         header[META_PREFIX + k] = v
-    channels = {c: np.ascontiguousarray(image[..., i]) for i, c in enumerate("RGB")}
+    channels = {c: np.ascontiguousarray(image[..., i])
+                for i, c in enumerate("RGBA"[:image.shape[2]])}
     with OpenEXR.File(header, channels) as f:
         f.write(str(path))
 
 
-def read_exr(path):
-    """Read an RGB EXR. Returns (image float32 [h, w, 3], metadata dict without the prefix)."""
+def read_exr(path, alpha=False):
+    """Read an RGB EXR. Returns (image float32 [h, w, 3], metadata dict without the prefix);
+    with alpha, the image is [h, w, 4] with the A channel (1 where the file has none)."""
     import OpenEXR
     with OpenEXR.File(str(path), separate_channels=True) as f:
         ch = f.channels()
         img = np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGB"], axis=-1)
+        if alpha:
+            a = np.asarray(ch["A"].pixels, np.float32) if "A" in ch else \
+                np.ones(img.shape[:2], np.float32)
+            img = np.concatenate([img, a[..., None]], axis=-1)
         meta = {k[len(META_PREFIX):]: v for k, v in f.header().items()
                 if k.startswith(META_PREFIX)}
     return img, meta
@@ -98,16 +124,23 @@ def tonemap(image, exposure=0.0, operator="filmic"):
 PNG_BAND_ROWS = 256
 
 
-def write_png(path, image, exposure=0.0, operator="filmic"):
+def write_png(path, image, exposure=0.0, operator="filmic", alpha=None):
     """Write a tonemapped 8-bit sRGB PNG preview of a linear image (tonemapped in bands of
-    PNG_BAND_ROWS rows: the same pixels, with temporaries of one band)."""
+    PNG_BAND_ROWS rows: the same pixels, with temporaries of one band). With ``alpha``
+    ([h, w] coverage), the PNG is RGBA: PNG's alpha is straight, so the premultiplied
+    colour is divided by the coverage before the tone curve (0 where nothing covers)."""
     from matplotlib import image as mpimg
-    rgb = np.empty(np.shape(image), np.uint8)
-    for y in range(0, rgb.shape[0], PNG_BAND_ROWS):
-        band = image[y:y + PNG_BAND_ROWS]
-        rgb[y:y + PNG_BAND_ROWS] = (tonemap(band, exposure, operator) * 255.0 + 0.5) \
+    h, w = np.shape(image)[:2]
+    out = np.empty((h, w, 3 if alpha is None else 4), np.uint8)
+    for y in range(0, h, PNG_BAND_ROWS):
+        band = np.asarray(image[y:y + PNG_BAND_ROWS], np.float64)
+        if alpha is not None:
+            a = np.clip(np.asarray(alpha[y:y + PNG_BAND_ROWS], np.float64), 0.0, 1.0)
+            band = np.where(a[..., None] > 1e-6, band / np.maximum(a, 1e-6)[..., None], 0.0)
+            out[y:y + PNG_BAND_ROWS, :, 3] = (a * 255.0 + 0.5).astype(np.uint8)
+        out[y:y + PNG_BAND_ROWS, :, :3] = (tonemap(band, exposure, operator) * 255.0 + 0.5) \
             .astype(np.uint8)
-    mpimg.imsave(str(path), rgb)
+    mpimg.imsave(str(path), out)
 
 
 def rmse(image, reference):

@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 
 from .scene.hostmem import ENV_VAR, fmt_bytes, host_available, parse_size  # noqa: F401
+from .film import CHANNELS
 from .params import N_COUNTERS, launch_spp
 from .scene.errors import SceneError
 
@@ -35,8 +36,8 @@ LAUNCH_BUDGET = 256 << 20
 #: ... and at most this fraction of the memory available.
 LAUNCH_FRACTION = 8
 
-#: Film: float64 sums and sums of squares, 3 channels each.
-FILM_BYTES_PER_PIXEL = 2 * 3 * 8
+#: Film: float64 sums and sums of squares, CHANNELS (RGBA) each.
+FILM_BYTES_PER_PIXEL = 2 * CHANNELS * 8
 #: Peak above the film of writing its outputs (volmc render): the mean image (float64) with
 #: its float32 EXR copies (37 B/pixel), the variance of the mean with its temporaries
 #: (74 B/pixel with --variance) or the PNG (the mean, its 8-bit copy and matplotlib's RGBA:
@@ -45,11 +46,11 @@ OUTPUT_BYTES_PER_PIXEL = 80
 #: Numba, per pixel of a launch: the per-pixel counters (int64).
 COUNTER_BYTES_PER_PIXEL = N_COUNTERS * 8
 #: OpenCL, per sample of a launch (the kernel writes every sample, kernels/integrator.cl):
-#: float32 RGB on the device and its host copy, and the host's float64 temporaries of the
+#: float32 RGBA on the device and its host copy, and the host's float64 temporaries of the
 #: accumulation (the samples and their squares). The per-work-item counters are a few bytes
 #: per sample more, counted with the samples.
-CL_SAMPLE_BYTES = 3 * 4
-CL_TEMP_BYTES_PER_SAMPLE = 2 * 3 * 8
+CL_SAMPLE_BYTES = CHANNELS * 4
+CL_TEMP_BYTES_PER_SAMPLE = 2 * CHANNELS * 8
 CL_COUNTER_BYTES_PER_SAMPLE = 1
 
 

@@ -194,6 +194,7 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     p["light_samples"] = rnd.light_samples
     p["equiangular"] = int(rnd.equiangular)
     p["rr"] = RR_ALBEDO if rnd.rr == "albedo" else RR_THROUGHPUT
+    p["transparent"] = int(rnd.transparent_background)
     est = ESTIMATORS[rnd.transmittance]
     p["shadow_estimator"] = est.shadow_estimator_id
     p["view_estimator"] = est.view_estimator_id

@@ -34,6 +34,7 @@ PARAM_FIELDS = (
     ("light_samples", "i4", 1, "shadow rays per light (environment: directions) per vertex"),
     ("equiangular", "i4", 1, "1: point lights also sampled by equiangular distance sampling"),
     ("rr", "i4", 1, "RR_THROUGHPUT or RR_ALBEDO: the Russian-roulette survival rule"),
+    ("transparent", "i4", 1, "1: camera rays do not see the environment (it still lights)"),
     ("has_env", "i4", 1, "1 if an environment light is present"),
     ("env", "real", 3, "environment radiance (sum of all environment lights)"),
     ("n_lights", "i4", 1, "number of directional and point lights in the light array"),

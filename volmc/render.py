@@ -92,6 +92,11 @@ class RenderResult:
     def image(self):
         return self.film.mean()
 
+    @property
+    def alpha(self):
+        """The coverage A = 1 - T per pixel [h, w]."""
+        return self.film.alpha()
+
     def stats(self):
         """Derived statistics: samples/s, mean path length, lookups per sample, counters."""
         n = self.film.width * self.film.height * self.film.spp

@@ -6,6 +6,7 @@ import numpy as np
 from ..cl.context import cl_context
 from ..pack import pack_scene
 from ..cl.lanes import resolve_lanes
+from ..film import CHANNELS
 from ..params import N_COUNTERS, launch_dtype, launch_spp
 from ..scene.features import define_flags, features
 from ..techniques import ESTIMATORS
@@ -98,7 +99,7 @@ class OpenCLBackend(RenderBackend):
         self.rec_host = (new_segment_record(w * h, record, np.float32) if record > 0
                          else np.zeros(1, np.float32))
         self.rec_buf = clc.to_device(self.rec_host, writable=True)
-        # One launch's samples (float32 RGB each) and its counters (one row per work-item),
+        # One launch's samples (float32 RGBA each) and its counters (one row per work-item),
         # sized for a band and the schedule's largest batch, grown if a caller asks for more.
         self.out_host = self.out_buf = self.cnt_host = self.cnt_buf = None
         self._reserve(self.band_rows * w * launch_spp(w * h))
@@ -113,7 +114,7 @@ class OpenCLBackend(RenderBackend):
         """Output and counter buffers for launches of up to n_jobs samples."""
         if self.out_host is not None and len(self.out_host) >= n_jobs:
             return
-        self.out_host, self.out_buf = self.clc.output((n_jobs, 3))
+        self.out_host, self.out_buf = self.clc.output((n_jobs, CHANNELS))
         items = -(-n_jobs // min(self.launch_jobs_per_item(1), MIN_JOB_ROUNDS * self.lanes))
         self.cnt_host, self.cnt_buf = self.clc.output((items, N_COUNTERS), np.uint64)
 
@@ -151,9 +152,9 @@ class OpenCLBackend(RenderBackend):
             # in the same order however the work was cut among lanes and work-items.
             rows = slice(pix_start // w, (pix_start + n_pix) // w)
             k = n_pix // w
-            x = self.out_host[:n_jobs].reshape(n_pix, n_samples, 3).astype(np.float64)
-            film.sum[rows] += x.sum(axis=1).reshape(k, w, 3)
-            film.sum_sq[rows] += (x * x).sum(axis=1).reshape(k, w, 3)
+            x = self.out_host[:n_jobs].reshape(n_pix, n_samples, CHANNELS).astype(np.float64)
+            film.sum[rows] += x.sum(axis=1).reshape(k, w, CHANNELS)
+            film.sum_sq[rows] += (x * x).sum(axis=1).reshape(k, w, CHANNELS)
             self.totals += self.cnt_host[:items].sum(axis=0).astype(np.int64)
 
     def counter_totals(self):

@@ -36,6 +36,9 @@ Conventions and how the translation matches them (each checked by tests/test_pee
   object coordinates, where the box and the grid live). Cycles evaluates the volume shader at
   object coordinates and integrates along world distances, as volmc does; its object
   transforms handle a mirroring M (negative determinant) themselves.
+- **Transparent background.** ``render.transparent_background`` is Cycles' Film >
+  Transparent (``film_transparent``): camera rays do not see the world, which still lights
+  the medium; Cycles' EXR RGB is premultiplied, as volmc's.
 - **Homogeneous medium.** A cube mesh spanning ``medium.bounds`` with the volume material
   and no surface shader (its faces are transparent); a camera inside it is inside the
   medium, which Cycles detects itself.
@@ -216,6 +219,7 @@ def write_job(scene, folder, pass_spp, pass_seeds, threads=0):
                       "fov": float(cam.fov), "size": float(cam.size)},
            "medium": medium_job(scene, folder), "lights": light_jobs(scene),
            "volume_bounces": volume_bounces(scene.spec.render.max_depth),
+           "transparent": bool(scene.spec.render.transparent_background),
            "pass_spp": [int(n) for n in pass_spp], "pass_seeds": [int(s) for s in pass_seeds]}
     path = os.path.join(folder, "job.json")
     with open(path, "w") as f:

@@ -289,7 +289,7 @@ def build(job):
     w, h = job["resolution"]
     sc.render.resolution_x, sc.render.resolution_y = w, h
     sc.render.resolution_percentage = 100
-    sc.render.film_transparent = False
+    sc.render.film_transparent = bool(job.get("transparent", False))
     sc.render.use_persistent_data = True
     sc.view_settings.view_transform = "Standard"
     sc.view_settings.look = "None"

@@ -15,6 +15,9 @@ or by the README's cross-check):
 - **Placement.** ``medium.transform`` (world = M x local, distances in world units on both
   sides) is the ``to_world`` of the grid and of the cube, before their own placement in the
   box; a mirroring M is taken off the cube (a symmetric shape) so its faces stay outward.
+- **Transparent background.** ``render.transparent_background`` is the integrator's
+  ``hide_emitters``: emitters seen directly by camera rays (through the medium's null
+  collisions too) are hidden, the lighting stays.
 - **Grid.** Both index arrays [z, y, x] with x fastest, put voxel centres at
   (i + 0.5) / n of the box, interpolate trilinearly and clamp to the edge voxels
   (Mitsuba's ``gridvolume`` with its default ``filter_type = "bilinear"``, ``wrap_mode =
@@ -217,6 +220,7 @@ def scene_dict(scene, mi=None):
     depth = -1 if ren.max_depth < 0 else ren.max_depth + 1
     d = {"type": "scene",
          "integrator": {"type": "volpath" if grey else "volpathmis", "max_depth": int(depth),
+                        "hide_emitters": bool(ren.transparent_background),
                         "rr_depth": int(ren.rr_depth + 1)},
          "sensor": sensor,
          "volmc_medium": medium,

@@ -414,8 +414,18 @@ def survival_probability(prm, beta_w, albedo):
 
 
 @njit(cache=True)
+def coverage(T):
+    """A = 1 - T of a camera ray's transmittance estimate T (RGB): 1 - the channels' mean."""
+    return 1.0 - (T[0] + T[1] + T[2]) / 3.0
+
+
+@njit(cache=True)
 def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
-    """Radiance (r, g, b) carried by sample s of pixel (px, py)."""
+    """(r, g, b, a): the radiance carried by sample s of pixel (px, py), and its coverage
+    a = coverage(T), T the camera ray's transmittance to the background as this path
+    estimates it: the weight of its first flight's escape (0 when it scatters or is capped,
+    1 when the ray misses the medium), or the transmittance estimate of a scene that cannot
+    scatter. With prm.transparent the camera ray does not see the environment."""
     m = med.m
     albedo = (m.albedo[0], m.albedo[1], m.albedo[2])
     env = (prm.env[0], prm.env[1], prm.env[2])
@@ -428,9 +438,10 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
         # No scattering can contribute: the pixel is the environment seen through the
         # medium, so estimate the transmittance instead of sampling a collision (exact for
         # a homogeneous medium, lower variance than a 0/1 free-flight outcome for grids).
-        if prm.has_env == 0:
-            return L
-        return mul3(env, shadow_transmittance(prm, med, o, d, math.inf, 1, rng_s, counters))
+        T = shadow_transmittance(prm, med, o, d, math.inf, 1, rng_s, counters)
+        if prm.has_env != 0 and prm.transparent == 0:
+            L = mul3(env, T)
+        return L[0], L[1], L[2], coverage(T)
     hero = -1
     R = (1.0, 1.0, 1.0)   # hero MIS: each channel's decision probability over the hero's
     if m.spectral == SPECTRAL_CHANNEL or m.spectral == SPECTRAL_HERO:
@@ -445,6 +456,7 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
     ea = equiangular_mode(prm, m)
     n_env = prm.light_samples * uniform_sphere_pdf()   # light sampling's n p for MIS
+    alpha = 0.0
     while True:
         o, t0, t1, _ = enter_medium(m, o, d)
         event = EVENT_ESCAPE
@@ -476,11 +488,14 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
         # The throughput every contribution is weighed by: with hero MIS, the balance
         # heuristic's weights on top of the common factors.
         beta_w = mul3(beta, mis_weights(R)) if hero >= 0 else beta
+        if depth == 0:
+            alpha = coverage(beta_w) if event == EVENT_ESCAPE else 1.0
         if event == EVENT_CAPPED:
             break
         if event == EVENT_ESCAPE:
             if prm.has_env != 0:
-                w = mis_weight(prm.mis, pdf_phase, n_env) if depth > 0 else 1.0
+                w = mis_weight(prm.mis, pdf_phase, n_env) if depth > 0 else \
+                    (0.0 if prm.transparent != 0 else 1.0)
                 L = add3(L, mul3(beta_w, scale3(env, w)))
             break
         depth += 1
@@ -502,7 +517,7 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
         u1, u2 = path_u2(prm, pix, s, bounce_pair(depth - 1, SAMPLER_PHASE), 0, 1, rng)
         d, pdf_phase = phase_sample(m.phase_kind, m.g, u1, u2, d)
         o = p
-    return L
+    return L[0], L[1], L[2], alpha
 
 
 @njit(cache=True)
@@ -521,28 +536,35 @@ def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     sr = 0.0
     sg = 0.0
     sb = 0.0
+    sa = 0.0
     qr = 0.0
     qg = 0.0
     qb = 0.0
+    qa = 0.0
     for s in range(sample_start, sample_start + n_samples):
         rng_init(rng, seed, pix, s, STREAM_PATH)
         rng_init(rng_s, seed, pix, s, STREAM_SHADOW)
-        r, g, b = trace_path(prm, lights, med, px, py, s, rng, rng_s, cnt)
+        r, g, b, a = trace_path(prm, lights, med, px, py, s, rng, rng_s, cnt)
         if not sample_ok(r, g, b, prm.signed_samples):
-            cnt[C_DROPPED] += 1  # the sample counts as 0 (guard "sample filter", guards.py)
+            # The sample counts as 0 in every channel (guard "sample filter", guards.py).
+            cnt[C_DROPPED] += 1
             continue
         sr += r
         sg += g
         sb += b
+        sa += a
         qr += r * r
         qg += g * g
         qb += b * b
+        qa += a * a
     film_sum[py, px, 0] += sr
     film_sum[py, px, 1] += sg
     film_sum[py, px, 2] += sb
+    film_sum[py, px, 3] += sa
     film_sq[py, px, 0] += qr
     film_sq[py, px, 1] += qg
     film_sq[py, px, 2] += qb
+    film_sq[py, px, 3] += qa
 
 
 @njit(cache=True, parallel=True)

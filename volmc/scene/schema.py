@@ -167,6 +167,7 @@ class Render:
     light_samples: int = 1
     equiangular: bool = False
     rr: str = "throughput"
+    transparent_background: bool = False
 
 
 @dataclass(frozen=True)
@@ -187,7 +188,7 @@ EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
                "majorant_resolution", "free_flight", "spectral", "grid_storage", "mis",
-               "sampler", "light_samples", "equiangular", "rr")
+               "sampler", "light_samples", "equiangular", "rr", "transparent_background")
 MIS_HEURISTICS = ("balance", "power")
 SAMPLERS = ("independent", "stratified", "sobol")
 RR_RULES = ("throughput", "albedo")
@@ -519,6 +520,9 @@ def _render(c, raw):
                                 p + "light_samples", lo=1, hi=MAX_LIGHT_SAMPLES),
         equiangular=c.boolean(raw.get("equiangular", d.equiangular), p + "equiangular"),
         rr=c.choice(raw.get("rr", d.rr), p + "rr", RR_RULES),
+        transparent_background=c.boolean(raw.get("transparent_background",
+                                                 d.transparent_background),
+                                         p + "transparent_background"),
     )
 
 

@@ -55,7 +55,8 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
                    "free_flight": r.free_flight, "spectral": r.spectral,
                    "grid_storage": r.grid_storage, "mis": r.mis,
                    "sampler": r.sampler, "light_samples": r.light_samples,
-                   "equiangular": r.equiangular, "rr": r.rr},
+                   "equiangular": r.equiangular, "rr": r.rr,
+                   "transparent_background": r.transparent_background},
     }
 
 
