@@ -89,6 +89,23 @@ kernel void t_uniform_sphere(global const float *u, global float *out, int n) {
     store_float(out, i, 4, 3, pdf, on);
 }
 
+/* out[i] = (x, y, pdf) of the disc point of u[i], then the (u1, u2) invert_uniform_disc
+ * gives for p[i] (the reference's points, so each direction is checked on its own). */
+kernel void t_uniform_disc(global const float *u, global const float *p, global float *out,
+                           int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lfloat pdf;
+    lvec2 q = sample_uniform_disc(load_float(u, i, 2, 0), load_float(u, i, 2, 1), &pdf);
+    lvec2 pt = {load_float(p, i, 2, 0), load_float(p, i, 2, 1)};
+    lvec2 back = invert_uniform_disc(pt);
+    store_float(out, i, 5, 0, q.x, on);
+    store_float(out, i, 5, 1, q.y, on);
+    store_float(out, i, 5, 2, pdf, on);
+    store_float(out, i, 5, 3, back.x, on);
+    store_float(out, i, 5, 4, back.y, on);
+}
+
 kernel void t_hg_sample(global const float *u, global const float *g, float3 d_in,
                         global float *out, int n) {
     lmask on;

@@ -27,6 +27,11 @@ class U32(int):
 
 #: 1 / (4 pi): the isotropic phase function and the uniform-sphere pdf, per steradian.
 INV_4PI = 1.0 / (4.0 * math.pi)
+#: 1 / pi: the uniform pdf on the unit disc, per unit area.
+INV_PI = 1.0 / math.pi
+#: pi / 2 and pi / 4: the wedge angles of the concentric disc mapping.
+PI_OVER_2 = 0.5 * math.pi
+PI_OVER_4 = 0.25 * math.pi
 #: 2 pi: a full turn in radians.
 TWO_PI = 2.0 * math.pi
 
