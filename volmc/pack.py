@@ -6,10 +6,10 @@ from collections import namedtuple
 
 import numpy as np
 
-from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_BRICKS, DENSITY_CONSTANT,
-                        DENSITY_GRID, EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
-                        LIGHT_DIRECTIONAL, LIGHT_POINT, MAJORANT_GLOBAL, MAJORANT_GRID,
-                        MAJORANT_OCTREE,
+from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PANORAMIC, CAMERA_PERSPECTIVE,
+                        DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_GRID, EMISSION_NONE,
+                        EMISSION_RADIANCE, EMISSION_TEMPERATURE, LIGHT_DIRECTIONAL, LIGHT_POINT,
+                        MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
                         MIS_BALANCE, MIS_POWER, PHASE_HG, PHASE_ISOTROPIC, RR_ALBEDO,
                         RR_THROUGHPUT, SAMPLER_INDEPENDENT, SAMPLER_SOBOL, SAMPLER_STRATIFIED,
                         SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO, SPECTRAL_TRACKING)
@@ -124,10 +124,14 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     if cam.type == "orthographic":
         p["cam_type"] = CAMERA_ORTHOGRAPHIC
         p["half_height"] = 0.5 * cam.size / unit
+    elif cam.type == "panoramic":
+        p["cam_type"] = CAMERA_PANORAMIC
     else:
         p["cam_type"] = CAMERA_PERSPECTIVE
         p["half_height"] = math.tan(math.radians(cam.fov) * 0.5)
     p["aspect"] = w / h
+    p["aperture"] = cam.aperture / unit
+    p["focus_distance"] = cam.focus_distance / unit
     env = [0.0, 0.0, 0.0]
     lights = []
     for lt in scene.lights:
