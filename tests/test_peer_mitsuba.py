@@ -68,6 +68,9 @@ CASES = {
                                         "phase": {"type": "isotropic"}}),
     # Extinction 30, 15 and 6 x density in red, green and blue, HG multiple scattering.
     "chromatic": _chromatic(),
+    # A thin lens focused halfway to the cloud (circles of confusion of about three pixels
+    # there): pins the lens radius and the focus plane.
+    "thin_lens": peer_scene(camera={"aperture": 0.5, "focus_distance": 2.0}),
 }
 
 
@@ -93,6 +96,35 @@ def _compare(scene, mi_scene=None, spp=256, passes=16):
 def test_volmc_agrees_with_mitsuba(name):
     agr = _compare(_case(name))
     assert agr.passed, agr.summary("Mitsuba")
+
+
+@needs_mitsuba
+def test_pinhole_for_a_thin_lens_is_detected(monkeypatch):
+    """Mitsuba's pinhole against volmc's thin lens: the defocus is seen, so the thin-lens
+    agreement above has power."""
+    import volmc.peers.mitsuba as pm
+    original = pm.scene_dict
+
+    def pinhole(sc, mi=None):
+        d = original(sc, mi)
+        for k in ("aperture_radius", "focus_distance"):
+            del d["sensor"][k]
+        d["sensor"]["type"] = "perspective"
+        return d
+
+    monkeypatch.setattr(pm, "scene_dict", pinhole)
+    agr = _compare(CASES["thin_lens"])
+    assert not agr.passed, agr.summary("Mitsuba")
+
+
+@pytest.mark.parametrize("camera", [{"type": "panoramic"},
+                                    {"type": "orthographic", "aperture": 0.1}])
+def test_cameras_mitsuba_lacks_are_refused(camera):
+    """No equirectangular sensor and no orthographic thin lens in Mitsuba 3: refused before
+    Mitsuba is needed, never rendered with another camera."""
+    from volmc.peers.mitsuba import scene_dict
+    with pytest.raises(PeerUnavailable, match="Mitsuba 3"):
+        scene_dict(peer_scene(camera=camera))
 
 
 @needs_mitsuba

@@ -9,6 +9,11 @@ or by the README's cross-check):
   world units; Mitsuba's ``orthographic`` camera spans [-1, 1] horizontally and
   [-1/aspect, 1/aspect] vertically, so its ``to_world`` gets a scale of size * aspect / 2.
   Both sample the pixel uniformly (Mitsuba: ``box`` reconstruction filter, radius half a pixel).
+  A thin lens (``aperture`` > 0) becomes Mitsuba's ``thinlens`` with ``aperture_radius`` =
+  aperture and the same ``focus_distance``: both sample the lens disc uniformly and focus
+  on the plane at that distance along the view axis. Mitsuba has no orthographic thin lens
+  and no equirectangular sensor, so an orthographic camera with an aperture and a
+  panoramic camera raise PeerUnavailable.
 - **Medium box.** A ``cube`` shape ([-1, 1]^3) scaled to ``medium.bounds`` with a ``null`` BSDF
   carries the medium as its interior. A camera inside the box gets the medium as its
   exterior medium (Mitsuba needs to be told; volmc finds it by geometry).
@@ -140,10 +145,18 @@ def _inside(p, bounds):
 
 def check_translatable(scene):
     """Raise PeerUnavailable when the scene has what Mitsuba 3 cannot render: an emissive
-    medium (its media have no emission; neither ``volpath`` nor ``volpathmis`` adds any)."""
+    medium (its media have no emission; neither ``volpath`` nor ``volpathmis`` adds any), a
+    panoramic camera (no equirectangular sensor) or an orthographic thin lens."""
     if getattr(scene.spec.medium, "emission", None) is not None:
         raise PeerUnavailable("Mitsuba 3 has no emissive media, so it cannot render "
                               "medium.emission; compare without it")
+    cam = scene.spec.camera
+    if cam.type == "panoramic":
+        raise PeerUnavailable("Mitsuba 3 has no equirectangular sensor, so it cannot render "
+                              "camera.type = \"panoramic\"")
+    if cam.type == "orthographic" and cam.aperture > 0.0:
+        raise PeerUnavailable("Mitsuba 3's thin lens is perspective only, so it cannot render "
+                              "an orthographic camera with camera.aperture > 0")
 
 
 def scene_dict(scene, mi=None):
@@ -187,7 +200,11 @@ def scene_dict(scene, mi=None):
 
     w, h = cam.resolution
     look = T().look_at(origin=list(cam.eye), target=list(cam.target), up=list(cam.up))
-    if cam.type == "perspective":
+    if cam.type == "perspective" and cam.aperture > 0.0:
+        sensor = {"type": "thinlens", "fov": float(cam.fov), "fov_axis": "y", "to_world": look,
+                  "aperture_radius": float(cam.aperture),
+                  "focus_distance": float(cam.focus_distance)}
+    elif cam.type == "perspective":
         sensor = {"type": "perspective", "fov": float(cam.fov), "fov_axis": "y",
                   "to_world": look}
     else:
