@@ -91,7 +91,8 @@ kernel void t_uniform_sphere(global const float *u, global float *out, int n) {
 }
 
 /* out[i] = (x, y, pdf) of the disc point of u[i], then the (u1, u2) invert_uniform_disc
- * gives for p[i] (the reference's points, so each direction is checked on its own). */
+ * gives for p[i] (the reference's points, so each direction is checked on its own), then
+ * uniform_disc_pdf(). */
 kernel void t_uniform_disc(global const float *u, global const float *p, global float *out,
                            int n) {
     lmask on;
@@ -100,11 +101,12 @@ kernel void t_uniform_disc(global const float *u, global const float *p, global 
     lvec2 q = sample_uniform_disc(load_float(u, i, 2, 0), load_float(u, i, 2, 1), &pdf);
     lvec2 pt = {load_float(p, i, 2, 0), load_float(p, i, 2, 1)};
     lvec2 back = invert_uniform_disc(pt);
-    store_float(out, i, 5, 0, q.x, on);
-    store_float(out, i, 5, 1, q.y, on);
-    store_float(out, i, 5, 2, pdf, on);
-    store_float(out, i, 5, 3, back.x, on);
-    store_float(out, i, 5, 4, back.y, on);
+    store_float(out, i, 6, 0, q.x, on);
+    store_float(out, i, 6, 1, q.y, on);
+    store_float(out, i, 6, 2, pdf, on);
+    store_float(out, i, 6, 3, back.x, on);
+    store_float(out, i, 6, 4, back.y, on);
+    store_float(out, i, 6, 5, (lfloat)(uniform_disc_pdf()), on);
 }
 
 /* out[i] = (direction of film fraction f[i], film fraction of direction w[i]). */

@@ -82,12 +82,13 @@ def test_uniform_disc_kernel_matches_reference(lanes):
                         uniforms(23, 0, 0, 2, 8000).reshape(-1, 2)]).astype(np.float32)
     ref = _disc_points(u.astype(np.float64))
     pts = ref[:, :2].astype(np.float32)
-    out, ob = out_buf((len(u), 5))
+    out, ob = out_buf((len(u), 6))
     run("t_uniform_disc", len(u), to_dev(u.ravel()), to_dev(pts.ravel()), ob, outs=[(out, ob)])
     assert np.allclose(out[:, :2], ref[:, :2], rtol=0, atol=1e-6)
     assert np.all(out[:, 2] == np.float32(1.0 / math.pi))
+    assert np.all(out[:, 5] == np.float32(1.0 / math.pi))
     back = _disc_inverses(pts.astype(np.float64))
-    assert np.allclose(out[:, 3:], back, rtol=0, atol=2e-6), np.abs(out[:, 3:] - back).max()
+    assert np.allclose(out[:, 3:5], back, rtol=0, atol=2e-6), np.abs(out[:, 3:5] - back).max()
 
 
 @njit(cache=True)
