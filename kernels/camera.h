@@ -60,10 +60,11 @@ static inline lvec3 camera_ray(const Params *prm, lint px, lint py, lfloat u1, l
      * without forming absolute positions (camera.py). */
     lfloat pdf;
     lvec2 l = sample_uniform_disc(v1, v2, &pdf);
-    lvec3 lens = madd3(scale3(r, l.x * prm->aperture), u, l.y * prm->aperture);
-    lvec3 a = sub3(scale3(v, (lfloat)(prm->focus_distance)), lens);
+    lvec3 q = madd3(scale3(r, l.x), u, l.y);
+    lvec3 a = madd3(v, q, (lfloat)(-prm->lens_slope));
+    a = scale3(a, 1.0f / fmax(fabs(a.x), fmax(fabs(a.y), fabs(a.z)))); /* no overflow below */
     *dir = scale3(a, rsqrt(dot3(a, a)));
-    return add3(o, lens);
+    return madd3(o, q, (lfloat)(prm->aperture));
 }
 
 #endif

@@ -151,6 +151,10 @@ CAMERAS = {
     "thin lens": {"aperture": 0.3, "focus_distance": 2.5},
     "orthographic lens": {"type": "orthographic", "aperture": 0.2, "focus_distance": 6.0},
     "panoramic": {"type": "panoramic"},
+    # The focus plane almost at infinity (the pinhole's rays from every lens point) and
+    # almost at the lens (rays straight away from the lens centre).
+    "far focus": {"aperture": 0.3, "focus_distance": 3e38},
+    "near focus": {"aperture": 0.3, "focus_distance": 1e-30},
 }
 
 
@@ -330,6 +334,22 @@ def test_bad_camera_keys(keys, key, msg):
         _camera_scene(keys)
     assert f": {key}: " in str(e.value) and msg in str(e.value), str(e.value)
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("keys", [
+    {"eye": [3e38, 0.0, 0.0], "target": [-3e38, 0.0, 0.0]},   # eye to target overflows float32
+    {"aperture": 3e38, "focus_distance": 1e-300},
+    {"aperture": 1e-300, "focus_distance": 3e38},
+])
+def test_extreme_lenses_pack_finite(keys):
+    """Every lens parameter reaches the kernels finite, and a lens however small stays a
+    lens in float32 (both backends then draw its sample)."""
+    scene = scene_from_dict({"camera": keys, "medium": {"bounds": [[-1, -1, -1], [1, 1, 1]],
+                                                        "density": 1.0}})
+    for real in (np.float64, np.float32):
+        p = pack_scene(scene, real).params[0]
+        assert np.isfinite(p["aperture"]) and np.isfinite(p["lens_slope"]), (real, p)
+        assert (p["aperture"] > 0) == (scene.camera.aperture > 0)
 
 
 def test_focus_distance_defaults_to_the_target_and_round_trips():

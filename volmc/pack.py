@@ -15,7 +15,13 @@ from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PANORAMIC, CAMERA_PERSPECTIV
                         SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO, SPECTRAL_TRACKING)
 from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
-from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
+from .scene.schema import FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight
+
+#: The smallest normal float32 (kernels may flush denormals to zero).
+FLOAT32_MIN_NORMAL = 2.0 ** -126
+#: The largest aperture / focus_distance packed: the pinhole direction's share of a lens
+#: ray is then below float32's precision, and the ray's components stay far from overflow.
+LENS_SLOPE_MAX = 1e30
 
 def pack_majorant(scene, real=np.float64, grid=None):
     """(maxima, minima): per-cell density bounds [cz, cy, cx] of the majorant grid when the
@@ -130,8 +136,12 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
         p["cam_type"] = CAMERA_PERSPECTIVE
         p["half_height"] = math.tan(math.radians(cam.fov) * 0.5)
     p["aspect"] = w / h
-    p["aperture"] = cam.aperture / unit
-    p["focus_distance"] = cam.focus_distance / unit
+    if cam.aperture > 0.0:
+        # Kept inside float32's normal range, so that both backends see a lens (and draw
+        # its sample) exactly when the scene has one. The slope is a ratio of lengths, the
+        # same in every frame; a focus plane absurdly near the lens saturates it.
+        p["aperture"] = min(max(cam.aperture / unit, FLOAT32_MIN_NORMAL), FLOAT32_MAX)
+        p["lens_slope"] = min(cam.aperture / cam.focus_distance, LENS_SLOPE_MAX)
     env = [0.0, 0.0, 0.0]
     lights = []
     for lt in scene.lights:

@@ -26,7 +26,7 @@ PARAM_FIELDS = (
                                "panoramic: unused"),
     ("aspect", "real", 1, "width / height"),
     ("aperture", "real", 1, "thin-lens radius; 0: a pinhole (draws no lens sample)"),
-    ("focus_distance", "real", 1, "distance of the plane in focus along forward"),
+    ("lens_slope", "real", 1, "aperture / focus_distance: how far a lens point turns its ray"),
     ("decomposition", "i4", 1, "1: free flight uses each segment's minorant as its control"),
     ("shadow_estimator", "i4", 1, "ESTIMATOR_* id of shadow rays (the kernels build it in)"),
     ("view_estimator", "i4", 1, "ESTIMATOR_* id of camera rays that cannot scatter, whose "

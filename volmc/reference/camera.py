@@ -79,12 +79,16 @@ def camera_ray(prm, px, py, u1, u2, v1, v2):
         if not prm.aperture > 0.0:
             return o, normalize(v)
     # v has length 1 along forward, so the pinhole ray meets the plane in focus at o + F v.
-    # The direction from the lens point is F v - lens: no absolute position enters it, so a
-    # camera far from the origin loses no digits.
+    # From the lens point o + a q (q on the unit disc in the right/up plane) the direction
+    # is F v - a q, or v - (a / F) q: no absolute position enters it (a camera far from
+    # the origin loses no digits), and the ratio a / F (prm.lens_slope) is finite for
+    # every focus distance (F v alone would overflow float32 for a far focus plane).
+    # Scaled by its largest component before normalising: with a large slope its squared
+    # length would overflow float32 in the kernel.
     (lx, ly), _ = sample_uniform_disc(v1, v2)
-    lx *= prm.aperture
-    ly *= prm.aperture
-    lens = (lx * r[0] + ly * u[0], lx * r[1] + ly * u[1], lx * r[2] + ly * u[2])
-    F = prm.focus_distance
-    d = normalize((F * v[0] - lens[0], F * v[1] - lens[1], F * v[2] - lens[2]))
-    return (o[0] + lens[0], o[1] + lens[1], o[2] + lens[2]), d
+    q = (lx * r[0] + ly * u[0], lx * r[1] + ly * u[1], lx * r[2] + ly * u[2])
+    k, a = prm.lens_slope, prm.aperture
+    w = (v[0] - k * q[0], v[1] - k * q[1], v[2] - k * q[2])
+    s = 1.0 / max(abs(w[0]), abs(w[1]), abs(w[2]))
+    d = normalize((w[0] * s, w[1] * s, w[2] * s))
+    return (o[0] + a * q[0], o[1] + a * q[1], o[2] + a * q[2]), d
