@@ -117,14 +117,22 @@ def test_pinhole_for_a_thin_lens_is_detected(monkeypatch):
     assert not agr.passed, agr.summary("Mitsuba")
 
 
+INSIDE = {"eye": [0.1, 0.2, 0.3], "target": [1.0, 0.0, -1.0]}   # 0.3 from the nearest face
+
+
 @pytest.mark.parametrize("camera", [{"type": "panoramic"},
-                                    {"type": "orthographic", "aperture": 0.1}])
+                                    {"type": "orthographic", "aperture": 0.1},
+                                    {**INSIDE, "aperture": 0.35},
+                                    {"eye": [0.0, 0.0, 0.7], "aperture": 0.2}])
 def test_cameras_mitsuba_lacks_are_refused(camera):
-    """No equirectangular sensor and no orthographic thin lens in Mitsuba 3: refused before
-    Mitsuba is needed, never rendered with another camera."""
-    from volmc.peers.mitsuba import scene_dict
+    """No equirectangular sensor, no orthographic thin lens, and one medium for all of a
+    sensor's rays in Mitsuba 3: refused before Mitsuba is needed, never rendered with
+    another camera. A lens clear of the box's surface is translated."""
+    from volmc.peers.mitsuba import check_translatable
     with pytest.raises(PeerUnavailable, match="Mitsuba 3"):
-        scene_dict(peer_scene(camera=camera))
+        check_translatable(peer_scene(camera=camera))
+    for clear in ({**INSIDE, "aperture": 0.25}, {"eye": [0.0, 0.0, 0.7], "aperture": 0.05}):
+        check_translatable(peer_scene(camera=clear))
 
 
 @needs_mitsuba

@@ -13,7 +13,8 @@ or by the README's cross-check):
   aperture and the same ``focus_distance``: both sample the lens disc uniformly and focus
   on the plane at that distance along the view axis. Mitsuba has no orthographic thin lens
   and no equirectangular sensor, so an orthographic camera with an aperture and a
-  panoramic camera raise PeerUnavailable.
+  panoramic camera raise PeerUnavailable, as does a lens reaching across the medium box's
+  surface (the sensor's medium is one for all its rays).
 - **Medium box.** A ``cube`` shape ([-1, 1]^3) scaled to ``medium.bounds`` with a ``null`` BSDF
   carries the medium as its interior. A camera inside the box gets the medium as its
   exterior medium (Mitsuba needs to be told; volmc finds it by geometry).
@@ -143,10 +144,22 @@ def _inside(p, bounds):
     return all(bounds[0][i] < p[i] < bounds[1][i] for i in range(3))
 
 
+def _lens_straddles(cam, bounds):
+    """Whether points within ``aperture`` of the eye lie on both sides of the box's surface
+    (a ball about the eye: conservative for the lens disc)."""
+    lo, hi = bounds
+    gap = math.sqrt(sum(max(lo[i] - cam.eye[i], 0.0, cam.eye[i] - hi[i]) ** 2
+                        for i in range(3)))
+    depth = min(min(cam.eye[i] - lo[i], hi[i] - cam.eye[i]) for i in range(3))
+    return (gap if gap > 0.0 else depth) < cam.aperture
+
+
 def check_translatable(scene):
     """Raise PeerUnavailable when the scene has what Mitsuba 3 cannot render: an emissive
     medium (its media have no emission; neither ``volpath`` nor ``volpathmis`` adds any), a
-    panoramic camera (no equirectangular sensor) or an orthographic thin lens."""
+    panoramic camera (no equirectangular sensor), an orthographic thin lens, or a lens
+    reaching across the medium box's surface (the sensor has one medium for all its rays,
+    while volmc starts each ray in the medium its lens point is in)."""
     if getattr(scene.spec.medium, "emission", None) is not None:
         raise PeerUnavailable("Mitsuba 3 has no emissive media, so it cannot render "
                               "medium.emission; compare without it")
@@ -157,6 +170,10 @@ def check_translatable(scene):
     if cam.type == "orthographic" and cam.aperture > 0.0:
         raise PeerUnavailable("Mitsuba 3's thin lens is perspective only, so it cannot render "
                               "an orthographic camera with camera.aperture > 0")
+    if cam.aperture > 0.0 and _lens_straddles(cam, scene.spec.medium.bounds):
+        raise PeerUnavailable("the lens reaches across the medium box's surface, and a "
+                              "Mitsuba 3 sensor has one medium for all its rays; move the "
+                              "camera or narrow camera.aperture")
 
 
 def scene_dict(scene, mi=None):
