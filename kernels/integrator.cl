@@ -24,6 +24,7 @@
 #include "medium.h"
 #include "free_flight.h"
 #include "estimators.h"
+#include "camera.h"
 
 static inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 
@@ -101,22 +102,6 @@ static inline lvec3 keep_carried(lvec3 beta, lvec3 x) {
     return v3(select((lfloat)(0.0f), x.x, beta.x != 0.0f),
               select((lfloat)(0.0f), x.y, beta.y != 0.0f),
               select((lfloat)(0.0f), x.z, beta.z != 0.0f));
-}
-
-static inline lvec3 camera_ray(const Params *prm, lint px, lint py, lfloat u1, lfloat u2,
-                               lvec3 *dir) {
-    lfloat sx = (2.0f * (to_lfloat(px) + u1) / (float)prm->width - 1.0f) * prm->half_height *
-                prm->aspect;
-    lfloat sy = (1.0f - 2.0f * (to_lfloat(py) + u2) / (float)prm->height) * prm->half_height;
-    lvec3 f = v3u(vec3(prm->forward)), r = v3u(vec3(prm->right)), u = v3u(vec3(prm->up));
-    lvec3 e = v3u(vec3(prm->eye));
-    if (prm->cam_type == CAMERA_ORTHOGRAPHIC) {
-        *dir = f;
-        return madd3(madd3(e, r, sx), u, sy);
-    }
-    lvec3 v = madd3(madd3(f, r, sx), u, sy);
-    *dir = scale3(v, rsqrt(dot3(v, v)));
-    return e;
 }
 
 static inline spec shadow_transmittance(const Params *prm, const MediumData *med, lvec3 o,
@@ -382,8 +367,11 @@ static inline STAGE void path_start(const Params *prm, MediumData *med, Path *pa
     lint py = as_lint(pix / (uint)prm->width);
     lint px = as_lint(pix) - py * prm->width;
     lvec2 uc = path_u2(prm, pix, s, (lint)(SAMPLER_PAIR_PIXEL), (luint)(0u), 1u, rng, fresh);
+    lvec2 ul = {(lfloat)(0.5f), (lfloat)(0.5f)}; /* a pinhole draws no lens sample */
+    if (prm->aperture > 0.0f)
+        ul = path_u2(prm, pix, s, (lint)(SAMPLER_PAIR_LENS), (luint)(0u), 1u, rng, fresh);
     lvec3 d;
-    lvec3 o = camera_ray(prm, px, py, uc.x, uc.y, &d);
+    lvec3 o = camera_ray(prm, px, py, uc.x, uc.y, ul.x, ul.y, &d);
     path->o = sel3(path->o, o, fresh);
     path->d = sel3(path->d, d, fresh);
     path->L = sel3(path->L, v3s(0.0f), fresh);

@@ -5,7 +5,7 @@
 #ifndef VOLMC_SAMPLING_H
 #define VOLMC_SAMPLING_H
 
-#include "params.h" /* INV_4PI, TWO_PI (volmc/constants.py) */
+#include "params.h" /* INV_4PI, INV_PI, PI_OVER_2, PI_OVER_4, TWO_PI (volmc/constants.py) */
 #include "lanes.h"
 #include "guards.h" /* NO_LIMIT */
 
@@ -37,6 +37,34 @@ static inline lvec2 invert_uniform_sphere(lvec3 w) {
     lfloat phi = atan2(w.y, w.x);
     phi = select(phi, phi + TWO_PI, phi < 0.0f);
     lvec2 u = {0.5f * (1.0f - w.z), phi / TWO_PI};
+    return u;
+}
+
+/* Shirley-Chiu concentric mapping of the square onto the unit disc (twin in sampling.py). */
+static inline lvec2 sample_uniform_disc(lfloat u1, lfloat u2, lfloat *pdf) {
+    lfloat a = 2.0f * u1 - 1.0f, b = 2.0f * u2 - 1.0f;
+    lmask wide = fabs(a) > fabs(b);
+    lfloat r = select(b, a, wide);
+    lfloat q = select(a, b, wide) / select(r, (lfloat)(1.0f), r == 0.0f); /* no 0 / 0 */
+    lfloat phi = select(PI_OVER_2 - PI_OVER_4 * q, PI_OVER_4 * q, wide);
+    lfloat c, s = sincos(phi, &c);
+    *pdf = INV_PI;
+    lvec2 p = {r * c, r * s};
+    return p;
+}
+
+static inline float uniform_disc_pdf(void) { return INV_PI; }
+
+/* (u1, u2) that sample_uniform_disc maps to p. */
+static inline lvec2 invert_uniform_disc(lvec2 p) {
+    lfloat r = sqrt(p.x * p.x + p.y * p.y);
+    lmask wide = fabs(p.x) > fabs(p.y);
+    lfloat num = select(p.x, p.y, wide), den = select(p.y, p.x, wide);
+    lfloat axis = copysign(r, den);
+    lfloat other = axis * atan(num / select(den, (lfloat)(1.0f), den == 0.0f)) / PI_OVER_4;
+    lmask origin = r == 0.0f;
+    lvec2 u = {select(0.5f * (select(other, axis, wide) + 1.0f), (lfloat)(0.5f), origin),
+               select(0.5f * (select(axis, other, wide) + 1.0f), (lfloat)(0.5f), origin)};
     return u;
 }
 

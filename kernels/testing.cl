@@ -16,6 +16,7 @@
 #include "dda.h"
 #include "octree.h"
 #include "sampler.h"
+#include "camera.h"
 
 kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out, int n) {
     lmask on;
@@ -87,6 +88,49 @@ kernel void t_uniform_sphere(global const float *u, global float *out, int n) {
     lvec3 w = sample_uniform_sphere(load_float(u, i, 2, 0), load_float(u, i, 2, 1), &pdf);
     store_float3(out, i, 4, 0, w, on);
     store_float(out, i, 4, 3, pdf, on);
+}
+
+/* out[i] = (x, y, pdf) of the disc point of u[i], then the (u1, u2) invert_uniform_disc
+ * gives for p[i] (the reference's points, so each direction is checked on its own), then
+ * uniform_disc_pdf(). */
+kernel void t_uniform_disc(global const float *u, global const float *p, global float *out,
+                           int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lfloat pdf;
+    lvec2 q = sample_uniform_disc(load_float(u, i, 2, 0), load_float(u, i, 2, 1), &pdf);
+    lvec2 pt = {load_float(p, i, 2, 0), load_float(p, i, 2, 1)};
+    lvec2 back = invert_uniform_disc(pt);
+    store_float(out, i, 6, 0, q.x, on);
+    store_float(out, i, 6, 1, q.y, on);
+    store_float(out, i, 6, 2, pdf, on);
+    store_float(out, i, 6, 3, back.x, on);
+    store_float(out, i, 6, 4, back.y, on);
+    store_float(out, i, 6, 5, (lfloat)(uniform_disc_pdf()), on);
+}
+
+/* out[i] = (direction of film fraction f[i], film fraction of direction w[i]). */
+kernel void t_panoramic(global const float *f, global const float *w, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lvec3 d = panoramic_direction(load_float(f, i, 2, 0), load_float(f, i, 2, 1));
+    lvec2 back = invert_panoramic_direction(load_float3(w, i, 3, 0));
+    store_float3(out, i, 5, 0, d, on);
+    store_float(out, i, 5, 3, back.x, on);
+    store_float(out, i, 5, 4, back.y, on);
+}
+
+/* The primary ray of in[i] = (px, py, u1, u2, v1, v2): out[i] = (origin, direction). */
+kernel void t_camera_ray(const Params prm, global const float *in, global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lvec3 d;
+    lvec3 o = camera_ray(&prm, to_lint_rtz(load_float(in, i, 6, 0)),
+                         to_lint_rtz(load_float(in, i, 6, 1)), load_float(in, i, 6, 2),
+                         load_float(in, i, 6, 3), load_float(in, i, 6, 4),
+                         load_float(in, i, 6, 5), &d);
+    store_float3(out, i, 6, 0, o, on);
+    store_float3(out, i, 6, 3, d, on);
 }
 
 kernel void t_hg_sample(global const float *u, global const float *g, float3 d_in,

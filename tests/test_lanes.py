@@ -98,7 +98,8 @@ def test_vector_maths_differs_by_at_most_one_ulp():
 
 #: Scenes and overrides that between them take every feature of the kernels: grid and octree
 #: majorants, decomposition tracking, the samplers, several light samples, every shadow
-#: estimator family, the three spectral modes, emission, equiangular sampling, bricks.
+#: estimator family, the three spectral modes, emission, equiangular sampling, bricks, the
+#: thin lens and the panoramic camera.
 CONFIGS = [
     ("cloud", None, {}),
     ("octree, ratio", None, {"render.majorant": "octree", "render.transmittance": "ratio"}),
@@ -117,6 +118,8 @@ CONFIGS = [
     ("equiangular", "gallery/fog.toml", {}),
     ("bricks", "gallery/scan.toml", {}),
     ("absorber (transmittance only)", "tests/absorber.toml", {}),
+    ("thin lens, sobol", None, {"camera.aperture": 0.3, "render.sampler": "sobol"}),
+    ("panoramic", None, {"camera.type": "panoramic"}),
 ]
 
 

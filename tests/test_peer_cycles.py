@@ -93,6 +93,16 @@ CASES = {
                 "resolution": [16, 16]},
         medium={"density": 1.0, "scale": 1.5, "phase": {"type": "isotropic"},
                 "transform": {"rotate": [0, 0, 1, 40.0], "scale": [2.0, 1.0, -1.0]}}),
+    # A thin lens focused halfway to the cloud (circles of confusion of about three pixels
+    # there): pins the lens radius (Cycles' f-stop) and the focus plane.
+    "thin_lens": lambda: peer_scene(camera={"aperture": 0.5, "focus_distance": 2.0},
+                                    lights=LIGHTS[:1]),
+    # A panorama from beside the cloud, which lies left of the middle column: pins the
+    # equirectangular mapping and its handedness.
+    "panoramic": lambda: peer_scene(camera={"type": "panoramic", "eye": [2.0, 0.6, 0.9],
+                                            "target": [2.0, 0.6, -3.0],
+                                            "resolution": [48, 24]},
+                                    lights=LIGHTS[:2]),
 }
 
 

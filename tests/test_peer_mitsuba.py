@@ -80,6 +80,9 @@ CASES = {
                 "resolution": [16, 16]},
         medium={"density": 1.0, "scale": 1.5, "phase": {"type": "isotropic"},
                 "transform": {"rotate": [0, 0, 1, 40.0], "scale": [2.0, 1.0, -1.0]}}),
+    # A thin lens focused halfway to the cloud (circles of confusion of about three pixels
+    # there): pins the lens radius and the focus plane.
+    "thin_lens": peer_scene(camera={"aperture": 0.5, "focus_distance": 2.0}),
 }
 
 
@@ -105,6 +108,43 @@ def _compare(scene, mi_scene=None, spp=256, passes=16):
 def test_volmc_agrees_with_mitsuba(name):
     agr = _compare(_case(name))
     assert agr.passed, agr.summary("Mitsuba")
+
+
+@needs_mitsuba
+def test_pinhole_for_a_thin_lens_is_detected(monkeypatch):
+    """Mitsuba's pinhole against volmc's thin lens: the defocus is seen, so the thin-lens
+    agreement above has power."""
+    import volmc.peers.mitsuba as pm
+    original = pm.scene_dict
+
+    def pinhole(sc, mi=None):
+        d = original(sc, mi)
+        for k in ("aperture_radius", "focus_distance"):
+            del d["sensor"][k]
+        d["sensor"]["type"] = "perspective"
+        return d
+
+    monkeypatch.setattr(pm, "scene_dict", pinhole)
+    agr = _compare(CASES["thin_lens"])
+    assert not agr.passed, agr.summary("Mitsuba")
+
+
+INSIDE = {"eye": [0.1, 0.2, 0.3], "target": [1.0, 0.0, -1.0]}   # 0.3 from the nearest face
+
+
+@pytest.mark.parametrize("camera", [{"type": "panoramic"},
+                                    {"type": "orthographic", "aperture": 0.1},
+                                    {**INSIDE, "aperture": 0.35},
+                                    {"eye": [0.0, 0.0, 0.7], "aperture": 0.2}])
+def test_cameras_mitsuba_lacks_are_refused(camera):
+    """No equirectangular sensor, no orthographic thin lens, and one medium for all of a
+    sensor's rays in Mitsuba 3: refused before Mitsuba is needed, never rendered with
+    another camera. A lens clear of the box's surface is translated."""
+    from volmc.peers.mitsuba import check_translatable
+    with pytest.raises(PeerUnavailable, match="Mitsuba 3"):
+        check_translatable(peer_scene(camera=camera))
+    for clear in ({**INSIDE, "aperture": 0.25}, {"eye": [0.0, 0.0, 0.7], "aperture": 0.05}):
+        check_translatable(peer_scene(camera=clear))
 
 
 @needs_mitsuba

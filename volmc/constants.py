@@ -27,6 +27,13 @@ class U32(int):
 
 #: 1 / (4 pi): the isotropic phase function and the uniform-sphere pdf, per steradian.
 INV_4PI = 1.0 / (4.0 * math.pi)
+#: 1 / pi: the uniform pdf on the unit disc, per unit area.
+INV_PI = 1.0 / math.pi
+#: pi / 2 and pi / 4: the wedge angles of the concentric disc mapping.
+PI_OVER_2 = 0.5 * math.pi
+PI_OVER_4 = 0.25 * math.pi
+#: pi: the panoramic camera's span of latitude.
+PI = math.pi
 #: 2 pi: a full turn in radians.
 TWO_PI = 2.0 * math.pi
 
@@ -195,14 +202,21 @@ SAMPLER_LIGHT = 2
 SAMPLER_PHASE = 3
 #: Bounces that take low-discrepancy samples; deeper ones use the counter RNG.
 SAMPLER_BOUNCES = 16
+#: The thin lens's point on the aperture (camera.aperture > 0 only): the pair after every
+#: bounce's, so that adding it moved no other pair, and a pinhole draws nothing for it.
+SAMPLER_PAIR_LENS = SAMPLER_FIRST_BOUNCE + SAMPLER_BOUNCES * SAMPLER_PAIRS_PER_BOUNCE
 
 # --- Phase functions, cameras, lights ---------------------------------------------------------
 
 PHASE_ISOTROPIC = 0
 PHASE_HG = 1
 
+#: Camera projections (camera.type; volmc/reference/camera.py): a pinhole or thin lens ...
 CAMERA_PERSPECTIVE = 0
+#: ... parallel rays from an image plane (a thin lens focuses them too) ...
 CAMERA_ORTHOGRAPHIC = 1
+#: ... or equirectangular, 360 x 180 degrees around the eye (panoramic_direction).
+CAMERA_PANORAMIC = 2
 
 LIGHT_DIRECTIONAL = 0
 LIGHT_POINT = 1

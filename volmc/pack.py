@@ -6,16 +6,22 @@ from collections import namedtuple
 
 import numpy as np
 
-from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PERSPECTIVE, DENSITY_BRICKS, DENSITY_CONSTANT,
-                        DENSITY_GRID, EMISSION_NONE, EMISSION_RADIANCE, EMISSION_TEMPERATURE,
-                        LIGHT_DIRECTIONAL, LIGHT_POINT, MAJORANT_GLOBAL, MAJORANT_GRID,
-                        MAJORANT_OCTREE,
+from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PANORAMIC, CAMERA_PERSPECTIVE,
+                        DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_GRID, EMISSION_NONE,
+                        EMISSION_RADIANCE, EMISSION_TEMPERATURE, LIGHT_DIRECTIONAL, LIGHT_POINT,
+                        MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
                         MIS_BALANCE, MIS_POWER, PHASE_HG, PHASE_ISOTROPIC, RR_ALBEDO,
                         RR_THROUGHPUT, SAMPLER_INDEPENDENT, SAMPLER_SOBOL, SAMPLER_STRATIFIED,
                         SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO, SPECTRAL_TRACKING)
 from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
-from .scene.schema import DirectionalLight, EnvironmentLight, PointLight
+from .scene.schema import FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight
+
+#: The smallest normal float32 (kernels may flush denormals to zero).
+FLOAT32_MIN_NORMAL = 2.0 ** -126
+#: The largest aperture / focus_distance packed: the pinhole direction's share of a lens
+#: ray is then below float32's precision, and the ray's components stay far from overflow.
+LENS_SLOPE_MAX = 1e30
 
 def pack_majorant(scene, real=np.float64, grid=None):
     """(maxima, minima): per-cell density bounds [cz, cy, cx] of the majorant grid when the
@@ -164,10 +170,18 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     if cam.type == "orthographic":
         p["cam_type"] = CAMERA_ORTHOGRAPHIC
         p["half_height"] = 0.5 * cam.size / unit
+    elif cam.type == "panoramic":
+        p["cam_type"] = CAMERA_PANORAMIC
     else:
         p["cam_type"] = CAMERA_PERSPECTIVE
         p["half_height"] = math.tan(math.radians(cam.fov) * 0.5)
     p["aspect"] = w / h
+    if cam.aperture > 0.0:
+        # Kept inside float32's normal range, so that both backends see a lens (and draw
+        # its sample) exactly when the scene has one. The slope is a ratio of lengths, the
+        # same in every frame; a focus plane absurdly near the lens saturates it.
+        p["aperture"] = min(max(cam.aperture / unit, FLOAT32_MIN_NORMAL), FLOAT32_MAX)
+        p["lens_slope"] = min(cam.aperture / cam.focus_distance, LENS_SLOPE_MAX)
     env = [0.0, 0.0, 0.0]
     lights = []
     for lt in scene.lights:

@@ -16,13 +16,17 @@ import numpy as np
 PARAM_FIELDS = (
     ("width", "i4", 1, "image width in pixels"),
     ("height", "i4", 1, "image height in pixels"),
-    ("cam_type", "i4", 1, "CAMERA_PERSPECTIVE or CAMERA_ORTHOGRAPHIC"),
-    ("eye", "real", 3, "camera position (perspective) or image-plane centre (orthographic)"),
+    ("cam_type", "i4", 1, "CAMERA_PERSPECTIVE, CAMERA_ORTHOGRAPHIC or CAMERA_PANORAMIC"),
+    ("eye", "real", 3, "camera position (perspective: the lens centre; panoramic) or "
+                       "image-plane centre (orthographic)"),
     ("forward", "real", 3, "unit viewing direction"),
     ("right", "real", 3, "unit vector along the image's +x (left to right)"),
     ("up", "real", 3, "unit vector along the image's up direction (bottom to top)"),
-    ("half_height", "real", 1, "tan(fov / 2) (perspective) or size / 2 (orthographic)"),
+    ("half_height", "real", 1, "tan(fov / 2) (perspective) or size / 2 (orthographic); "
+                               "panoramic: unused"),
     ("aspect", "real", 1, "width / height"),
+    ("aperture", "real", 1, "thin-lens radius; 0: a pinhole (draws no lens sample)"),
+    ("lens_slope", "real", 1, "aperture / focus_distance: how far a lens point turns its ray"),
     ("decomposition", "i4", 1, "1: free flight uses each segment's minorant as its control"),
     ("shadow_estimator", "i4", 1, "ESTIMATOR_* id of shadow rays (the kernels build it in)"),
     ("view_estimator", "i4", 1, "ESTIMATOR_* id of camera rays that cannot scatter, whose "

@@ -266,7 +266,8 @@ def base_scenes():
     """Valid scene dictionaries; grid files they name are written by make_grid_dir."""
     full = {
         "camera": {"type": "perspective", "eye": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0],
-                   "up": [0.0, 1.0, 0.0], "fov": 45.0, "size": 2.0, "resolution": [4, 3]},
+                   "up": [0.0, 1.0, 0.0], "fov": 45.0, "size": 2.0, "resolution": [4, 3],
+                   "aperture": 0.05, "focus_distance": 3.5},
         "medium": {"bounds": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], "density": 1.0,
                    "scale": 20.0, "albedo": 0.8, "phase": {"type": "hg", "g": 0.6}},
         "lights": [
@@ -291,7 +292,8 @@ def base_scenes():
     vol["medium"]["density"] = {"file": "grid.vol"}
     vol["render"] = {"majorant": "global", "transmittance": "unbiased_raymarch"}
     generated = {
-        "camera": {"eye": [0.0, 0.5, 3.0], "target": [0.0, 0.5, 0.0], "resolution": [2, 2]},
+        "camera": {"type": "panoramic", "eye": [0.0, 0.5, 3.0], "target": [0.0, 0.5, 0.0],
+                   "resolution": [2, 2]},
         "medium": {"bounds": [[-1.0, 0.0, -1.0], [1.0, 1.0, 1.0]],
                    "density": {"generator": "cloud", "resolution": 4, "seed": 3}},
         "lights": [{"type": "environment", "radiance": [0.1, 0.2, 0.3]}],

@@ -25,7 +25,8 @@ import numpy as np
 from numba import njit
 
 from ..film import Film
-from ..reference.integrator import camera_ray, enter_box
+from ..reference.camera import camera_ray
+from ..reference.integrator import enter_box
 from ..reference.medium import ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next
 from ..params import COUNTER_NAMES
 from ..peers.compare import rmse_to_reference
@@ -101,7 +102,7 @@ def _camera_segments(params, medium, grid, maj, mnr, emis, table, bricks, pool, 
     rays = 0
     for py in range(prm.height):
         for px in range(prm.width):
-            o, d = camera_ray(prm, px, py, 0.5, 0.5)
+            o, d = camera_ray(prm, px, py, 0.5, 0.5, 0.5, 0.5)
             o, t0, t1, _ = enter_box(o, d, bmin, bmax)
             if not t1 > t0:
                 continue

@@ -57,7 +57,8 @@ def camera_segments(scene):
     """(segments [n, 8] float64 as o, d, t0, t1; bmin; bmax) in the scene frame the renderers
     use: the centre ray of every pixel whose ray crosses the medium box."""
     from ..pack import pack_scene
-    from ..reference.integrator import camera_ray, ray_box
+    from ..reference.camera import camera_ray
+    from ..reference.integrator import ray_box
     pk = pack_scene(scene)
     prm, med = pk.params[0], pk.medium[0]
     w, h = scene.camera.resolution
@@ -65,7 +66,7 @@ def camera_segments(scene):
     segs = []
     for py in range(h):
         for px in range(w):
-            o, d = camera_ray(prm, px, py, 0.5, 0.5)
+            o, d = camera_ray(prm, px, py, 0.5, 0.5, 0.5, 0.5)
             o, d = np.asarray(o), np.asarray(d)
             t0, t1 = ray_box(o, d, bmin, bmax)
             t0 = max(t0, 0.0)

@@ -11,7 +11,16 @@ Conventions and how the translation matches them (each checked by tests/test_pee
   matrix is built from ``look_at(eye, target, up)`` with +X to the right, as volmc's.
   ``fov`` is volmc's full vertical angle: ``sensor_fit = "VERTICAL"`` and ``angle_y``.
   volmc's orthographic ``size`` is the vertical extent: Blender's ``ortho_scale`` with the
-  vertical sensor fit is the same length. Pixels are sampled uniformly with weight 1:
+  vertical sensor fit is the same length. A thin lens (``aperture`` > 0) is Blender's depth
+  of field with a round aperture (``aperture_blades`` 0, ratio 1) focused at
+  ``focus_distance``: Cycles' lens radius is lens x 1e-3 / (2 f-stop) for a perspective
+  camera (lens: its focal length in mm, which ``angle`` sets) and 1 / (2 f-stop) for an
+  orthographic one, so ``aperture_fstop`` is lens x 1e-3 / (2 aperture) or
+  1 / (2 aperture); Cycles samples the disc uniformly and focuses on the plane at that
+  distance along the view axis, as volmc. The panoramic camera is ``type = "PANO"`` with
+  ``panorama_type = "EQUIRECTANGULAR"`` over its default 360 x 180 degrees (longitude and
+  latitude ranges set explicitly): Cycles' middle column looks along the camera's view
+  axis, with the same handedness as volmc's. Pixels are sampled uniformly with weight 1:
   Cycles' box filter of width 1 pixel. The output is Cycles' linear scene-referred EXR
   (the view transform does not touch it; "Standard" is set all the same).
 - **Medium coefficients.** volmc: sigma_t = scale x density per channel,
@@ -216,7 +225,9 @@ def write_job(scene, folder, pass_spp, pass_seeds, threads=0):
            "threads": int(threads),
            "camera": {"type": cam.type, "fit": "VERTICAL", "eye": _floats(cam.eye),
                       "target": _floats(cam.target), "up": _floats(cam.up),
-                      "fov": float(cam.fov), "size": float(cam.size)},
+                      "fov": float(cam.fov), "size": float(cam.size),
+                      "aperture": float(cam.aperture),
+                      "focus_distance": float(cam.focus_distance)},
            "medium": medium_job(scene, folder), "lights": light_jobs(scene),
            "volume_bounces": volume_bounces(scene.spec.render.max_depth),
            "transparent": bool(scene.spec.render.transparent_background),

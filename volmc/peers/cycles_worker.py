@@ -55,9 +55,23 @@ def _camera(bpy, sc, cam):
     if cam["type"] == "orthographic":
         data.type = "ORTHO"
         data.ortho_scale = cam["size"]
+    elif cam["type"] == "panoramic":
+        data.type = "PANO"
+        data.panorama_type = "EQUIRECTANGULAR"
+        data.longitude_min, data.longitude_max = -math.pi, math.pi
+        data.latitude_min, data.latitude_max = -0.5 * math.pi, 0.5 * math.pi
     else:
         data.lens_unit = "FOV"
         data.angle = math.radians(cam["fov"])   # the angle along the fitted axis
+    if cam["aperture"] > 0.0:
+        # Cycles' lens radius from the f-stop (see cycles.py): solved for volmc's radius.
+        dof = data.dof
+        dof.use_dof = True
+        dof.focus_distance = cam["focus_distance"]
+        dof.aperture_blades = 0
+        dof.aperture_ratio = 1.0
+        length = 1.0 if cam["type"] == "orthographic" else data.lens * 1e-3
+        dof.aperture_fstop = length / (2.0 * cam["aperture"])
     data.clip_start = 1e-4
     data.clip_end = 1e6
     obj = bpy.data.objects.new("camera", data)

@@ -9,6 +9,12 @@ or by the README's cross-check):
   world units; Mitsuba's ``orthographic`` camera spans [-1, 1] horizontally and
   [-1/aspect, 1/aspect] vertically, so its ``to_world`` gets a scale of size * aspect / 2.
   Both sample the pixel uniformly (Mitsuba: ``box`` reconstruction filter, radius half a pixel).
+  A thin lens (``aperture`` > 0) becomes Mitsuba's ``thinlens`` with ``aperture_radius`` =
+  aperture and the same ``focus_distance``: both sample the lens disc uniformly and focus
+  on the plane at that distance along the view axis. Mitsuba has no orthographic thin lens
+  and no equirectangular sensor, so an orthographic camera with an aperture and a
+  panoramic camera raise PeerUnavailable, as does a lens reaching across the medium box's
+  surface (the sensor's medium is one for all its rays).
 - **Medium box.** A ``cube`` shape ([-1, 1]^3) scaled to ``medium.bounds`` with a ``null`` BSDF
   carries the medium as its interior. A camera inside the box gets the medium as its
   exterior medium (Mitsuba needs to be told; volmc finds it by geometry).
@@ -148,12 +154,41 @@ def _inside(p, medium):
     return all(medium.bounds[0][i] < p[i] < medium.bounds[1][i] for i in range(3))
 
 
+def _lens_straddles(cam, medium):
+    """Whether points within ``aperture`` of the eye lie on both sides of the (placed) box's
+    surface (a ball about the eye: conservative for the lens disc; in the medium's own space
+    the ball grows by the inverse transform's largest stretch)."""
+    lo, hi = medium.bounds
+    eye, radius = np.asarray(cam.eye, float), cam.aperture
+    if medium.transform is not None:
+        m = np.asarray(medium.transform, float)
+        inv = np.linalg.inv(m[:3, :3])
+        eye, radius = inv @ (eye - m[:3, 3]), radius * float(np.linalg.norm(inv, 2))
+    gap = math.sqrt(sum(max(lo[i] - eye[i], 0.0, eye[i] - hi[i]) ** 2 for i in range(3)))
+    depth = min(min(eye[i] - lo[i], hi[i] - eye[i]) for i in range(3))
+    return (gap if gap > 0.0 else depth) < radius
+
+
 def check_translatable(scene):
     """Raise PeerUnavailable when the scene has what Mitsuba 3 cannot render: an emissive
-    medium (its media have no emission; neither ``volpath`` nor ``volpathmis`` adds any)."""
+    medium (its media have no emission; neither ``volpath`` nor ``volpathmis`` adds any), a
+    panoramic camera (no equirectangular sensor), an orthographic thin lens, or a lens
+    reaching across the medium box's surface (the sensor has one medium for all its rays,
+    while volmc starts each ray in the medium its lens point is in)."""
     if getattr(scene.spec.medium, "emission", None) is not None:
         raise PeerUnavailable("Mitsuba 3 has no emissive media, so it cannot render "
                               "medium.emission; compare without it")
+    cam = scene.spec.camera
+    if cam.type == "panoramic":
+        raise PeerUnavailable("Mitsuba 3 has no equirectangular sensor, so it cannot render "
+                              "camera.type = \"panoramic\"")
+    if cam.type == "orthographic" and cam.aperture > 0.0:
+        raise PeerUnavailable("Mitsuba 3's thin lens is perspective only, so it cannot render "
+                              "an orthographic camera with camera.aperture > 0")
+    if cam.aperture > 0.0 and _lens_straddles(cam, scene.spec.medium):
+        raise PeerUnavailable("the lens reaches across the medium box's surface, and a "
+                              "Mitsuba 3 sensor has one medium for all its rays; move the "
+                              "camera or narrow camera.aperture")
 
 
 def scene_dict(scene, mi=None):
@@ -205,7 +240,11 @@ def scene_dict(scene, mi=None):
 
     w, h = cam.resolution
     look = T().look_at(origin=list(cam.eye), target=list(cam.target), up=list(cam.up))
-    if cam.type == "perspective":
+    if cam.type == "perspective" and cam.aperture > 0.0:
+        sensor = {"type": "thinlens", "fov": float(cam.fov), "fov_axis": "y", "to_world": look,
+                  "aperture_radius": float(cam.aperture),
+                  "focus_distance": float(cam.focus_distance)}
+    elif cam.type == "perspective":
         sensor = {"type": "perspective", "fov": float(cam.fov), "fov_axis": "y",
                   "to_world": look}
     else:

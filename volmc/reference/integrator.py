@@ -3,7 +3,8 @@
 Twin of ``kernels/integrator.cl``. One sample of pixel (x, y) (y = 0 is the top row) is one
 path:
 
-1. Camera ray through the pixel, jittered uniformly inside it (two uniforms).
+1. Camera ray through the pixel, jittered uniformly inside it (two uniforms), from a point
+   of the lens when camera.aperture > 0 (two more; camera.py).
 2. With render.equiangular, before the flight: every point light's single scattering along
    the segment by equiangular sampling (``sample_equiangular_lights``).
    Free flight inside the medium box (free_flight.py): the one tracking loop over the
@@ -34,11 +35,11 @@ stream STREAM_SHADOW for all shadow-ray transmittance estimates of the sample.
 Samplers (render.sampler): with "stratified" or "sobol" the decisions a path makes a fixed
 number of times per bounce take their uniforms from the sampler (sampler.py) instead, each
 from its own pair of dimensions (the SAMPLER_* layout in constants.py): the pixel position,
-the hero channel, and for each of the first SAMPLER_BOUNCES bounces the first uniform of the
-free flight (handed to the tracking loop by rng_preset), the equiangular distances (one
-point per light), the environment directions (one point per light sample: index
-s N + j, so a sample's N directions are consecutive points of the pattern), Russian
-roulette and the phase direction. Everything else -- the later tentative collisions of a
+the lens position (a thin lens only), the hero channel, and for each of the first
+SAMPLER_BOUNCES bounces the first uniform of the free flight (handed to the tracking loop by
+rng_preset), the equiangular distances (one point per light), the environment directions
+(one point per light sample: index s N + j, so a sample's N directions are consecutive
+points of the pattern), Russian roulette and the phase direction. Everything else -- the later tentative collisions of a
 flight, every transmittance estimate, bounces past SAMPLER_BOUNCES -- comes from the
 counter RNG, whose count of draws varies from path to path, so no fixed dimension could
 be assigned to it.
@@ -53,16 +54,17 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import (CAMERA_ORTHOGRAPHIC, DENSITY_CONSTANT, EMISSION_NONE, EVENT_CAPPED,
+from ..constants import (DENSITY_CONSTANT, EMISSION_NONE, EVENT_CAPPED,
                          EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, RECORD_CAMERA,
                          RECORD_SHADOW, RR_ALBEDO,
                          RR_MAX_SURVIVAL, SAMPLER_BOUNCES, SAMPLER_EQUIANGULAR,
                          SAMPLER_FIRST_BOUNCE, SAMPLER_FLIGHT, SAMPLER_INDEPENDENT,
-                         SAMPLER_LIGHT, SAMPLER_PAIR_CHANNEL, SAMPLER_PAIR_PIXEL,
-                         SAMPLER_PAIRS_PER_BOUNCE, SAMPLER_PHASE, SPECTRAL_CHANNEL,
-                         SPECTRAL_GREY, SPECTRAL_HERO, STREAM_PATH, STREAM_SHADOW,
+                         SAMPLER_LIGHT, SAMPLER_PAIR_CHANNEL, SAMPLER_PAIR_LENS,
+                         SAMPLER_PAIR_PIXEL, SAMPLER_PAIRS_PER_BOUNCE, SAMPLER_PHASE,
+                         SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO, STREAM_PATH, STREAM_SHADOW,
                          UNIFORM_SCALE)
 from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
+from .camera import camera_ray
 from .estimators import transmittance
 from .free_flight import free_flight
 from .guards import sample_ok
@@ -72,7 +74,7 @@ from .phase import phase_eval, phase_sample
 from .tracking import mis_weights
 from .rng import RNG_STATE_SIZE, rng_drop_preset, rng_init, rng_next, rng_preset
 from .sampler import sampler_pair
-from .sampling import (dot, equiangular_pdf, mis_weight, normalize, sample_equiangular,
+from .sampling import (dot, equiangular_pdf, mis_weight, sample_equiangular,
                        sample_uniform_sphere, uniform_sphere_pdf)
 from .vec import add3, div3, madd3, max3, mul3, scale3
 
@@ -157,23 +159,6 @@ def keep_carried(beta, x):
     """x with the components where beta is 0 set to 0 (RGB)."""
     return (x[0] if beta[0] != 0.0 else 0.0, x[1] if beta[1] != 0.0 else 0.0,
             x[2] if beta[2] != 0.0 else 0.0)
-
-
-@njit(cache=True, inline="always")
-def camera_ray(prm, px, py, u1, u2):
-    """Primary ray through film position (px + u1, py + u2) (pixels; py = 0 at the top).
-
-    Returns (origin, unit direction)."""
-    sx = (2.0 * (px + u1) / prm.width - 1.0) * prm.half_height * prm.aspect
-    sy = (1.0 - 2.0 * (py + u2) / prm.height) * prm.half_height
-    f, r, u, e = prm.forward, prm.right, prm.up, prm.eye
-    if prm.cam_type == CAMERA_ORTHOGRAPHIC:
-        o = (e[0] + sx * r[0] + sy * u[0], e[1] + sx * r[1] + sy * u[1],
-             e[2] + sx * r[2] + sy * u[2])
-        return o, (f[0], f[1], f[2])
-    d = normalize((f[0] + sx * r[0] + sy * u[0], f[1] + sx * r[1] + sy * u[1],
-                   f[2] + sx * r[2] + sy * u[2]))
-    return (e[0], e[1], e[2]), d
 
 
 @njit(cache=True)
@@ -433,7 +418,10 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
     beta = (1.0, 1.0, 1.0)
     pix = py * prm.width + px
     u1, u2 = path_u2(prm, pix, s, SAMPLER_PAIR_PIXEL, 0, 1, rng)
-    o, d = camera_ray(prm, px, py, u1, u2)
+    v1, v2 = 0.5, 0.5   # a pinhole draws no lens sample, so its paths are unchanged
+    if prm.aperture > 0.0:
+        v1, v2 = path_u2(prm, pix, s, SAMPLER_PAIR_LENS, 0, 1, rng)
+    o, d = camera_ray(prm, px, py, u1, u2, v1, v2)
     if (prm.max_depth == 0 or max3(albedo) <= 0.0) and m.emission_kind == EMISSION_NONE:
         # No scattering can contribute: the pixel is the environment seen through the
         # medium, so estimate the transmittance instead of sampling a collision (exact for

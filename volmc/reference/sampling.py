@@ -4,7 +4,8 @@ Conventions (shared with ``kernels/sampling.h``):
 
 * Directions are 3-tuples of floats; they are unit vectors unless a docstring says otherwise.
 * Every warp ``sample_X(u...)`` has a density twin ``X_pdf(...)`` with the same measure:
-  distances in 1 / world unit, directions per steradian.
+  distances in 1 / world unit, directions per steradian, points of the unit disc per unit
+  area.
 * Uniforms are in [0, 1) (see ``rng.py``: never 1.0), so logarithms of ``1 - u`` are finite.
 """
 
@@ -12,7 +13,7 @@ import math
 
 from numba import njit
 
-from ..constants import INV_4PI, MIS_POWER, TWO_PI
+from ..constants import INV_4PI, INV_PI, MIS_POWER, PI_OVER_2, PI_OVER_4, TWO_PI
 
 
 @njit(cache=True, inline="always")
@@ -65,6 +66,50 @@ def invert_uniform_sphere(w):
     if phi < 0.0:
         phi += TWO_PI
     return 0.5 * (1.0 - w[2]), phi / TWO_PI
+
+
+@njit(cache=True, inline="always")
+def sample_uniform_disc(u1, u2):
+    """Uniform point (x, y) on the unit disc by Shirley and Chiu's concentric mapping (1997):
+    the square [-1, 1]^2 goes to the disc ring by ring, |a| > |b| to the wedge about the x
+    axis and the rest to the wedge about y, so strata stay compact and nearly square and
+    low-discrepancy points stay well spread (a polar r = sqrt(u1) mapping squeezes them).
+    Returns ((x, y), pdf), pdf 1 / pi per unit area."""
+    a = 2.0 * u1 - 1.0
+    b = 2.0 * u2 - 1.0
+    if abs(a) > abs(b):
+        r = a
+        phi = PI_OVER_4 * (b / a)
+    else:
+        r = b
+        phi = PI_OVER_2 - PI_OVER_4 * (a / b if b != 0.0 else 0.0)
+    return (r * math.cos(phi), r * math.sin(phi)), INV_PI
+
+
+@njit(cache=True, inline="always")
+def uniform_disc_pdf():
+    """Density of ``sample_uniform_disc``: 1 / pi per unit area of the unit disc."""
+    return INV_PI
+
+
+@njit(cache=True, inline="always")
+def invert_uniform_disc(p):
+    """(u1, u2) that ``sample_uniform_disc`` maps to the point p of the unit disc.
+
+    Wedge |x| > |y| came from |a| > |b|: there a = r sign(x) and b / a = atan(y / x) / (pi/4)
+    (the wedge's angle to its axis, whichever side of the origin); otherwise b = r sign(y)
+    and a / b = atan(x / y) / (pi/4). The origin gives (1/2, 1/2)."""
+    x, y = p[0], p[1]
+    r = math.sqrt(x * x + y * y)
+    if r == 0.0:
+        return 0.5, 0.5
+    if abs(x) > abs(y):
+        a = math.copysign(r, x)
+        b = a * math.atan(y / x) / PI_OVER_4
+    else:
+        b = math.copysign(r, y)
+        a = b * math.atan(x / y) / PI_OVER_4
+    return 0.5 * (a + 1.0), 0.5 * (b + 1.0)
 
 
 @njit(cache=True, inline="always")

@@ -21,7 +21,7 @@ from .transform import parse as parse_transform
 Vec3 = tuple[float, float, float]
 RGB = tuple[float, float, float]
 
-CAMERA_TYPES = ("perspective", "orthographic")
+CAMERA_TYPES = ("perspective", "orthographic", "panoramic")
 PHASE_TYPES = ("isotropic", "hg")
 LIGHT_TYPES = ("environment", "directional", "point")
 #: Procedural sources and the fields each returns, in order (``channel``; generators.py
@@ -35,7 +35,10 @@ FLOAT32_MAX = 3.4028234663852886e38
 
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole or orthographic camera. Lengths in world units, fov in degrees (vertical)."""
+    """Perspective (pinhole or thin lens), orthographic or panoramic camera. Lengths in world
+    units, fov in degrees (vertical). ``aperture``: the lens radius (0: a pinhole);
+    ``focus_distance``: the distance of the plane in focus along the view direction, None
+    for the distance from eye to target (a validated scene always holds the number)."""
     type: str = "perspective"
     eye: Vec3 = (0.0, 0.0, 4.0)
     target: Vec3 = (0.0, 0.0, 0.0)
@@ -43,6 +46,8 @@ class Camera:
     fov: float = 45.0
     size: float = 2.0
     resolution: tuple[int, int] = (256, 256)
+    aperture: float = 0.0
+    focus_distance: Optional[float] = None
 
 
 @dataclass(frozen=True)
@@ -182,7 +187,8 @@ class SceneSpec:
 
 # (key, default or REQUIRED); the kind of each key is checked in the section functions.
 REQUIRED = object()
-CAMERA_KEYS = ("type", "eye", "target", "up", "fov", "size", "resolution")
+CAMERA_KEYS = ("type", "eye", "target", "up", "fov", "size", "resolution", "aperture",
+               "focus_distance")
 MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase", "emission", "transform")
 EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
 PHASE_KEYS = ("type", "g")
@@ -349,7 +355,12 @@ def _camera(c, raw):
              f[0] * up[1] - f[1] * up[0])
     if not math.sqrt(sum(x * x for x in cross)) > 1e-9 * nu:
         c.fail(p + "up", "must not be parallel to the viewing direction (target - eye)")
-    return Camera(cam_type, eye, target, up, fov, size, res)
+    aperture = c.number(raw.get("aperture", d.aperture), p + "aperture", 0.0)
+    if cam_type == "panoramic" and aperture > 0.0:
+        c.fail(p + "aperture", f"a panoramic camera has no lens; must be 0, got {_fmt(aperture)}")
+    focus = raw.get("focus_distance", d.focus_distance)
+    focus = nf if focus is None else c.number(focus, p + "focus_distance", 0.0, lo_open=True)
+    return Camera(cam_type, eye, target, up, fov, size, res, aperture, focus)
 
 
 def _source(c, v, key, file_dir, channel="density"):

@@ -43,10 +43,13 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
             medium["emission"] = {"radiance": list(e.radiance), "field": _source(e.field)}
         else:
             medium["emission"] = {"temperature": _source(e.temperature), "scale": e.scale}
+    camera = {"type": c.type, "eye": list(c.eye), "target": list(c.target), "up": list(c.up),
+              "fov": c.fov, "size": c.size, "resolution": list(c.resolution),
+              "aperture": c.aperture}
+    if c.focus_distance is not None:   # None (a Camera not validated yet): eye to target
+        camera["focus_distance"] = c.focus_distance
     return {
-        "camera": {"type": c.type, "eye": list(c.eye), "target": list(c.target),
-                   "up": list(c.up), "fov": c.fov, "size": c.size,
-                   "resolution": list(c.resolution)},
+        "camera": camera,
         "medium": medium,
         "lights": lights,
         "render": {"spp": r.spp, "max_depth": r.max_depth, "rr_depth": r.rr_depth,
