@@ -66,6 +66,27 @@ def test_render_writes_exr_png_and_metadata(tmp_path, tiny):
         assert word in r.stdout
 
 
+def test_medium_out_of_view_is_a_warning(tmp_path, tiny):
+    """A camera that sees no medium renders (the background is a legitimate image) with one
+    warning line naming the file and key; a camera that sees it gets none."""
+    r = run(["render", str(tiny), "--quiet", "--spp", "1", "-D", "camera.target=[0, 0, 8]"],
+            tmp_path)
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("volmc: warning: ")
+    assert str(tiny) in lines[0] and "medium" in lines[0]
+    # Placed out of view by a transform, and back into view by another.
+    r = run(["render", str(tiny), "--quiet", "--spp", "1", "-D",
+             "medium.transform={translate=[0, 9, 0]}"], tmp_path)
+    assert "no camera ray reaches the medium" in r.stderr
+    r = run(["render", str(tiny), "--quiet", "--spp", "1", "-D",
+             "medium.transform={translate=[0, 9, 0], rotate=[0, 0, 1, 90]}"], tmp_path)
+    assert "no camera ray reaches the medium" in r.stderr
+    r = run(["render", str(tiny), "--quiet", "--spp", "1", "-D",
+             "medium.transform={rotate=[1, 1, 1, 30]}"], tmp_path)
+    assert r.returncode == 0 and r.stderr == ""
+
+
 def test_render_default_names_and_quiet(tmp_path, tiny):
     r = run(["render", str(tiny), "--quiet"], tmp_path)
     assert r.returncode == 0 and r.stderr == "" and r.stdout == ""

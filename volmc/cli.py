@@ -384,6 +384,10 @@ def cmd_render(args):
     checkpoint = args.checkpoint or args.resume
     if checkpoint:
         _check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
+    from .scene.visibility import medium_in_view
+    if not medium_in_view(scene):
+        print(f"volmc: warning: {scene_path}: medium: no camera ray reaches the medium box; "
+              "the image shows only the background", file=sys.stderr)
     with _dask_session(args) as client:
         # By name: the driver reads a --resume checkpoint (and refuses a wrong one) before
         # it builds and compiles the backend.
