@@ -213,3 +213,20 @@ def test_turned_box_transmittance_is_the_closed_form(backend, density):
     tol = 1e-5 if backend == "opencl" else 1e-12
     assert np.allclose(res.estimates, expect, rtol=tol * 10, atol=tol)
     assert np.allclose(np.nan_to_num(res.t_exit - res.t_enter), chords, atol=1e-5)
+
+
+def test_benchmarks_see_a_turned_medium_as_its_rearranged_grid():
+    """The lookup ceiling's camera segments and the majorant-segment count of `volmc bench
+    render` walk a placed medium in its own space: a quarter turn gives what the rearranged
+    array gives (the same rays, lengths and segments)."""
+    from volmc.bench.convergence import segments_per_camera_ray
+    from volmc.bench.lookups import camera_segments
+    transform, world_grid, world_box = REARRANGED["quarter turn about z"]
+    a = grid_scene(GRID, BOX, transform)
+    b = grid_scene(np.ascontiguousarray(world_grid), world_box)
+    sa, sb = camera_segments(a)[0], camera_segments(b)[0]
+    assert len(sa) == len(sb) > 0
+    assert np.allclose(sa[:, 7] - sa[:, 6], sb[:, 7] - sb[:, 6], rtol=1e-9, atol=1e-12)
+    for majorant in ("grid", "octree"):
+        assert segments_per_camera_ray(a, majorant) == \
+            pytest.approx(segments_per_camera_ray(b, majorant), rel=1e-9)

@@ -26,7 +26,7 @@ from numba import njit
 
 from ..film import Film
 from ..reference.camera import camera_ray
-from ..reference.integrator import enter_box
+from ..reference.integrator import enter_medium
 from ..reference.medium import ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next
 from ..params import COUNTER_NAMES
 from ..peers.compare import rmse_to_reference
@@ -95,15 +95,13 @@ def _camera_segments(params, medium, grid, maj, mnr, emis, table, bricks, pool, 
     med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes,
                      np.zeros((1, 9)))
     m = medium[0]
-    bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
-    bmax = (m.bmax[0], m.bmax[1], m.bmax[2])
     it = np.empty(ITER_STATE_SIZE)
     segments = 0
     rays = 0
     for py in range(prm.height):
         for px in range(prm.width):
             o, d = camera_ray(prm, px, py, 0.5, 0.5, 0.5, 0.5)
-            o, t0, t1, _ = enter_box(o, d, bmin, bmax)
+            o, t0, t1, _ = enter_medium(m, o, d)
             if not t1 > t0:
                 continue
             rays += 1

@@ -54,11 +54,13 @@ def lookup_sums(grid, bmin, bmax, segs, n_lookups, passes, seed):
 
 
 def camera_segments(scene):
-    """(segments [n, 8] float64 as o, d, t0, t1; bmin; bmax) in the scene frame the renderers
-    use: the centre ray of every pixel whose ray crosses the medium box."""
+    """(segments [n, 8] float64 as o, d, t0, t1; bmin; bmax) in the medium's space as the
+    renderers use it (the scene frame, or a placed medium's own: reference/medium.to_medium):
+    the centre ray of every pixel whose ray crosses the medium box."""
     from ..pack import pack_scene
     from ..reference.camera import camera_ray
     from ..reference.integrator import ray_box
+    from ..reference.medium import to_medium, to_medium_dir
     pk = pack_scene(scene)
     prm, med = pk.params[0], pk.medium[0]
     w, h = scene.camera.resolution
@@ -67,7 +69,7 @@ def camera_segments(scene):
     for py in range(h):
         for px in range(w):
             o, d = camera_ray(prm, px, py, 0.5, 0.5, 0.5, 0.5)
-            o, d = np.asarray(o), np.asarray(d)
+            o, d = np.asarray(to_medium(med, o)), np.asarray(to_medium_dir(med, d))
             t0, t1 = ray_box(o, d, bmin, bmax)
             t0 = max(t0, 0.0)
             if t1 > t0:
