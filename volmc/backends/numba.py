@@ -6,6 +6,7 @@ from ..constants import RECORD_COLUMNS
 from ..memory import band_rows as choose_band_rows
 from ..pack import pack_scene
 from ..params import N_COUNTERS
+from ..film import CHANNELS
 from ..reference.integrator import render_batch
 from .base import RenderBackend, bands, new_segment_record, techniques
 
@@ -40,7 +41,7 @@ class NumbaBackend(RenderBackend):
                      sample_start, n_samples, film_sum, film_sq, counters)
 
     def warm_up(self):
-        film = np.zeros((1, 1, 3))
+        film = np.zeros((1, 1, CHANNELS))
         self._launch(0, 1, 0, 0, film, film.copy(), np.zeros((1, N_COUNTERS), np.int64),
                      self.rec[:1])
 

@@ -574,7 +574,7 @@ def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     medium.py; row 0 of each pixel holds its count and the capacity K), or a [1, 1, 9]
     placeholder when not recording;
     film_sum, film_sq:
-    float64 [height, width, 3] running sums of sample values and of their squares;
+    float64 [height, width, 4] (RGBA) running sums of sample values and of their squares;
     counters: int64 [n_pix, N_COUNTERS], the launch's pixels (row i: pixel pix_start + i),
     accumulated in place. A pixel's samples depend on its index alone, so any split into
     bands gives the same image. Pixels are independent, so the loop runs in parallel.
