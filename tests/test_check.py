@@ -76,6 +76,12 @@ def _variants(tmp_path):
         "grid stored as bricks, residual ratio": scene_from_dict(
             dict(HOMOG, medium=dict(HOMOG["medium"], density=grid, scale=5.0)),
             overrides=["render.grid_storage=bricks", "render.transmittance=residual_ratio"]),
+        "grid turned and mirrored by a transform, emitting, bricks, transparent": scene_from_dict(
+            dict(HOMOG, medium=dict(HOMOG["medium"], density=grid, scale=5.0, albedo=0.7,
+                                    emission={"radiance": [0.4, 0.3, 0.2], "field": grid},
+                                    transform={"rotate": [1, 2, 0, 40.0],
+                                               "scale": [1.0, -1.0, 1.2]})),
+            overrides=["render.grid_storage=bricks", "render.transparent_background=true"]),
         "emitting homogeneous absorber: radiance x grid field": scene_from_dict(
             dict(HOMOG, lights=[], medium=dict(HOMOG["medium"], albedo=0.0, emission={
                 "radiance": [1.0, 0.6, 0.3], "field": grid}))),

@@ -191,7 +191,8 @@ def test_to_medium_maps_points_and_directions():
     translation): the kernels, the reference and the packed 3x4 matrix agree, and the
     reference's map inverts the scene's transform (through the frames pack.medium_space
     composes)."""
-    from volmc.pack import box_frame, pack_scene, scene_frame
+    from volmc.pack import pack_scene, scene_frame
+    from volmc.scene.transform import box_frame
     from volmc.reference.medium import to_medium, to_medium_dir
     from volmc.scene import scene_from_dict
     t = {"matrix": [[0.8, 0.3, 0.1, 2.0], [-0.2, 0.0, 1.1, -1.0], [0.4, -0.9, 0.2, 0.5],

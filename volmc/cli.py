@@ -384,7 +384,7 @@ def cmd_render(args):
     checkpoint = args.checkpoint or args.resume
     if checkpoint:
         _check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
-    from .scene.visibility import medium_in_view
+    from .visibility import medium_in_view
     if not medium_in_view(scene):
         print(f"volmc: warning: {scene_path}: medium: no camera ray reaches the medium box; "
               "the image shows only the background", file=sys.stderr)

@@ -16,6 +16,7 @@ from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PANORAMIC, CAMERA_PERSPECTIV
 from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
 from .scene.schema import FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight
+from .scene.transform import box_frame, placement
 
 #: The smallest normal float32 (kernels may flush denormals to zero).
 FLOAT32_MIN_NORMAL = 2.0 ** -126
@@ -98,28 +99,6 @@ def scene_frame(scene):
     A power of two scales without rounding. Counters (lookups, steps) are unchanged too."""
     lo, hi, _ = placement(scene.medium)
     return box_frame(lo, hi)
-
-
-def box_frame(lo, hi):
-    """(centre, unit) of the box [lo, hi]: its centre and a power of two close to its largest
-    half-extent (``scene_frame``; a placed medium's local space gets one too)."""
-    centre = tuple(0.5 * (lo[i] + hi[i]) for i in range(3))
-    half = max(0.5 * (hi[i] - lo[i]) for i in range(3))
-    return centre, 2.0 ** round(math.log2(half))
-
-
-def placement(medium):
-    """(lo, hi, M): the world's axis-aligned box around the placed medium, and the transform
-    the kernels must apply (4x4 float64 array), or None when the box alone places the medium:
-    no transform, or one that only scales axes by positive factors and translates (then
-    [lo, hi] is the placed box itself and the grid keeps its orientation)."""
-    from .scene.transform import is_axis_scale, world_box
-    lo, hi = medium.bounds
-    m = medium.transform
-    if m is None:
-        return tuple(lo), tuple(hi), None
-    wlo, whi = world_box(m, lo, hi)
-    return wlo, whi, (None if is_axis_scale(m) else np.array(m, float))
 
 
 def medium_space(medium, centre, unit):

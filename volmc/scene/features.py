@@ -61,7 +61,7 @@ def features(scene) -> frozenset:
         out.add("CHROMATIC")
     if m.emission is not None:
         out.add("EMISSION")
-    from ..pack import placement
+    from .transform import placement
     if m.bounds is not None and placement(m)[2] is not None:
         out.add("TRANSFORM")
     return frozenset(out)

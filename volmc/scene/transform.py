@@ -71,17 +71,33 @@ def is_axis_scale(m):
     return bool(np.all(lin == np.diag(np.diag(lin))) and np.all(np.diag(lin) > 0.0))
 
 
-def apply_point(m, p):
-    m = np.asarray(m, float)
-    return m[:3, :3] @ np.asarray(p, float) + m[:3, 3]
-
-
 def world_box(m, lo, hi):
     """(lo, hi) of the world's axis-aligned box around the local box [lo, hi] placed by m."""
     corners = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]]
                         for i in (0, 1) for j in (0, 1) for k in (0, 1)])
     w = corners @ np.asarray(m, float)[:3, :3].T + np.asarray(m, float)[:3, 3]
     return tuple(float(x) for x in w.min(axis=0)), tuple(float(x) for x in w.max(axis=0))
+
+
+def box_frame(lo, hi):
+    """(centre, unit) of the box [lo, hi]: its centre and a power of two close to its largest
+    half-extent (``scene_frame``; a placed medium's local space gets one too)."""
+    centre = tuple(0.5 * (lo[i] + hi[i]) for i in range(3))
+    half = max(0.5 * (hi[i] - lo[i]) for i in range(3))
+    return centre, 2.0 ** round(math.log2(half))
+
+
+def placement(medium):
+    """(lo, hi, M): the world's axis-aligned box around the placed medium, and the transform
+    the kernels must apply (4x4 float64 array), or None when the box alone places the medium:
+    no transform, or one that only scales axes by positive factors and translates (then
+    [lo, hi] is the placed box itself and the grid keeps its orientation)."""
+    lo, hi = medium.bounds
+    m = medium.transform
+    if m is None:
+        return tuple(lo), tuple(hi), None
+    wlo, whi = world_box(m, lo, hi)
+    return wlo, whi, (None if is_axis_scale(m) else np.array(m, float))
 
 
 def parse(c, raw, key):

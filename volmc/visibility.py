@@ -5,8 +5,8 @@ warns (not an error: a background plate is a legitimate render)."""
 import numpy as np
 from numba import njit
 
-from ..reference.camera import camera_ray
-from ..reference.integrator import enter_medium
+from .reference.camera import camera_ray
+from .reference.integrator import enter_medium
 
 #: Film positions per axis at which camera rays are traced (corners and edges included),
 #: each through five lens points (the centre and four on the rim) when there is a lens.
@@ -33,6 +33,6 @@ def medium_in_view(scene):
     included; through the lens's centre and rim) enters the (placed) medium box. A box
     smaller than the grid's spacing can slip between the rays: the answer is then False
     although a few pixels may see it."""
-    from ..pack import pack_scene
+    from .pack import pack_scene
     pk = pack_scene(scene, np.float64)
     return bool(_any_ray_enters(pk.params[0], pk.medium[0], FILM_SAMPLES))
