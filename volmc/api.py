@@ -293,10 +293,10 @@ class RenderedImage:
     def save(self, path, exposure=0.0, tonemap="filmic", variance=False):
         """Write the image: ``.exr`` (float32 RGBA with metadata, as ``volmc render``) or
         ``.png`` (tonemapped 8-bit sRGB: ``exposure`` in stops, ``tonemap`` "filmic" or
-        "clamp"; RGBA with ``render.transparent_background``), chosen by the extension. ``variance``: also write the per-pixel variance
-        of the mean to ``<path without its extension>.var.exr``, with the same metadata (as
-        ``volmc render --variance``). Returns the path of the image. Raises VolmcError."""
-        import numpy as np
+        "clamp"; RGBA with ``render.transparent_background``), chosen by the extension.
+        ``variance``: also write the per-pixel variance of the mean to ``<path without its
+        extension>.var.exr``, with the same metadata (as ``volmc render --variance``).
+        Returns the path of the image. Raises VolmcError."""
         from .cli import _check_writable
         from .film import write_exr, write_png
         where = "RenderedImage.save()"
@@ -309,8 +309,7 @@ class RenderedImage:
         if suffix == ".png" and tonemap not in ("filmic", "clamp"):
             raise _error(where, "tonemap", f"must be 'filmic' or 'clamp', got {tonemap!r}")
         if suffix == ".exr":
-            write_exr(path, np.concatenate([self.image, self.alpha[..., None]], axis=-1),
-                      self.metadata())
+            write_exr(path, self.result.film.rgba(), self.metadata())
         else:
             write_png(path, self.image, exposure, tonemap, alpha=self.alpha if
                       self.scene.render.transparent_background else None)

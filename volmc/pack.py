@@ -101,13 +101,12 @@ def scene_frame(scene):
     return box_frame(lo, hi)
 
 
-def medium_space(medium, centre, unit):
-    """(bmin, bmax, xform) of a medium placed by a transform (``placement``), packed for the
-    kernels: the box in the medium's local space, itself centred and scaled by a power of two
+def medium_space(lo, hi, m, centre, unit):
+    """(bmin, bmax, xform) of the local box [lo, hi] placed by the 4x4 transform m (the one
+    ``placement`` gives the kernels), packed: the box centred and scaled by a power of two
     as the scene frame is (so float32 sees a box of half-size near 1 wherever the user put
-    it), and the 3x4 map from the scene frame to that space, composed in float64."""
-    lo, hi = medium.bounds
-    _, _, m = placement(medium)
+    it), and the 3x4 map from the scene frame (centre, unit) to that space, composed in
+    float64."""
     c_l, u_l = box_frame(lo, hi)
     inv = np.linalg.inv(m)
     # scene frame f -> world centre + unit f -> local inv(M) world -> packed (local - c_l) / u_l
@@ -250,7 +249,8 @@ def pack_medium(scene, real, local, unit, maj_res, stored=None):
     if placed is None:
         lo, hi = local(wlo), local(whi)
     else:
-        lo, hi, m["xform"] = medium_space(med, scene_frame(scene)[0], unit)
+        lo, hi, m["xform"] = medium_space(*med.bounds, placed, scene_frame(scene)[0],
+                                          unit)
         m["transformed"] = 1
     m["bmin"], m["bmax"] = lo, hi
     m["inv_extent"] = [1.0 / (hi[i] - lo[i]) for i in range(3)]

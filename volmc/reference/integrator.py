@@ -39,10 +39,10 @@ the lens position (a thin lens only), the hero channel, and for each of the firs
 SAMPLER_BOUNCES bounces the first uniform of the free flight (handed to the tracking loop by
 rng_preset), the equiangular distances (one point per light), the environment directions
 (one point per light sample: index s N + j, so a sample's N directions are consecutive
-points of the pattern), Russian roulette and the phase direction. Everything else -- the later tentative collisions of a
-flight, every transmittance estimate, bounces past SAMPLER_BOUNCES -- comes from the
-counter RNG, whose count of draws varies from path to path, so no fixed dimension could
-be assigned to it.
+points of the pattern), Russian roulette and the phase direction. Everything else -- the
+later tentative collisions of a flight, every transmittance estimate, bounces past
+SAMPLER_BOUNCES -- comes from the counter RNG, whose count of draws varies from path to
+path, so no fixed dimension could be assigned to it.
 A sample whose contribution is NaN, infinite or negative is dropped (it counts as a sample
 of value 0) and counted. Negative samples are legitimate only with a signed shadow estimator
 (unbiased ray marching, params.signed_samples = 1): they are kept, since dropping them would
