@@ -25,7 +25,7 @@ kernel void estimate_batch(global const Medium *media, global const float *grid,
     lmask on;
     lint j = ray_lanes(n_per_ray, &r, &on);
     if (!ANY(on)) return;
-    MediumData med = {media[r], grid, maj, mnr, grid, grid, 0, grid, nodes, 0, 0, (lint)(-1)};
+    MediumData med = {{media[r]}, grid, maj, mnr, grid, grid, 0, grid, nodes, 0, 0, (lint)(-1)};
     lvec3 o = v3u(vload3(3 * r, rays)), d = v3u(vload3(3 * r + 1, rays));
     lfloat t0 = (lfloat)(rays[9 * r + 6]), t1 = (lfloat)(rays[9 * r + 7]);
     Rng rng = rng_empty();

@@ -134,7 +134,7 @@ static inline spec transmittance_next_flight(TRANSMITTANCE_ARGS) {
 #if defined(VOLMC_POWER_SERIES) && defined(VOLMC_DEBIASING)
 /* render.transmittance = "auto" (twins in estimators.py, which say why). */
 static inline int auto_alone_kind(const MediumData *med) {
-    return (FEATURE_CHROMATIC ? med->m.spectral != SPECTRAL_GREY : 0) ? SEGMENT_TELESCOPING
+    return (FEATURE_CHROMATIC ? med->m[0].spectral != SPECTRAL_GREY : 0) ? SEGMENT_TELESCOPING
                                                                       : SEGMENT_UNBIASED_RAYMARCH;
 }
 

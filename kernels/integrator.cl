@@ -28,26 +28,6 @@
 
 static inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 
-/* Returns t_enter, writes t_exit; no hit when t_enter >= t_exit. Zero direction components
- * (including -0.0) are handled without 0 * inf. */
-static inline lfloat ray_box(lvec3 o, lvec3 d, float3 bmin, float3 bmax, lfloat *t_exit) {
-    lfloat t0 = (lfloat)(-FLT_MAX), t1 = (lfloat)(FLT_MAX); /* "no limit": NO_LIMIT, guards.h */
-    lfloat oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
-    float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
-    lmask miss = (lmask)(0);
-    LANE_UNROLL for (int a = 0; a < 3; ++a) {
-        lmask zero = da[a] == 0.0f;
-        miss = miss | (zero & (oa[a] < lo[a] || oa[a] > hi[a]));
-        lfloat inv = 1.0f / select(da[a], (lfloat)(1.0f), zero); /* no 1 / 0 in any lane */
-        lfloat ta = (lo[a] - oa[a]) * inv;
-        lfloat tb = (hi[a] - oa[a]) * inv;
-        t0 = select(fmax(t0, fmin(ta, tb)), t0, zero);
-        t1 = select(fmin(t1, fmax(ta, tb)), t1, zero);
-    }
-    *t_exit = select(t1, (lfloat)(-FLT_MAX), miss);
-    return select(t0, (lfloat)(FLT_MAX), miss);
-}
-
 /* Guard "entry re-basing" (robustness case 10, 11, 13): clips ray o + t d to the box and, when the
  * box is entered from outside (t_enter > 0), moves the origin to the entry point, snapped onto
  * the box (clamped into it, and exactly onto the entry face), and clips again from there.
@@ -97,6 +77,46 @@ static inline lvec3 enter_medium(const Medium *m, lvec3 o, lvec3 d, lfloat *t0, 
     return sel3(o, madd3(o, d, *shift), *shift > 0.0f);
 }
 
+/* enter_medium for the scene's media (twin in integrator.py): the segment of o + t d from
+ * where it enters the first box it meets to where it leaves the last; the origin moves (and
+ * snaps) onto the box it enters first. */
+static inline lvec3 enter_media(const MediumData *med, lvec3 o, lvec3 d, lfloat *t0,
+                                lfloat *t1, lfloat *shift) {
+#if MEDIA_COUNT == 1
+    return enter_medium(&med->m[0], o, d, t0, t1, shift);
+#else
+    /* Each box's span on the ray, and the medium met first. */
+    lfloat te[MEDIA_COUNT], tx[MEDIA_COUNT];
+    lfloat first = (lfloat)(FLT_MAX);
+    lint j = (lint)(-1);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        const Medium *m = &med->m[i];
+        te[i] = ray_box(to_medium(m, o), to_medium_dir(m, d), vec3(m->bmin), vec3(m->bmax),
+                        &tx[i]);
+        lmask hit = (tx[i] > te[i]) & (tx[i] > 0.0f) & (te[i] < first);
+        first = select(first, te[i], hit);
+        j = select(j, (lint)(i), hit);
+    }
+    lvec3 out = o;
+    *t0 = (lfloat)(0.0f);
+    *t1 = (lfloat)(-FLT_MAX);
+    *shift = (lfloat)(0.0f);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        lmask here = j == i;
+        if (!ANY(here)) continue;
+        lfloat a, b, sh;
+        lvec3 oi = enter_medium(&med->m[i], o, d, &a, &b, &sh);
+        out = sel3(out, oi, here);
+        *t0 = select(*t0, a, here);
+        *shift = select(*shift, sh, here);
+    }
+    /* The last exit, from the moved origin. */
+    for (int i = 0; i < MEDIA_COUNT; ++i)
+        *t1 = select(*t1, fmax(*t1, tx[i] - *shift), (j >= 0) & (tx[i] > te[i]));
+    return out;
+#endif
+}
+
 /* x with the components where beta is 0 set to 0 (twin in integrator.py). */
 static inline lvec3 keep_carried(lvec3 beta, lvec3 x) {
     return v3(select((lfloat)(0.0f), x.x, beta.x != 0.0f),
@@ -108,7 +128,7 @@ static inline spec shadow_transmittance(const Params *prm, const MediumData *med
                                         lvec3 d, lfloat t_max, int view, Rng *rng_s,
                                         lulong *counters, lmask active) {
     lfloat t0, t1, shift;
-    o = enter_medium(&med->m, o, d, &t0, &t1, &shift);
+    o = enter_media(med, o, d, &t0, &t1, &shift);
     t1 = fmin(t1, t_max - shift);
     lmask go = active & (t1 > t0);
     if (!ANY(go)) return spec_s((lfloat)(1.0f));
@@ -171,9 +191,11 @@ static inline lfloat path_u1(const Params *prm, luint pix, luint s, lint pair, i
 #define EQUIANGULAR_ALONE 1
 #define EQUIANGULAR_MIS 2
 
-static inline int equiangular_mode(const Params *prm, const Medium *m) {
+static inline int equiangular_mode(const Params *prm, const MediumData *med) {
     if (!prm->equiangular) return EQUIANGULAR_OFF;
-    return m->density_kind == DENSITY_CONSTANT && m->spectral == SPECTRAL_GREY
+    const Medium *m = &med->m[0];
+    return MEDIA_COUNT == 1 && m->density_kind == DENSITY_CONSTANT &&
+                   m->spectral == SPECTRAL_GREY
                ? EQUIANGULAR_MIS
                : EQUIANGULAR_ALONE;
 }
@@ -237,6 +259,67 @@ static inline lvec3 light_ray(const Params *prm, const Medium *m, int ea, int ki
     return wl;
 }
 
+/* The albedo of medium i (per lane: the medium each lane scattered in), RGB. */
+static inline lvec3 medium_albedo(const MediumData *med, lint i) {
+#if MEDIA_COUNT == 1
+    return v3u(vec3(med->m[0].albedo));
+#else
+    lvec3 a = v3s(0.0f);
+    for (int k = 0; k < MEDIA_COUNT; ++k) a = sel3(a, v3u(vec3(med->m[k].albedo)), i == k);
+    return a;
+#endif
+}
+
+/* Medium i's phase function at cos_theta (per lane). */
+static inline lfloat medium_phase_eval(const MediumData *med, lint i, lfloat cos_theta) {
+#if MEDIA_COUNT == 1
+    return phase_eval(med->m[0].phase_kind, med->m[0].g, cos_theta);
+#else
+    lfloat f = (lfloat)(0.0f);
+    for (int k = 0; k < MEDIA_COUNT; ++k) {
+        lmask at = i == k;
+        if (ANY(at)) f = select(f, phase_eval(med->m[k].phase_kind, med->m[k].g, cos_theta), at);
+    }
+    return f;
+#endif
+}
+
+/* A direction from medium i's phase function about d_in (per lane); writes its pdf. */
+static inline lvec3 medium_phase_sample(const MediumData *med, lint i, lfloat u1, lfloat u2,
+                                        lvec3 d_in, lfloat *pdf) {
+#if MEDIA_COUNT == 1
+    return phase_sample(med->m[0].phase_kind, med->m[0].g, u1, u2, d_in, pdf);
+#else
+    lvec3 w = d_in;
+    for (int k = 0; k < MEDIA_COUNT; ++k) {
+        lmask at = i == k;
+        if (!ANY(at)) continue;
+        lfloat pi;
+        lvec3 wi = phase_sample(med->m[k].phase_kind, med->m[k].g, u1, u2, d_in, &pi);
+        w = sel3(w, wi, at);
+        *pdf = select(*pdf, pi, at);
+    }
+    return w;
+#endif
+}
+
+/* Light scattered at p towards cos_theta off the ray by every medium there: the sum of
+ * sigma_s f(cos_theta), RGB, with a counted lookup per medium present (twin in
+ * integrator.py). */
+static inline lvec3 in_scattering(const MediumData *med, lvec3 p, lfloat cos_theta,
+                                  lulong *counters, lmask active) {
+    float3 k = (float3)(1.0f) * medium_chroma(med);
+    lvec3 out = v3s(0.0f);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        const Medium *m = &med->m[i];
+        lfloat mu = medium_extinction(med, i, p, counters, active);
+        lfloat f = phase_eval(m->phase_kind, m->g, cos_theta);
+        float3 a = vec3(m->albedo);
+        out = add3(out, v3(a.x * (k.x * mu) * f, a.y * (k.y * mu) * f, a.z * (k.z * mu) * f));
+    }
+    return out;
+}
+
 /* Light from every point light scattered once inside [t0, t1] of the ray o + t d, by
  * equiangular sampling (twin of sample_equiangular_lights in integrator.py, which derives
  * it). */
@@ -245,7 +328,7 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
                                               lfloat t0, lfloat t1, luint pix, luint s, lint b,
                                               Rng *rng, Rng *rng_s, lulong *counters,
                                               lmask active) {
-    const Medium *m = &med->m;
+    const Medium *m = &med->m[0];
     lvec3 L = v3s(0.0f);
     for (int i = 0; i < prm->n_lights; ++i) {
         if (lights[i].type != LIGHT_POINT) continue;
@@ -263,9 +346,14 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
         lvec3 wl = direction_to(p, c, &dist);
         ok = ok & (dist > 0.0f);
         if (!ANY(ok)) continue;
+#if MEDIA_COUNT == 1
         lfloat mu = extinction(med, p, (lfloat)(NO_LIMIT), counters, ok);
         float3 k = (float3)(1.0f) * medium_chroma(med), a = vec3(m->albedo);
         lvec3 sig_s = v3(a.x * (k.x * mu), a.y * (k.y * mu), a.z * (k.z * mu));
+#else
+        /* sigma_s times the phase function, summed over the media at p */
+        lvec3 sig_s = in_scattering(med, p, dot3(d, wl), counters, ok);
+#endif
         ok = ok & (max3(sig_s) > 0.0f);
         if (!ANY(ok)) continue;
         counters[C_SHADOW] += lane_ones(ok);
@@ -274,7 +362,11 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
         lfloat w = ea == EQUIANGULAR_MIS
                        ? mis_weight(prm->mis, pdf, free_flight_pdf(m, t0, t))
                        : (lfloat)(1.0f);
+#if MEDIA_COUNT == 1
         lfloat f = phase_eval(m->phase_kind, m->g, dot3(d, wl)) * w / (dist * dist * pdf);
+#else
+        lfloat f = w / (dist * dist * pdf);
+#endif
         L = sel3(L,
                  add3(L, mul3(v3u(vec3g(lights[i].color)),
                               scale3(mul3(sig_s, spec_rgb(spec_mul(t_cam, t_lt))), f))),
@@ -285,8 +377,8 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
 
 /* Russian roulette's survival probability (render.rr; twin in integrator.py): the cap is
    RR_MAX_SURVIVAL only where nothing else ends the path (max_depth = -1). */
-static inline lfloat survival_probability(const Params *prm, lvec3 beta_w, float3 albedo) {
-    lvec3 x = prm->rr == RR_ALBEDO ? mul3(beta_w, v3u(albedo)) : beta_w;
+static inline lfloat survival_probability(const Params *prm, lvec3 beta_w, lvec3 albedo) {
+    lvec3 x = prm->rr == RR_ALBEDO ? mul3(beta_w, albedo) : beta_w;
     return fmin(max3(x), prm->max_depth < 0 ? RR_MAX_SURVIVAL : 1.0f);
 }
 
@@ -327,6 +419,7 @@ typedef struct {
     lfloat t0, t1, t;        /* the flight's segment of it, and where it scattered */
     lvec3 L, beta, R, beta_w;
     lint hero, depth;
+    lint medium;             /* the medium it scattered in last (several media) */
     lfloat pdf_phase;
     lint light, sample;      /* next-event estimation: light (n_lights: the environment) */
     lvec3 contrib;           /* what the pending shadow ray's transmittance adds to L */
@@ -357,7 +450,7 @@ static inline lfloat coverage(lvec3 T) { return 1.0f - (T.x + T.y + T.z) / 3.0f;
 static inline STAGE void path_start(const Params *prm, MediumData *med, Path *path, ulong seed,
                               luint job, luint pix, luint s, Rng *rng, Rng *rng_s,
                               lulong *counters, lmask fresh) {
-    const Medium *m = &med->m;
+    const Medium *m = &med->m[0];
     path->job = select(path->job, job, fresh);
     path->pix = select(path->pix, pix, fresh);
     path->s = select(path->s, s, fresh);
@@ -376,9 +469,13 @@ static inline STAGE void path_start(const Params *prm, MediumData *med, Path *pa
     path->d = sel3(path->d, d, fresh);
     path->L = sel3(path->L, v3s(0.0f), fresh);
     path->alpha = select(path->alpha, (lfloat)(0.0f), fresh);
-    float3 albedo = vec3(m->albedo);
-    const int emissive = FEATURE_EMISSION ? m->emission_kind != EMISSION_NONE : 0;
-    if (!emissive && (prm->max_depth == 0 || fmax(albedo.x, fmax(albedo.y, albedo.z)) <= 0.0f)) {
+    float top = 0.0f; /* the largest albedo of any medium */
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        float3 albedo = vec3(med->m[i].albedo);
+        top = fmax(top, fmax(albedo.x, fmax(albedo.y, albedo.z)));
+    }
+    const int emissive = FEATURE_EMISSION ? media_emit(med) : 0;
+    if (!emissive && (prm->max_depth == 0 || top <= 0.0f)) {
         /* No scattering can contribute: environment times transmittance (see integrator.py). */
         spec T = shadow_transmittance(prm, med, o, d, (lfloat)(NO_LIMIT), 1, rng_s, counters,
                                       fresh);
@@ -408,6 +505,7 @@ static inline STAGE void path_start(const Params *prm, MediumData *med, Path *pa
     path->hero = select(path->hero, hero, fresh);
     path->R = sel3(path->R, v3s(1.0f), fresh); /* hero MIS: decision probabilities over the hero's */
     path->depth = select(path->depth, (lint)(0), fresh);
+    path->medium = select(path->medium, (lint)(0), fresh);
     path->pdf_phase = select(path->pdf_phase, (lfloat)(0.0f), fresh);
     path->state = select(path->state, (lint)(PATH_START), fresh);
 }
@@ -425,9 +523,8 @@ static inline lvec3 weighted_beta(const Path *path) {
 static inline STAGE void flight_begin(const Params *prm, global const Light *lights,
                                 const MediumData *med, Path *path, Walk *wk, Rng *rng,
                                 Rng *rng_s, lulong *counters, lmask m) {
-    const Medium *md = &med->m;
     lfloat t0, t1, shift;
-    lvec3 o = enter_medium(md, path->o, path->d, &t0, &t1, &shift);
+    lvec3 o = enter_media(med, path->o, path->d, &t0, &t1, &shift);
     path->o = sel3(path->o, o, m);
     path->t0 = select(path->t0, t0, m);
     path->t1 = select(path->t1, t1, m);
@@ -440,7 +537,7 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
     if (!ANY(inside)) return;
     lvec3 d = path->d;
     record_segment(med, o, d, t0, t1, RECORD_CAMERA, inside & (path->depth == 0));
-    const int ea = equiangular_mode(prm, md);
+    const int ea = equiangular_mode(prm, med);
     if (ea != EQUIANGULAR_OFF) {
         lmask eq = inside & (lanes_if(prm->max_depth < 0) | (path->depth < prm->max_depth));
         if (ANY(eq))
@@ -468,8 +565,6 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
  * next-event estimation. */
 static inline STAGE void flight_end(const Params *prm, const MediumData *med, Path *path,
                               const Walk *wk, Rng *rng, lulong *counters, lmask m) {
-    const Medium *md = &med->m;
-    float3 albedo = vec3(md->albedo);
     lmask walked = m & (path->t1 > path->t0);
     lint event = wk->event;
     path->t = select(path->t, wk->t_end, m);
@@ -506,8 +601,14 @@ static inline STAGE void flight_end(const Params *prm, const MediumData *med, Pa
     path->depth = path->depth + (go & 1);
     go = go & (lanes_if(prm->max_depth < 0) | (path->depth <= prm->max_depth));
     counters[C_SCATTER] += lane_ones(go);
-    path->beta = sel3(path->beta, mul3(path->beta, v3u(albedo)), go);
-    beta_w = mul3(beta_w, v3u(albedo));
+    if (MEDIA_COUNT > 1 && ANY(go))
+        path->medium = select(path->medium,
+                              medium_pick(med, madd3(path->o, path->d, path->t), rng, counters,
+                                          go),
+                              go);
+    lvec3 albedo = medium_albedo(med, path->medium);
+    path->beta = sel3(path->beta, mul3(path->beta, albedo), go);
+    beta_w = mul3(beta_w, albedo);
     go = go & (max3(beta_w) > 0.0f);
     path->beta_w = sel3(path->beta_w, beta_w, go);
     path->light = select(path->light, (lint)(0), go);
@@ -530,8 +631,8 @@ static inline void shadow_add(Path *path, spec T, lmask m) {
 static inline STAGE void nee_next(const Params *prm, global const Light *lights, const MediumData *med,
                             Path *path, Walk *wk, Rng *rng, Rng *rng_s, lulong *counters,
                             lmask m) {
-    const Medium *md = &med->m;
-    const int ea = equiangular_mode(prm, md);
+    const Medium *md = &med->m[0];
+    const int ea = equiangular_mode(prm, med);
     const int n = prm->light_samples;
     const float inv_n = 1.0f / (float)n;
     lvec3 p = madd3(path->o, path->d, path->t);
@@ -551,7 +652,7 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
             /* An unlit light, or one whose rays are all done: the next light. */
             path->light = path->light + ((at & !take) & 1);
             path->sample = select(path->sample, (lint)(0), at & !take);
-            lfloat f = phase_eval(md->phase_kind, md->g, dot3(path->d, w)) * falloff * inv_n;
+            lfloat f = medium_phase_eval(med, path->medium, dot3(path->d, w)) * falloff * inv_n;
             path->contrib = sel3(path->contrib, mul3(path->beta_w, scale3(v3u(vec3g(
                                                                   lights[i].color)), f)),
                                  take);
@@ -566,7 +667,7 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
                               as_luint(path->sample), (uint)n, rng, take);
             lfloat pdf_l;
             lvec3 w = sample_uniform_sphere(u.x, u.y, &pdf_l);
-            lfloat f = phase_eval(md->phase_kind, md->g, dot3(path->d, w));
+            lfloat f = medium_phase_eval(med, path->medium, dot3(path->d, w));
             lfloat mw = mis_weight(prm->mis, (float)n * pdf_l, f) * inv_n;
             path->contrib = sel3(path->contrib, mul3(path->beta_w, scale3(v3u(vec3(prm->env)),
                                                                           f * mw / pdf_l)),
@@ -584,7 +685,7 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
         if (!ANY(ray)) continue;
         /* shadow_transmittance's clip, then the walk (or the estimate) of each ray. */
         lfloat t0, t1, shift;
-        lvec3 o = enter_medium(md, p, wl, &t0, &t1, &shift);
+        lvec3 o = enter_media(med, p, wl, &t0, &t1, &shift);
         t1 = fmin(t1, dist - shift);
         lmask go = ray & (t1 > t0);
         shadow_add(path, spec_s((lfloat)(1.0f)), ray & !go);
@@ -613,13 +714,13 @@ static inline STAGE void shadow_end(Path *path, const Walk *wk, Rng *rng, Rng *r
 
 /* Russian roulette and a phase-sampled direction for the lanes of m (trace_path after
  * sample_direct): a new flight, or the end of the path. */
-static inline STAGE void path_bounce(const Params *prm, const Medium *md, Path *path, Rng *rng,
-                               lmask m) {
+static inline STAGE void path_bounce(const Params *prm, const MediumData *med, Path *path,
+                                     Rng *rng, lmask m) {
     lvec3 p = madd3(path->o, path->d, path->t);
     lmask alive = m;
     lmask roulette = m & (path->depth >= prm->rr_depth);
     if (ANY(roulette)) {
-        lfloat q = survival_probability(prm, path->beta_w, vec3(md->albedo));
+        lfloat q = survival_probability(prm, path->beta_w, medium_albedo(med, path->medium));
         lfloat u = path_u1(prm, path->pix, path->s, bounce_pair(path->depth - 1, SAMPLER_FLIGHT),
                            1, (luint)(0u), 1u, rng, roulette);
         lmask end = roulette & (u >= q);
@@ -629,7 +730,7 @@ static inline STAGE void path_bounce(const Params *prm, const Medium *md, Path *
     lvec2 up = path_u2(prm, path->pix, path->s, bounce_pair(path->depth - 1, SAMPLER_PHASE),
                        (luint)(0u), 1u, rng, alive);
     lfloat pdf;
-    lvec3 d = phase_sample(md->phase_kind, md->g, up.x, up.y, path->d, &pdf);
+    lvec3 d = medium_phase_sample(med, path->medium, up.x, up.y, path->d, &pdf);
     path->d = sel3(path->d, d, alive);
     path->pdf_phase = select(path->pdf_phase, pdf, alive);
     path->o = sel3(path->o, p, alive);
@@ -656,7 +757,7 @@ static inline STAGE void path_write(const Params *prm, const Path *path, global 
  * its index and the sample's alone, so any split into bands, launches, work-items or lanes
  * gives the same values. A NaN, infinite or negative sample is written as 0 and counted as
  * dropped, exactly as in the reference. Counters: one row per work-item. */
-kernel void render_batch(const Params prm, const Medium medium, const Launch launch,
+kernel void render_batch(const Params prm, global const Medium *media, const Launch launch,
                          global const Light *lights, global const float *grid,
                          global const float *maj, global const float *mnr,
                          global const float *emis, global const float *table,
@@ -670,9 +771,19 @@ kernel void render_batch(const Params prm, const Medium medium, const Launch lau
     uint last = min(next + launch.jobs_per_item, n_jobs);
     /* Each pixel's record is [K + 1][RECORD_COLUMNS] (K = rec_capacity); without recording,
      * rec is a 1-float dummy that nothing may index. */
-    MediumData med = {medium, grid, maj, mnr, emis, table, bricks, pool, nodes,
-                      FEATURE_RECORD && launch.rec_capacity > 0 ? rec : 0,
-                      launch.rec_capacity, (lint)(-1)};
+    MediumData med;
+    for (int i = 0; i < MEDIA_COUNT; ++i) med.m[i] = media[i];
+    med.grid = grid;
+    med.maj = maj;
+    med.mnr = mnr;
+    med.emis = emis;
+    med.table = table;
+    med.bricks = bricks;
+    med.pool = pool;
+    med.nodes = nodes;
+    med.rec = FEATURE_RECORD && launch.rec_capacity > 0 ? rec : 0;
+    med.rec_capacity = launch.rec_capacity;
+    med.rec_pixel = (lint)(-1);
     ulong seed = ((ulong)prm.seed_hi << 32) | (ulong)prm.seed_lo;
     lulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = (lulong)(0);
@@ -692,7 +803,7 @@ kernel void render_batch(const Params prm, const Medium medium, const Launch lau
             m = path.state == PATH_NEE;
             if (ANY(m)) nee_next(&prm, lights, &med, &path, &wk, &rng, &rng_s, cnt, m);
             m = path.state == PATH_BOUNCE;
-            if (ANY(m)) path_bounce(&prm, &med.m, &path, &rng, m);
+            if (ANY(m)) path_bounce(&prm, &med, &path, &rng, m);
             m = path.state == PATH_DONE;
             if (ANY(m)) {
                 path_write(&prm, &path, out, cnt, m);

@@ -1,8 +1,15 @@
-/* The medium: what is here (density, extinction) and what bounds it along a ray (majorant
+/* The media: what is here (density, extinction) and what bounds it along a ray (majorant
  * segments). Twin of volmc/reference/medium.py, where the density sources, the segment
- * convention and the guards are described. The record type Medium is generated from
- * volmc/params.py (MEDIUM_FIELDS) into params.h. The medium is the same for every lane;
- * points, rays and their segments are per lane. */
+ * convention, the guards and the rules of several media are described. The record type
+ * Medium is generated from volmc/params.py (MEDIUM_FIELDS) into params.h. The media are the
+ * same for every lane; points, rays and their segments are per lane.
+ *
+ * A scene holds MEDIA_COUNT media (a build option, default 1; at most MAX_MEDIA). Medium i
+ * has its record m[i]; its arrays begin at its record's offsets in buffers the media share.
+ * Functions that take (med, i) are medium i's; the others (extinction, majorant_iter_init,
+ * majorant_next, medium_chroma) are the scene's: where media overlap their coefficients add,
+ * and the majorant segments are the sums of each medium's. A one-medium build compiles the
+ * code it compiled before several media existed (the same image bit for bit). */
 #ifndef VOLMC_MEDIUM_H
 #define VOLMC_MEDIUM_H
 
@@ -13,16 +20,21 @@
 #include "dda.h"
 #include "octree.h"
 #include "spectrum.h"
+#include "rng.h"
 
-/* A medium record with the arrays it points to: the density grid [nz][ny][nx], the
- * majorant grid's per-cell density maxima and minima [cz][cy][cx] (an octree's: per node),
- * the emission field grid [nz][ny][nx], the blackbody table [BLACKBODY_TABLE_SIZE][3], a
- * brick grid's index table [bz][by][bx] and pool [n_slots][8][8][8] (grid.h), and an
- * octree's first-child indices [n_nodes] (octree.h); and the segment record of the whole
- * launch, [pixels][K + 1][RECORD_COLUMNS] (record_segment; 0 when not recording), with
- * each lane's pixel (rec_pixel, -1: none). */
+#ifndef MEDIA_COUNT
+#define MEDIA_COUNT 1
+#endif
+
+/* The media with the arrays they point to: per medium (at its record's offsets), the
+ * density grid [nz][ny][nx], the majorant grid's per-cell density maxima and minima
+ * [cz][cy][cx] (an octree's: per node), the emission field grid [nz][ny][nx], the blackbody
+ * table [BLACKBODY_TABLE_SIZE][3], a brick grid's index table [bz][by][bx] and pool
+ * [n_slots][8][8][8] (grid.h), and an octree's first-child indices [n_nodes] (octree.h);
+ * and the segment record of the whole launch, [pixels][K + 1][RECORD_COLUMNS]
+ * (record_segment; 0 when not recording), with each lane's pixel (rec_pixel, -1: none). */
 typedef struct {
-    Medium m; /* a copy: the compiler keeps its fields in registers */
+    Medium m[MEDIA_COUNT]; /* copies: the compiler keeps their fields in registers */
     global const float *grid;
     global const float *maj;
     global const float *mnr;
@@ -35,6 +47,26 @@ typedef struct {
     int rec_capacity;
     lint rec_pixel;
 } MediumData;
+
+/* Returns t_enter, writes t_exit; no hit when t_enter >= t_exit. Zero direction components
+ * (including -0.0) are handled without 0 * inf. */
+static inline lfloat ray_box(lvec3 o, lvec3 d, float3 bmin, float3 bmax, lfloat *t_exit) {
+    lfloat t0 = (lfloat)(-FLT_MAX), t1 = (lfloat)(FLT_MAX); /* "no limit": NO_LIMIT, guards.h */
+    lfloat oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z};
+    float lo[3] = {bmin.x, bmin.y, bmin.z}, hi[3] = {bmax.x, bmax.y, bmax.z};
+    lmask miss = (lmask)(0);
+    LANE_UNROLL for (int a = 0; a < 3; ++a) {
+        lmask zero = da[a] == 0.0f;
+        miss = miss | (zero & (oa[a] < lo[a] || oa[a] > hi[a]));
+        lfloat inv = 1.0f / select(da[a], (lfloat)(1.0f), zero); /* no 1 / 0 in any lane */
+        lfloat ta = (lo[a] - oa[a]) * inv;
+        lfloat tb = (hi[a] - oa[a]) * inv;
+        t0 = select(fmax(t0, fmin(ta, tb)), t0, zero);
+        t1 = select(fmin(t1, fmax(ta, tb)), t1, zero);
+    }
+    *t_exit = select(t1, (lfloat)(-FLT_MAX), miss);
+    return select(t0, (lfloat)(FLT_MAX), miss);
+}
 
 static inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 
@@ -71,60 +103,133 @@ static inline lvec3 to_medium_dir(const Medium *m, lvec3 d) {
               x[8] * d.x + x[9] * d.y + x[10] * d.z);
 }
 
-static inline lfloat medium_density(const MediumData *med, lvec3 p, lmask active) {
-    const Medium *m = &med->m;
-    p = to_medium(m, p);
+/* Density of medium i at q, a point of its own space (no box test). */
+static inline lfloat density_at(const MediumData *med, int i, lvec3 q, lmask active) {
+    const Medium *m = &med->m[i];
     int kind = m->density_kind;
     if (kind == DENSITY_GRID)
-        return grid_lookup(med->grid, (int3)(m->dims[0], m->dims[1], m->dims[2]), vec3(m->bmin),
-                           vec3(m->inv_extent), p, active);
+        return grid_lookup(med->grid + m->grid_off, (int3)(m->dims[0], m->dims[1], m->dims[2]),
+                           vec3(m->bmin), vec3(m->inv_extent), q, active);
     if (kind == DENSITY_BRICKS)
-        return sparse_lookup(med->bricks, med->pool, (int3)(m->dims[0], m->dims[1], m->dims[2]),
-                             vec3(m->bmin), vec3(m->inv_extent), p, active);
+        return sparse_lookup(med->bricks + m->bricks_off, med->pool + m->pool_off,
+                             (int3)(m->dims[0], m->dims[1], m->dims[2]), vec3(m->bmin),
+                             vec3(m->inv_extent), q, active);
     if (!FEATURE_PROFILES || kind == DENSITY_CONSTANT) return (lfloat)(m->density);
-    return profile_density(kind, m->profile, p.x);
+    return profile_density(kind, m->profile, q.x);
 }
 
-/* The counted lookup, in the active lanes (the others' results are not to be used). Always
- * inlined, as rng_next is: PoCL's inliner kept both out of line, and inlining them measured
- * 1.14x and 1.12x samples/s at W = 1 and 16 on an fbm cloud (1.06x and 1.02x on the default
- * cloud). */
+/* The lanes of `active` whose point q (medium i's space) lies in medium i's box. */
+static inline lmask in_box(const Medium *m, lvec3 q, lmask active) {
+    return active & (q.x >= m->bmin[0]) & (q.x <= m->bmax[0]) & (q.y >= m->bmin[1]) &
+           (q.y <= m->bmax[1]) & (q.z >= m->bmin[2]) & (q.z <= m->bmax[2]);
+}
+
+/* Density of medium i at p (scene frame), before its scale; 0 outside its box when there
+ * are several media (one medium is only ever asked inside its box). */
+static inline lfloat medium_density(const MediumData *med, int i, lvec3 p, lmask active) {
+    lvec3 q = to_medium(&med->m[i], p);
+    if (MEDIA_COUNT == 1) return density_at(med, i, q, active);
+    lmask in = in_box(&med->m[i], q, active);
+    if (!ANY(in)) return (lfloat)(0.0f);
+    return select((lfloat)(0.0f), density_at(med, i, q, in), in);
+}
+
+/* Extinction of medium i alone at p (its largest channel), in the lanes of `active`, with
+ * a counted lookup in those whose point lies in its box (0 elsewhere). */
+static inline lfloat medium_extinction(const MediumData *med, int i, lvec3 p, lulong *counters,
+                                       lmask active) {
+    const Medium *m = &med->m[i];
+    lvec3 q = to_medium(m, p);
+    lmask in = MEDIA_COUNT == 1 ? active : in_box(m, q, active);
+    if (!ANY(in)) return (lfloat)(0.0f);
+    counters[C_LOOKUPS] += lane_ones(in);
+    return select((lfloat)(0.0f), m->scale * density_at(med, i, q, in), in);
+}
+
+/* The counted lookup, in the active lanes (the others' results are not to be used): the
+ * extinction of every medium at p, summed. Always inlined, as rng_next is: PoCL's inliner
+ * kept both out of line, and inlining them measured 1.14x and 1.12x samples/s at W = 1 and
+ * 16 on an fbm cloud (1.06x and 1.02x on the default cloud). */
 static inline __attribute__((always_inline)) lfloat extinction(const MediumData *med, lvec3 p,
                                                                lfloat sigma_maj,
                                                                lulong *counters, lmask active) {
-    lfloat mu = med->m.scale * medium_density(med, p, active);
+#if MEDIA_COUNT == 1
+    lfloat mu = med->m[0].scale * medium_density(med, 0, p, active);
     counters[C_LOOKUPS] += lane_ones(active);
+#else
+    lfloat mu = (lfloat)(0.0f);
+    for (int i = 0; i < MEDIA_COUNT; ++i) mu += medium_extinction(med, i, p, counters, active);
+#endif
     counters[C_OVER_MAJORANT] += lane_ones(active & (mu > sigma_maj));
     return mu;
 }
 
-/* Extinction per channel relative to extinction(): 1 in grey builds (folded away). */
+/* Extinction per channel relative to extinction(): 1 in grey builds (folded away). Several
+ * media share it (the scene format requires it). */
 static inline uspec medium_chroma(const MediumData *med) {
 #if FEATURE_CHROMATIC
-    return vec3(med->m.chroma);
+    return vec3(med->m[0].chroma);
 #else
     return 1.0f;
 #endif
 }
 
-/* Emitted radiance Le at p, RGB (twin of emitted_radiance in medium.py). */
-static inline lvec3 emitted_radiance(const MediumData *med, lvec3 p, lmask active) {
-    const Medium *m = &med->m;
+/* Emitted radiance Le of medium i at p, RGB (twin of emitted_radiance in medium.py). */
+static inline lvec3 emitted_radiance(const MediumData *med, int i, lvec3 p, lmask active) {
+    const Medium *m = &med->m[i];
+    global const float *table = med->table + m->table_off;
     float3 e = vec3(m->emission_rgb);
     p = to_medium(m, p);
-    lfloat f = grid_lookup(med->emis, (int3)(m->emission_dims[0], m->emission_dims[1],
-                                             m->emission_dims[2]),
+    lfloat f = grid_lookup(med->emis + m->emis_off,
+                           (int3)(m->emission_dims[0], m->emission_dims[1],
+                                  m->emission_dims[2]),
                            vec3(m->bmin), vec3(m->inv_extent), p, active);
     if (m->emission_kind == EMISSION_RADIANCE) return v3(e.x * f, e.y * f, e.z * f);
     lfloat x = clamp(f * m->table_scale, 0.0f, (float)(BLACKBODY_TABLE_SIZE - 1));
     lint i0 = select((lint)(0), min(to_lint_rtz(x), BLACKBODY_TABLE_SIZE - 2), active);
     lfloat w = x - to_lfloat(i0);
     lint j = 3 * i0;
-    return v3(e.x * (gather_float(med->table, j) * (1.0f - w) + gather_float(med->table, j + 3) * w),
-              e.y * (gather_float(med->table, j + 1) * (1.0f - w) +
-                     gather_float(med->table, j + 4) * w),
-              e.z * (gather_float(med->table, j + 2) * (1.0f - w) +
-                     gather_float(med->table, j + 5) * w));
+    return v3(e.x * (gather_float(table, j) * (1.0f - w) + gather_float(table, j + 3) * w),
+              e.y * (gather_float(table, j + 1) * (1.0f - w) + gather_float(table, j + 4) * w),
+              e.z * (gather_float(table, j + 2) * (1.0f - w) + gather_float(table, j + 5) * w));
+}
+
+/* True if some medium emits. */
+static inline int media_emit(const MediumData *med) {
+    int any = 0;
+    for (int i = 0; i < MEDIA_COUNT; ++i) any = any || med->m[i].emission_kind != EMISSION_NONE;
+    return any;
+}
+
+/* Index of the medium a real collision at p chose, by its share of the extinction there
+ * (twin of medium_pick in medium.py): medium i with probability mu_i / sum mu. Lanes where
+ * two or more media are present draw a uniform from rng; a lane where none is (a point
+ * outside every box by rounding) takes medium 0. Counted lookups, one per medium present. */
+static inline lint medium_pick(const MediumData *med, lvec3 p, Rng *rng, lulong *counters,
+                               lmask active) {
+#if MEDIA_COUNT == 1
+    return (lint)(0);
+#else
+    lfloat mu[MEDIA_COUNT];
+    lfloat total = (lfloat)(0.0f);
+    lint present = (lint)(0);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        mu[i] = medium_extinction(med, i, p, counters, active);
+        total += mu[i];
+        present = present + ((mu[i] > 0.0f) & 1);
+    }
+    lmask draw = active & (present >= 2);
+    lfloat x = select((lfloat)(0.0f), rng_next(rng, draw), draw) * total;
+    lint pick = (lint)(-1), last = (lint)(0); /* last: the last medium present */
+    lfloat acc = (lfloat)(0.0f);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        acc += mu[i];
+        lmask here = mu[i] > 0.0f;
+        last = select(last, (lint)(i), here);
+        pick = select(pick, (lint)(i), (pick < 0) & here & (x < acc));
+    }
+    return select(last, pick, pick >= 0); /* x = total by rounding: the last present */
+#endif
 }
 
 /* The points of a comb, ceil(x) and at least 1, for x points asked (twin in medium.py). */
@@ -182,18 +287,27 @@ typedef struct {
     lfloat t_min, t_max, sigma_maj, sigma_min;
 } Segment;
 
+/* One medium's walk over its majorant segments. */
 typedef struct {
     Dda dda;
     OctreeWalk oct;
     lfloat t0, t1;
     lmask done;
-} MajorantIter;
+} MediumIter;
 
-static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, lvec3 o, lvec3 d,
-                                      lfloat t0, lfloat t1, lmask active) {
-    const Medium *m = &med->m;
+/* Starts medium i's walk of o + t d over [t0, t1]. With several media the segment is first
+ * clipped to medium i's box (one medium's rays were clipped by enter_media). */
+static inline void medium_iter_init(MediumIter *it, const MediumData *med, int i, lvec3 o,
+                                    lvec3 d, lfloat t0, lfloat t1, lmask active) {
+    const Medium *m = &med->m[i];
     o = to_medium(m, o);
     d = to_medium_dir(m, d);
+    if (MEDIA_COUNT > 1) {
+        lfloat tx;
+        lfloat te = ray_box(o, d, vec3(m->bmin), vec3(m->bmax), &tx);
+        t0 = fmax(t0, te);
+        t1 = fmin(t1, tx);
+    }
     it->done = select(it->done, !(t1 > t0), active);
     it->t0 = select(it->t0, t0, active);
     it->t1 = select(it->t1, t1, active);
@@ -205,16 +319,17 @@ static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, l
                     active);
 }
 
-/* Returns the lanes of `active` that got a segment (0 where the walk is over) and writes
- * their next non-empty segment. The grid's cells and the octree's leaves run one loop: each
- * walk yields a piece and its index into maj and mnr; a lane skips empty pieces while the
- * others wait for it. */
-static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segment *seg,
-                                  lmask active) {
-    const Medium *m = &med->m;
+/* Returns the lanes of `active` that got a segment of medium i (0 where its walk is over)
+ * and writes their next non-empty segment. The grid's cells and the octree's leaves run
+ * one loop: each walk yields a piece and its index into maj and mnr; a lane skips empty
+ * pieces while the others wait for it. */
+static inline lmask medium_iter_next(MediumIter *it, const MediumData *med, int i,
+                                     Segment *seg, lmask active) {
+    const Medium *m = &med->m[i];
     int grid = FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID;
     int octree = FEATURE_MAJORANT_OCTREE && m->majorant_kind == MAJORANT_OCTREE;
     if (grid || octree) {
+        global const float *maj = med->maj + m->maj_off, *mnr = med->mnr + m->maj_off;
         int3 res = (int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]);
         lmask found = (lmask)(0), searching = active;
         while (ANY(searching)) {
@@ -226,16 +341,16 @@ static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segme
                 got = dda_next(&it->dda, &ta, &tb, &cell, searching, res);
                 k = dda_cell_index(cell, res);
             } else {
-                got = octree_next(&it->oct, med->nodes, vec3(m->bmin), vec3(m->bmax),
-                                  m->octree_depth, &ta, &tb, &k, searching);
+                got = octree_next(&it->oct, med->nodes + m->nodes_off, vec3(m->bmin),
+                                  vec3(m->bmax), m->octree_depth, &ta, &tb, &k, searching);
             }
             k = select((lint)(0), k, got);
-            lfloat s_maj = m->scale * gather_float(med->maj, k);
+            lfloat s_maj = m->scale * gather_float(maj, k);
             lmask hit = got & (s_maj > 0.0f) & (tb > ta);
             seg->t_min = select(seg->t_min, ta, hit);
             seg->t_max = select(seg->t_max, tb, hit);
             seg->sigma_maj = select(seg->sigma_maj, s_maj, hit);
-            seg->sigma_min = select(seg->sigma_min, m->scale * gather_float(med->mnr, k), hit);
+            seg->sigma_min = select(seg->sigma_min, m->scale * gather_float(mnr, k), hit);
             found = found | hit;
             searching = got & !hit;
         }
@@ -250,5 +365,75 @@ static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segme
     seg->sigma_min = select(seg->sigma_min, (lfloat)(m->sigma_min), go);
     return go;
 }
+
+#if MEDIA_COUNT == 1
+typedef MediumIter MajorantIter;
+
+static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, lvec3 o, lvec3 d,
+                                      lfloat t0, lfloat t1, lmask active) {
+    medium_iter_init(it, med, 0, o, d, t0, t1, active);
+}
+
+static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segment *seg,
+                                  lmask active) {
+    return medium_iter_next(it, med, 0, seg, active);
+}
+#else
+/* The scene's walk: each medium's walk and its pending segment (has), merged (twin of
+ * majorant_next in medium.py, which describes the merge). */
+typedef struct {
+    MediumIter one[MEDIA_COUNT];
+    Segment cur[MEDIA_COUNT];
+    lmask has[MEDIA_COUNT];
+    lfloat t; /* where the merged segments have reached */
+} MajorantIter;
+
+static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, lvec3 o, lvec3 d,
+                                      lfloat t0, lfloat t1, lmask active) {
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        medium_iter_init(&it->one[i], med, i, o, d, t0, t1, active);
+        it->has[i] = it->has[i] & !active;
+    }
+    it->t = select(it->t, t0, active);
+}
+
+/* The next merged segment: from the nearest point at or after t where some medium has a
+ * segment, to the nearest point where one begins or ends; its bounds are the sums over the
+ * media whose segment covers it. */
+static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segment *seg,
+                                  lmask active) {
+    lfloat t = it->t;
+    lfloat start = (lfloat)(FLT_MAX);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        /* A medium whose segment the merge has passed takes its next one. */
+        lmask need = active & !(it->has[i] & (it->cur[i].t_max > t));
+        if (ANY(need)) {
+            Segment s;
+            lmask got = medium_iter_next(&it->one[i], med, i, &s, need);
+            it->cur[i].t_min = select(it->cur[i].t_min, s.t_min, got);
+            it->cur[i].t_max = select(it->cur[i].t_max, s.t_max, got);
+            it->cur[i].sigma_maj = select(it->cur[i].sigma_maj, s.sigma_maj, got);
+            it->cur[i].sigma_min = select(it->cur[i].sigma_min, s.sigma_min, got);
+            it->has[i] = select(it->has[i], got, need);
+        }
+        start = select(start, fmin(start, fmax(it->cur[i].t_min, t)), active & it->has[i]);
+    }
+    lmask found = active & (start < FLT_MAX);
+    lfloat end = (lfloat)(FLT_MAX), s_maj = (lfloat)(0.0f), s_min = (lfloat)(0.0f);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        lmask h = found & it->has[i];
+        lmask covers = h & (it->cur[i].t_min <= start);
+        end = select(end, fmin(end, select(it->cur[i].t_min, it->cur[i].t_max, covers)), h);
+        s_maj += select((lfloat)(0.0f), it->cur[i].sigma_maj, covers);
+        s_min += select((lfloat)(0.0f), it->cur[i].sigma_min, covers);
+    }
+    seg->t_min = select(seg->t_min, start, found);
+    seg->t_max = select(seg->t_max, end, found);
+    seg->sigma_maj = select(seg->sigma_maj, s_maj, found);
+    seg->sigma_min = select(seg->sigma_min, s_min, found);
+    it->t = select(it->t, end, found);
+    return found;
+}
+#endif
 
 #endif

@@ -258,7 +258,7 @@ kernel void t_track(int technique, int use_control, global const Medium *media,
     lmask on;
     lint j = ray_lanes(n_per_ray, &r, &on);
     if (!ANY(on)) return;
-    MediumData med = {media[r], grid, maj, mnr, grid, grid, 0, grid, 0, 0, 0, (lint)(-1)};
+    MediumData med = {{media[r]}, grid, maj, mnr, grid, grid, 0, grid, 0, 0, 0, (lint)(-1)};
     lvec3 o = v3u(vload3(3 * r, rays)), d = v3u(vload3(3 * r + 1, rays));
     lfloat t0 = (lfloat)(rays[9 * r + 6]), t1 = (lfloat)(rays[9 * r + 7]);
     Rng rng = rng_empty();

@@ -21,7 +21,7 @@ kernel void t_power_series(int kind, global const Medium *media, global const fl
     lint j = ray_lanes(n_per_ray, &r, &on);
     if (!ANY(on)) return;
     global const float *ray = rays + 10 * r;
-    MediumData med = {media[r], grid, grid, grid, grid, grid, 0, grid, 0, 0, 0, (lint)(-1)};
+    MediumData med = {{media[r]}, grid, grid, grid, grid, grid, 0, grid, 0, 0, 0, (lint)(-1)};
     lvec3 o = v3((lfloat)(ray[0]), (lfloat)(ray[1]), (lfloat)(ray[2]));
     lvec3 d = v3((lfloat)(ray[3]), (lfloat)(ray[4]), (lfloat)(ray[5]));
     Rng rng = rng_empty();

@@ -54,14 +54,27 @@ static inline lmask spec_roulette(spec *T, Rng *rng, lmask active) {
 #endif
 }
 
-/* What one tentative collision adds to the emission estimate (twin in tracking.py). */
+/* What one tentative collision adds to the emission estimate (twin in tracking.py): with
+ * several media, each emitting medium's sigma_a Le at p, from its own counted lookup. */
 static inline lvec3 emission_term(const MediumData *med, lvec3 p, lfloat mu, lfloat s_maj,
-                                  lvec3 W, lmask active) {
+                                  lvec3 W, lulong *counters, lmask active) {
     float3 k = (float3)(1.0f) * medium_chroma(med);
-    float3 ka = (1.0f - vec3(med->m.albedo)) * k;
+#if MEDIA_COUNT == 1
+    float3 ka = (1.0f - vec3(med->m[0].albedo)) * k;
     lfloat s = mu / s_maj;
-    lvec3 Le = emitted_radiance(med, p, active);
+    lvec3 Le = emitted_radiance(med, 0, p, active);
     return v3(ka.x * s * Le.x * W.x, ka.y * s * Le.y * W.y, ka.z * s * Le.z * W.z);
+#else
+    lvec3 out = v3s(0.0f);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        if (med->m[i].emission_kind == EMISSION_NONE) continue;
+        float3 ka = (1.0f - vec3(med->m[i].albedo)) * k;
+        lfloat s = medium_extinction(med, i, p, counters, active) / s_maj;
+        lvec3 Le = emitted_radiance(med, i, p, active);
+        out = add3(out, v3(ka.x * s * Le.x * W.x, ka.y * s * Le.y * W.y, ka.z * s * Le.z * W.z));
+    }
+    return out;
+#endif
 }
 
 /* Hero MIS: balance-heuristic weights R / mean(R) (twin in tracking.py). */
@@ -163,9 +176,9 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
                                                              lulong *counters, int max_steps) {
     /* Plain constants 0 in builds without the feature: they lead any condition they join,
      * since clang warns of a logical operator whose right operand is constant. */
-    const int spectral = FEATURE_CHROMATIC ? med->m.spectral != SPECTRAL_GREY : 0;
+    const int spectral = FEATURE_CHROMATIC ? med->m[0].spectral != SPECTRAL_GREY : 0;
     const int emissive = FEATURE_EMISSION ? (may & TRACK_BIT(TRACK_FREE_FLIGHT)) &&
-                                                med->m.emission_kind != EMISSION_NONE : 0;
+                                                media_emit(med) : 0;
     const int may_fly = may & (TRACK_BIT(TRACK_FREE_FLIGHT) | TRACK_BIT(TRACK_LENGTH) |
                                TRACK_BIT(TRACK_AUTO));
     const int may_ratio = may & (TRACK_BIT(TRACK_RATIO) | TRACK_BIT(TRACK_RESIDUAL_RATIO) |
@@ -279,7 +292,7 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
                          add3(wk->E, emission_term(med, p, mu, s_maj,
                                                    sel3(T, mis_weights(mul3(T, wk->beta)),
                                                         heroic),
-                                                   fly & ff)),
+                                                   counters, fly & ff)),
                          fly & ff);
         lvec3 f;
         lmask real = fly & spectral_choice(W, k, mu, s_maj, rng_next(rng, fly), &f);
@@ -312,7 +325,8 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
             mu = select(select((lfloat)(-1.0f), s_maj, sure), mu, look);
             lmask again = glow & (mu < 0.0f);
             mu = select(mu, extinction(med, p, s_maj, counters, again), again);
-            wk->E = sel3(wk->E, add3(wk->E, emission_term(med, p, mu, s_maj, v3s(1.0f), glow)),
+            wk->E = sel3(wk->E, add3(wk->E, emission_term(med, p, mu, s_maj, v3s(1.0f), counters,
+                                                         glow)),
                          glow);
         }
         /* Free flight's weight stays 1; track length's estimate is 0 at a real collision. */

@@ -2,6 +2,8 @@
 (Sidak, 1 % family false-failure rate per scene) and in their means, for every shipped scene
 and for variants that switch each kernel feature flag on and off."""
 
+import tomllib
+
 import numpy as np
 import pytest
 
@@ -93,8 +95,13 @@ def _shipped():
     for f in sorted(scenes_dir().glob("**/*.toml")):
         over = list(SMALL) + ["render.spp=64"]
         text = f.read_text()
-        if 'generator = "cloud"' in text or 'generator = "plume"' in text:
-            over.append("medium.density.resolution=48")
+        raw = tomllib.loads(text)
+        for key, med in [("medium", raw.get("medium"))] + [
+                (f"media.{i}", m) for i, m in enumerate(raw.get("media", []))]:
+            if isinstance(med, dict) and isinstance(med.get("density"), dict) and \
+                    med["density"].get("generator") in ("cloud", "plume"):
+                res = min(48, med["density"]["resolution"])
+                over.append(f"{key}.density.resolution={res}")
         out[f.relative_to(scenes_dir()).as_posix()] = load_scene(f, over)
     return out
 

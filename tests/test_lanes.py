@@ -120,6 +120,7 @@ CONFIGS = [
     ("absorber (transmittance only)", "tests/absorber.toml", {}),
     ("thin lens, sobol", None, {"camera.aperture": 0.3, "render.sampler": "sobol"}),
     ("panoramic", None, {"camera.type": "panoramic"}),
+    ("three media: overlap, placed, emitting", "tests/media.toml", {}),
 ]
 
 

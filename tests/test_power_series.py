@@ -39,7 +39,7 @@ def _run(kind, media, grid, o, d, t0, t1, mbar, mu_c, n, seed, max_steps, pixel)
     out = np.empty(n)
     lookups = np.empty(n, np.int64)
     counters = np.zeros(N_COUNTERS, np.int64)
-    med = MediumData(media[0], grid, grid, grid, *no_field_arrays())
+    med = (MediumData(media[0], grid, grid, grid, *no_field_arrays()),)
     for i in range(n):
         rng = rng_new(seed, pixel, i, STREAM_TEST)
         before = counters[C_LOOKUPS]

@@ -449,6 +449,9 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     from .techniques import ESTIMATORS
     where = "volmc.estimate_transmittance()"
     scene = _medium_scene(scene_or_medium, where)
+    if len(scene.media) > 1:
+        raise _error(where, "scene_or_medium", f"{len(scene.media)} media: the estimator "
+                     "runners take one medium (render the scene for several)")
     if estimator not in ESTIMATORS:
         raise _error(where, "estimator", f"unknown estimator {estimator!r} (have "
                                              f"{', '.join(ESTIMATORS)})")

@@ -217,8 +217,16 @@ def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
         comps.append(Component("camera.resolution", f"a {w}x{h} film",
                                host=w * h * (FILM_BYTES_PER_PIXEL + OUTPUT_BYTES_PER_PIXEL)))
     if scene_data:
-        comps += _density_components(scene, backend)
-        comps += _emission_components(scene, backend)
+        parts = scene.media_scenes
+        for i, part in enumerate(parts):
+            own = _density_components(part, backend) + _emission_components(part, backend)
+            if len(parts) > 1:   # each medium's keys, as the scene file names them
+                for c in own:
+                    c.key = c.key.replace("medium.", f"media[{i}].")
+                if backend != "numba":   # pack.shared_buffers: every array once more
+                    own.append(Component(f"media[{i}].density", "its share of the media's "
+                                         "shared buffers", host=sum(c.device for c in own)))
+            comps += own
     host, device, buffer = launch_bytes_per_pixel(backend, w, h)
     px = rows * w
     comps.append(Component("camera.resolution",

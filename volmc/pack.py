@@ -15,7 +15,7 @@ from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PANORAMIC, CAMERA_PERSPECTIV
                         SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO, SPECTRAL_TRACKING)
 from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
-from .scene.schema import FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight
+from .scene.schema import FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight, chroma
 from .scene.transform import box_frame, placement
 
 #: The smallest normal float32 (kernels may flush denormals to zero).
@@ -96,8 +96,11 @@ def scene_frame(scene):
     in both frames, so the image is too, but the kernels' float32 then always sees a box of
     half-size in [0.7, 1.4] at the origin: a scene translated 1e7 units away (where float32
     has an ulp of 1) or scaled by 1e-4 or 1e4 renders from the same numbers as at the origin.
-    A power of two scales without rounding. Counters (lookups, steps) are unchanged too."""
-    lo, hi, _ = placement(scene.medium)
+    A power of two scales without rounding. Counters (lookups, steps) are unchanged too.
+    Several media: the box around all of their placed boxes."""
+    boxes = [placement(m)[:2] for m in scene.spec.media]
+    lo = [min(b[0][a] for b in boxes) for a in range(3)]
+    hi = [max(b[1][a] for b in boxes) for a in range(3)]
     return box_frame(lo, hi)
 
 
@@ -124,7 +127,11 @@ def medium_space(lo, hi, m, centre, unit):
 #: octree's first-child indices (placeholders when unused; with an octree, maj and mnr are its
 #: per-node bounds).
 Packed = namedtuple("Packed", ["params", "lights", "medium", "grid", "maj", "mnr", "emis",
-                               "table", "bricks", "pool", "nodes"])
+                               "table", "bricks", "pool", "nodes", "parts"])
+#: One medium's record [1] and arrays, as Packed holds them; Packed.parts has one per medium
+#: (Packed.medium is all the records [n], and its arrays are the first medium's).
+MediumArrays = namedtuple("MediumArrays", ["medium", "grid", "maj", "mnr", "emis", "table",
+                                           "bricks", "pool", "nodes"])
 
 
 def pack_scene(scene, real=np.float64, spp_seed=None):
@@ -190,24 +197,56 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     est = ESTIMATORS[rnd.transmittance]
     p["shadow_estimator"] = est.shadow_estimator_id
     p["view_estimator"] = est.view_estimator_id
-    p["decomposition"] = int(scene.grid is not None and rnd.majorant in ("grid", "octree")
+    gridded = any(part.grid is not None for part in scene.media_scenes)
+    p["decomposition"] = int(gridded and rnd.majorant in ("grid", "octree")
                              and rnd.free_flight == "decomposition")
-    p["signed_samples"] = int(est.signed_in_renders and scene.grid is not None)
+    p["signed_samples"] = int(est.signed_in_renders and gridded)
     seed = rnd.seed if spp_seed is None else spp_seed
     p["seed_lo"] = seed & 0xFFFFFFFF
     p["seed_hi"] = seed >> 32
     params = np.zeros(1, params_dtype(real))
     params[0] = p
     from .scene.bricks import density_storage
-    stored = density_storage(scene)
-    if rnd.majorant == "octree":
-        maj, mnr, nodes, depth = pack_octree(scene, real, stored)
-    else:
-        (maj, mnr), nodes, depth = pack_majorant(scene, real, stored), np.zeros(1, np.int32), 0
-    medium, grid, bricks, pool = pack_medium(scene, real, local, unit, maj.shape, stored)
-    medium[0]["octree_depth"] = depth
-    emis, table = pack_emission(scene, medium, real)
-    return Packed(params, larr, medium, grid, maj, mnr, emis, table, bricks, pool, nodes)
+    parts = []
+    for part in scene.media_scenes:
+        stored = density_storage(part)
+        if rnd.majorant == "octree":
+            maj, mnr, nodes, depth = pack_octree(part, real, stored)
+        else:
+            (maj, mnr), nodes, depth = (pack_majorant(part, real, stored),
+                                        np.zeros(1, np.int32), 0)
+        medium, grid, bricks, pool = pack_medium(part, real, local, unit, maj.shape, stored,
+                                                 centre, scene.spec)
+        medium[0]["octree_depth"] = depth
+        emis, table = pack_emission(part, medium, real)
+        parts.append(MediumArrays(medium, grid, maj, mnr, emis, table, bricks, pool, nodes))
+    media = np.concatenate([a.medium for a in parts])
+    first = parts[0]
+    return Packed(params, larr, media, first.grid, first.maj, first.mnr, first.emis,
+                  first.table, first.bricks, first.pool, first.nodes, tuple(parts))
+
+
+def shared_buffers(pk):
+    """(records [n], grid, maj, mnr, emis, table, bricks, pool, nodes) as the kernels take
+    several media: each kind of array of every medium flattened one after the other, and
+    each record's offsets (``*_off``) set to where its own begin. One medium's arrays are
+    passed as they are, with offsets 0."""
+    if len(pk.parts) == 1:
+        return (pk.medium, pk.grid, pk.maj, pk.mnr, pk.emis, pk.table, pk.bricks, pk.pool,
+                pk.nodes)
+    media = pk.medium.copy()
+    out = []
+    for name, off in (("grid", "grid_off"), ("maj", "maj_off"), ("mnr", None),
+                      ("emis", "emis_off"), ("table", "table_off"), ("bricks", "bricks_off"),
+                      ("pool", "pool_off"), ("nodes", "nodes_off")):
+        arrays = [np.ravel(getattr(a, name)) for a in pk.parts]
+        starts = np.cumsum([0] + [x.size for x in arrays[:-1]])
+        if starts[-1] + arrays[-1].size > 2**32 - 1:
+            raise ValueError(f"the media's {name} arrays exceed 2^32 elements together")
+        if off is not None:
+            media[off] = starts
+        out.append(np.concatenate(arrays))
+    return (media, *out)
 
 
 def pack_emission(scene, medium, real):
@@ -235,22 +274,25 @@ def pack_emission(scene, medium, real):
     return emis, np.ascontiguousarray(table, real)
 
 
-def pack_medium(scene, real, local, unit, maj_res, stored=None):
+def pack_medium(scene, real, local, unit, maj_res, stored=None, centre=None, whole=None):
     """(medium record [1], density grid, brick table, brick pool) of the scene's medium in
     the scene frame (placeholders for what the storage does not use); ``maj_res`` is the
     shape (cz, cy, cx) of the majorant grid ``pack_majorant`` built, ``stored`` the grid as
-    ``density_storage`` keeps it."""
+    ``density_storage`` keeps it. One medium of several: ``scene`` is its part, ``centre``
+    the frame's centre and ``whole`` the scene's SceneSpec (which decides the spectral mode
+    and the chroma the media share)."""
     from .scene.bricks import BrickGrid, density_storage
     stored = density_storage(scene) if stored is None else stored
     bricks, pool = np.zeros((1, 1, 1), np.int32), np.zeros((1, 8, 8, 8), real)
     med, rnd = scene.medium, scene.render
     m = np.zeros(1, medium_dtype(real))[0]
     wlo, whi, placed = placement(med)
+    whole = scene.spec if whole is None else whole
     if placed is None:
         lo, hi = local(wlo), local(whi)
     else:
-        lo, hi, m["xform"] = medium_space(*med.bounds, placed, scene_frame(scene)[0],
-                                          unit)
+        centre = scene_frame(scene)[0] if centre is None else centre
+        lo, hi, m["xform"] = medium_space(*med.bounds, placed, centre, unit)
         m["transformed"] = 1
     m["bmin"], m["bmax"] = lo, hi
     m["inv_extent"] = [1.0 / (hi[i] - lo[i]) for i in range(3)]
@@ -259,9 +301,11 @@ def pack_medium(scene, real, local, unit, maj_res, stored=None):
     top = max(med.scale)
     sigma_scale = top * unit
     m["scale"] = sigma_scale
-    m["chroma"] = [x / top for x in med.scale] if top > 0.0 else (1.0, 1.0, 1.0)
+    # Several media share one chroma (schema.py): a black one takes the others'.
+    shared = next((x for x in whole.media if max(x.scale) > 0.0), med)
+    m["chroma"] = chroma(med.scale if top > 0.0 else shared.scale)
     m["spectral"] = SPECTRAL_GREY
-    if med.chromatic:
+    if whole.chromatic:
         m["spectral"] = {"channel": SPECTRAL_CHANNEL, "hero": SPECTRAL_HERO,
                          "tracking": SPECTRAL_TRACKING}[rnd.spectral]
     m["maj_res"] = (1, 1, 1)

@@ -77,6 +77,16 @@ MEDIUM_FIELDS = (
     ("albedo", "real", 3, "single-scattering albedo per channel"),
     ("phase_kind", "i4", 1, "PHASE_ISOTROPIC or PHASE_HG"),
     ("g", "real", 1, "Henyey-Greenstein asymmetry"),
+    # Several media (kernels/medium.h): the kernels hold every medium's arrays one after the
+    # other in shared buffers, and each record says where its own begin (elements). The
+    # reference keeps an array per medium and ignores them; one medium has them all 0.
+    ("grid_off", "u4", 1, "first element of this medium's density grid in the grid buffer"),
+    ("maj_off", "u4", 1, "first element of its majorant maxima and minima (maj, mnr)"),
+    ("emis_off", "u4", 1, "first element of its emission field grid"),
+    ("table_off", "u4", 1, "first element of its blackbody table"),
+    ("bricks_off", "u4", 1, "first element of its brick index table"),
+    ("pool_off", "u4", 1, "first element of its brick pool"),
+    ("nodes_off", "u4", 1, "first element of its octree's first-child indices"),
 )
 
 LIGHT_FIELDS = (

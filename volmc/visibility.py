@@ -30,9 +30,9 @@ def _any_ray_enters(prm, m, n):
 
 def medium_in_view(scene):
     """False when no camera ray of a FILM_SAMPLES^2 grid over the film (corners and edges
-    included; through the lens's centre and rim) enters the (placed) medium box. A box
+    included; through the lens's centre and rim) enters a (placed) medium box. A box
     smaller than the grid's spacing can slip between the rays: the answer is then False
     although a few pixels may see it."""
     from .pack import pack_scene
     pk = pack_scene(scene, np.float64)
-    return bool(_any_ray_enters(pk.params[0], pk.medium[0], FILM_SAMPLES))
+    return any(_any_ray_enters(pk.params[0], m, FILM_SAMPLES) for m in pk.medium)

@@ -78,7 +78,9 @@ def make_backend(name, scene, device=None, record=0, band_rows=None, lanes=None)
 
 def techniques(scene):
     """The technique choices a scene implies, for metadata and --stats."""
-    homogeneous = scene.grid is None
+    media = scene.spec.media
+    homogeneous = all(p.grid is None for p in scene.media_scenes)
+    emits = [m.emission for m in media if m.emission is not None]
     r = scene.render
     flight = "delta tracking" if r.free_flight == "delta" or r.majorant == "global" else \
         "decomposition tracking"
@@ -86,15 +88,15 @@ def techniques(scene):
         "free_flight": "analytic" if homogeneous else f"{flight} ({r.majorant} majorant)",
         "transmittance": "analytic" if homogeneous else
         f"{r.transmittance} ({r.majorant} majorant)",
-        "phase": scene.medium.phase.type,
-        "spectral": ("grey" if not scene.medium.chromatic else
+        "phase": ", ".join(sorted({m.phase.type for m in media})),
+        "spectral": ("grey" if not scene.spec.chromatic else
                      "spectral tracking" if r.spectral == "tracking" else
                      "hero-channel spectral MIS" if r.spectral == "hero" else
                      "one random channel per path"),
-        "emission": ("none" if scene.medium.emission is None else
-                     "radiance x field" if scene.medium.emission.radiance is not None else
-                     "blackbody temperature") + (", at every tentative collision"
-                                                  if scene.medium.emission is not None else ""),
+        "emission": ("none" if not emits else
+                     ", ".join(sorted({"radiance x field" if e.radiance is not None else
+                                       "blackbody temperature" for e in emits}))
+                     + ", at every tentative collision"),
         "nee": f"all lights; environment by uniform sphere + {r.mis}-heuristic MIS",
         "russian_roulette": f"from depth {r.rr_depth}, q = min(max(beta), "
                             f"{RR_MAX_SURVIVAL if r.max_depth < 0 else 1})",

@@ -1,5 +1,8 @@
 """The Numba float64 reference as a render backend (volmc/reference/integrator.py)."""
 
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
 import numpy as np
 
 from ..constants import RECORD_COLUMNS
@@ -8,6 +11,7 @@ from ..pack import pack_scene
 from ..params import N_COUNTERS
 from ..film import CHANNELS
 from ..reference.integrator import render_batch
+from ..reference.medium import media_data
 from .base import RenderBackend, bands, new_segment_record, techniques
 
 
@@ -21,6 +25,8 @@ class NumbaBackend(RenderBackend):
         pixels per launch (None: volmc.memory.band_rows)."""
         self.scene = scene
         self.packed = pack_scene(scene, np.float64)
+        self.media = media_data(self.packed)
+        self.pool = ThreadPoolExecutor(max(1, numba.get_num_threads()))
         w, h = scene.camera.resolution
         self.band_rows = choose_band_rows(w, h, self.name) if band_rows is None else \
             max(1, min(int(band_rows), h))
@@ -36,9 +42,19 @@ class NumbaBackend(RenderBackend):
     def _launch(self, pix_start, n_pix, sample_start, n_samples, film_sum, film_sq, counters,
                 rec):
         pk = self.packed
-        render_batch(pk.params, pk.lights, pk.medium, pk.grid, pk.maj, pk.mnr, pk.emis,
-                     pk.table, pk.bricks, pk.pool, pk.nodes, rec, pix_start, n_pix,
-                     sample_start, n_samples, film_sum, film_sq, counters)
+        # Pixel ranges on threads (render_batch releases the GIL), each writing its own film
+        # pixels and counter rows.
+        k = max(1, min(numba.get_num_threads(), n_pix))
+        cuts = [n_pix * j // k for j in range(k + 1)]
+
+        def part(j):
+            a, b = cuts[j], cuts[j + 1]
+            render_batch(pk.params, pk.lights, self.media, rec, pix_start + a, b - a,
+                         sample_start, n_samples, film_sum, film_sq, counters[a:b])
+        if k == 1:
+            part(0)
+        else:
+            list(self.pool.map(part, range(k)))
 
     def warm_up(self):
         film = np.zeros((1, 1, CHANNELS))

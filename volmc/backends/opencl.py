@@ -4,7 +4,7 @@ batches on one device (volmc/cl/ has the host plumbing)."""
 import numpy as np
 
 from ..cl.context import cl_context
-from ..pack import pack_scene
+from ..pack import pack_scene, shared_buffers
 from ..cl.lanes import resolve_lanes
 from ..film import CHANNELS
 from ..params import N_COUNTERS, launch_dtype, launch_spp
@@ -71,29 +71,34 @@ class OpenCLBackend(RenderBackend):
             raise ValueError(f"a build without {', '.join(sorted(needed - self.features))} "
                              "cannot render this scene")
         pk = pack_scene(scene, np.float32)
+        n_media = len(pk.parts)
         self.options = render_options(self.features, scene.render.transmittance,
-                                      list(options) + [f"-DLANES={self.lanes}"])
+                                      list(options) + [f"-DLANES={self.lanes}"]
+                                      + ([f"-DMEDIA_COUNT={n_media}"] if n_media > 1 else []))
         self.local_size = local_size
         w, h = scene.camera.resolution
-        if pk.grid.size >= 2**31 or pk.emis.size >= 2**31:
-            raise ValueError(f"grid of {max(pk.grid.size, pk.emis.size)} voxels exceeds the "
-                             "kernels' 2^31 limit for dense grids (use render.grid_storage = "
-                             "\"bricks\")")
-        self.params, self.medium = pk.params, pk.medium
+        for part in pk.parts:
+            if part.grid.size >= 2**31 or part.emis.size >= 2**31:
+                raise ValueError(f"grid of {max(part.grid.size, part.emis.size)} voxels exceeds "
+                                 "the kernels' 2^31 limit for dense grids (use "
+                                 "render.grid_storage = \"bricks\")")
+        media, grid, maj, mnr, emis, table, bricks, pool, nodes = shared_buffers(pk)
+        self.params, self.medium = pk.params, media
         self.n_pix = w * h
         self.band_rows = (choose_band_rows(w, h, self.name,
                                            max_alloc=device_limits(self.device)[1])
                           if band_rows is None else max(1, min(int(band_rows), h)))
         clc = self.clc
         self.lights_buf = clc.to_device(pk.lights)
-        self.grid_buf = clc.to_device(pk.grid)
-        self.maj_buf = clc.to_device(pk.maj)
-        self.mnr_buf = clc.to_device(pk.mnr)
-        self.emis_buf = clc.to_device(pk.emis)
-        self.table_buf = clc.to_device(pk.table)
-        self.bricks_buf = clc.to_device(pk.bricks)
-        self.pool_buf = clc.to_device(pk.pool)
-        self.nodes_buf = clc.to_device(pk.nodes)
+        self.media_buf = clc.to_device(media)
+        self.grid_buf = clc.to_device(grid)
+        self.maj_buf = clc.to_device(maj)
+        self.mnr_buf = clc.to_device(mnr)
+        self.emis_buf = clc.to_device(emis)
+        self.table_buf = clc.to_device(table)
+        self.bricks_buf = clc.to_device(bricks)
+        self.pool_buf = clc.to_device(pool)
+        self.nodes_buf = clc.to_device(nodes)
         self.record = record
         # Without recording the kernel gets capacity 0 and a 1-float dummy it never indexes.
         self.rec_host = (new_segment_record(w * h, record, np.float32) if record > 0
@@ -143,7 +148,7 @@ class OpenCLBackend(RenderBackend):
             items = -(-n_jobs // jobs)
             launch = np.zeros(1, launch_dtype())
             launch[0] = (pix_start, n_pix, sample_start, n_samples, jobs, self.record)
-            self.clc.run(self.kernel, items, self.local_size, self.params[0], self.medium[0],
+            self.clc.run(self.kernel, items, self.local_size, self.params[0], self.media_buf,
                          launch[0], self.lights_buf, self.grid_buf, self.maj_buf, self.mnr_buf,
                          self.emis_buf, self.table_buf, self.bricks_buf, self.pool_buf,
                          self.nodes_buf, self.rec_buf, self.out_buf, self.cnt_buf,

@@ -26,8 +26,8 @@ from numba import njit
 
 from ..film import Film
 from ..reference.camera import camera_ray
-from ..reference.integrator import enter_medium
-from ..reference.medium import ITER_STATE_SIZE, MediumData, majorant_iter_init, majorant_next
+from ..reference.integrator import enter_media
+from ..reference.medium import majorant_iter_init, majorant_next, media_data, new_iter
 from ..params import COUNTER_NAMES
 from ..peers.compare import rmse_to_reference
 from ..backends import make_backend
@@ -88,20 +88,17 @@ def make_configs(backends, majorants, free_flights, transmittances, peers=(), ba
 
 
 @njit(cache=True)
-def _camera_segments(params, medium, grid, maj, mnr, emis, table, bricks, pool, nodes):
-    """(majorant segments, camera rays through the medium box) over every pixel centre's
-    primary ray: the segments majorant_next yields (empty ones are skipped, as in tracking)."""
+def _camera_segments(params, med):
+    """(majorant segments, camera rays through the media) over every pixel centre's primary
+    ray: the segments majorant_next yields (empty ones are skipped, as in tracking)."""
     prm = params[0]
-    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes,
-                     np.zeros((1, 9)))
-    m = medium[0]
-    it = np.empty(ITER_STATE_SIZE)
+    it = new_iter(med)
     segments = 0
     rays = 0
     for py in range(prm.height):
         for px in range(prm.width):
             o, d = camera_ray(prm, px, py, 0.5, 0.5, 0.5, 0.5)
-            o, t0, t1, _ = enter_medium(m, o, d)
+            o, t0, t1, _ = enter_media(med, o, d)
             if not t1 > t0:
                 continue
             rays += 1
@@ -116,8 +113,7 @@ def segments_per_camera_ray(scene, majorant):
     medium box, with render.majorant = ``majorant`` (float64 reference walk)."""
     from ..pack import pack_scene
     pk = pack_scene(scene.with_render(majorant=majorant), np.float64)
-    segments, rays = _camera_segments(pk.params, pk.medium, pk.grid, pk.maj, pk.mnr, pk.emis,
-                                      pk.table, pk.bricks, pk.pool, pk.nodes)
+    segments, rays = _camera_segments(pk.params, media_data(pk))
     return segments / max(rays, 1)
 
 

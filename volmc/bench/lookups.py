@@ -58,6 +58,8 @@ def camera_segments(scene):
     renderers use it (the scene frame, or a placed medium's own: reference/medium.to_medium):
     the centre ray of every pixel whose ray crosses the medium box."""
     from ..pack import pack_scene
+    from ..scene.loading import require_one_medium
+    require_one_medium(scene, "the lookup ceiling (--no-ceiling skips it)")
     from ..reference.camera import camera_ray
     from ..reference.integrator import ray_box
     from ..reference.medium import to_medium, to_medium_dir

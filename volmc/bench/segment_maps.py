@@ -46,7 +46,7 @@ def majorant_pieces(medium, grid, maj, mnr, nodes, rays):
     bounds), sigma_maj, sigma_min (1 / world unit) and the exact optical depth over
     [t_min, t_max]."""
     emis, table, bricks, pool, _, rec = no_field_arrays()
-    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes, rec)
+    med = (MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes, rec),)
     m = medium[0]
     bmin = (m.bmin[0], m.bmin[1], m.bmin[2])
     bmax = (m.bmax[0], m.bmax[1], m.bmax[2])

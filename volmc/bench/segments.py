@@ -41,8 +41,10 @@ def record_segments(scene, backend="opencl", spp=1, per_pixel=16, device=None, s
     first (``with_resolution``, or -D camera.resolution=[64, 64]) for a quick recording.
 
     Segments are float64 copies of what the backend traced (float32 values for "opencl").
-    A dense density grid is required (the runners replay on dense grids)."""
+    A dense density grid is required (the runners replay on dense grids), and one medium."""
     from ..backends import make_backend
+    from ..scene.loading import require_one_medium
+    require_one_medium(scene, "recording transmittance segments")
     from ..pack import pack_scene
     from ..render import render
     if scene.grid is None:

@@ -43,7 +43,7 @@ from ..constants import (ESTIMATOR_ANALYTIC, ESTIMATOR_AUTO, ESTIMATOR_AUTO_SHAD
                          TRACK_LENGTH,
                          TRACK_NEXT_FLIGHT, TRACK_RATIO, TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, N_COUNTERS
-from .medium import (ITER_STATE_SIZE, MediumData, comb_count, majorant_iter_init,
+from .medium import (MediumData, new_iter, comb_count, majorant_iter_init,
                      majorant_next,
                      medium_chroma, no_field_arrays, optical_depth_comb)
 from .debiasing import jackknife_segment, telescoping_segment
@@ -114,7 +114,7 @@ def transmittance_by_segments(med, o, d, t0, t1, kind, rng, counters, max_steps)
     on the largest channel between segments. Guard "local distances": the walk starts at
     o + t0 d."""
     o = madd3(o, d, t0)
-    it = np.empty(ITER_STATE_SIZE)
+    it = new_iter(med)
     majorant_iter_init(it, med, o, d, 0.0, t1 - t0)
     k = medium_chroma(med)
     T = ONE3
@@ -188,7 +188,7 @@ def auto_alone_kind(med):
     """The per-segment estimator ``transmittance_auto`` runs on every varying segment:
     unbiased ray marching in a grey medium, telescoping in a colour-dependent one (the power
     series are grey)."""
-    return SEGMENT_UNBIASED_RAYMARCH if med.m.spectral == SPECTRAL_GREY else SEGMENT_TELESCOPING
+    return SEGMENT_UNBIASED_RAYMARCH if med[0].m.spectral == SPECTRAL_GREY else SEGMENT_TELESCOPING
 
 
 @njit(cache=True)
@@ -301,7 +301,7 @@ def estimate_batch(est, media, grid, maj, mnr, nodes, rays, n_per_ray, seed, sam
     for i in prange(n):
         r = i // n_per_ray
         rng = rng_new(seed, r, sample_offset + i % n_per_ray, STREAM_TEST)
-        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes, rec)
+        med = (MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes, rec),)
         o = (rays[r, 0], rays[r, 1], rays[r, 2])
         d = (rays[r, 3], rays[r, 4], rays[r, 5])
         T = transmittance(est, med, o, d, rays[r, 6], rays[r, 7], rng, counters[i],

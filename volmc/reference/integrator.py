@@ -52,9 +52,9 @@ bias the pixel. RGB triples are tuples here and float3 in the kernel (vec.py).
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from ..constants import (DENSITY_CONSTANT, EMISSION_NONE, EVENT_CAPPED,
+from ..constants import (DENSITY_CONSTANT, EVENT_CAPPED,
                          EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, RECORD_CAMERA,
                          RECORD_SHADOW, RR_ALBEDO,
                          RR_MAX_SURVIVAL, SAMPLER_BOUNCES, SAMPLER_EQUIANGULAR,
@@ -68,8 +68,8 @@ from .camera import camera_ray
 from .estimators import transmittance
 from .free_flight import free_flight
 from .guards import sample_ok
-from .medium import (MediumData, extinction, medium_chroma, record_segment, to_medium,
-                     to_medium_dir)
+from .medium import (ZERO, MediumData, extinction, media_emit, medium_chroma, medium_extinction,
+                     medium_pick, ray_box, record_segment, to_medium, to_medium_dir)
 from .phase import phase_eval, phase_sample
 from .tracking import mis_weights
 from .rng import RNG_STATE_SIZE, rng_drop_preset, rng_init, rng_next, rng_preset
@@ -77,27 +77,6 @@ from .sampler import sampler_pair
 from .sampling import (dot, equiangular_pdf, mis_weight, sample_equiangular,
                        sample_uniform_sphere, uniform_sphere_pdf)
 from .vec import add3, div3, madd3, max3, mul3, scale3
-
-
-@njit(cache=True, inline="always")
-def ray_box(o, d, bmin, bmax):
-    """Slab test of ray o + t d against the box. Returns (t_enter, t_exit); no hit when
-    t_enter >= t_exit. Axis-parallel rays (d component 0 or -0) are handled without 0 * inf."""
-    t0 = -math.inf
-    t1 = math.inf
-    for a in range(3):
-        if d[a] == 0.0:
-            if o[a] < bmin[a] or o[a] > bmax[a]:
-                return math.inf, -math.inf
-        else:
-            inv = 1.0 / d[a]
-            ta = (bmin[a] - o[a]) * inv
-            tb = (bmax[a] - o[a]) * inv
-            if ta > tb:
-                ta, tb = tb, ta
-            t0 = max(t0, ta)
-            t1 = min(t1, tb)
-    return t0, t1
 
 
 @njit(cache=True, inline="always")
@@ -155,6 +134,71 @@ def enter_medium(m, o, d):
 
 
 @njit(cache=True, inline="always")
+def enter_media(med, o, d):
+    """enter_medium for the scene's media: (origin, t0, t1, shift) of the segment of
+    o + t d from where it enters the first box it meets to where it leaves the last; the
+    origin moves (and snaps) onto the box it enters first, as enter_medium moves it."""
+    if len(med) == 1:
+        return enter_medium(med[0].m, o, d)
+    first = math.inf
+    j = -1
+    for i in range(len(med)):
+        m = med[i].m
+        te, tx = ray_box(to_medium(m, o), to_medium_dir(m, d), m.bmin, m.bmax)
+        if tx > te and tx > 0.0 and te < first:
+            first = te
+            j = i
+    o2, t0, t1, shift = o, 0.0, -math.inf, 0.0
+    for i in range(len(med)):   # (an index Numba can type: see medium.ZERO)
+        if i == j:
+            o2, t0, _, shift = enter_medium(med[i].m, o, d)
+    if j < 0:
+        return o2, t0, t1, shift
+    for i in range(len(med)):
+        m = med[i].m
+        te, tx = ray_box(to_medium(m, o), to_medium_dir(m, d), m.bmin, m.bmax)
+        if tx > te:
+            t1 = max(t1, tx - shift)
+    return o2, t0, t1, shift
+
+
+@njit(cache=True, inline="always")
+def medium_albedo(med, i):
+    """Medium i's single-scattering albedo, RGB."""
+    a = med[i].m.albedo
+    return (a[0], a[1], a[2])
+
+
+@njit(cache=True, inline="always")
+def medium_phase_eval(med, i, cos_theta):
+    """Medium i's phase function at cos_theta."""
+    m = med[i].m
+    return phase_eval(m.phase_kind, m.g, cos_theta)
+
+
+@njit(cache=True, inline="always")
+def medium_phase_sample(med, i, u1, u2, d_in):
+    """A direction from medium i's phase function about d_in, and its pdf."""
+    m = med[i].m
+    return phase_sample(m.phase_kind, m.g, u1, u2, d_in)
+
+
+@njit(cache=True, inline="always")
+def in_scattering(med, p, cos_theta, counters):
+    """Light scattered at p towards cos_theta off the ray by every medium there: the sum of
+    sigma_s f(cos_theta) over the media, RGB, with a counted lookup per medium present."""
+    k = medium_chroma(med)
+    out = (0.0, 0.0, 0.0)
+    for i in range(len(med)):
+        m = med[i].m
+        mu = medium_extinction(med, i, p, counters)
+        f = phase_eval(m.phase_kind, m.g, cos_theta)
+        out = add3(out, (m.albedo[0] * (k[0] * mu) * f, m.albedo[1] * (k[1] * mu) * f,
+                         m.albedo[2] * (k[2] * mu) * f))
+    return out
+
+
+@njit(cache=True, inline="always")
 def keep_carried(beta, x):
     """x with the components where beta is 0 set to 0 (RGB)."""
     return (x[0] if beta[0] != 0.0 else 0.0, x[1] if beta[1] != 0.0 else 0.0,
@@ -168,7 +212,7 @@ def shadow_transmittance(prm, med, o, d, t_max, view, rng_s, counters):
     shadow rays of scattering paths (view = 0), prm.view_estimator for camera rays that
     cannot scatter (view = 1), whose transmittance is the sample. They differ only for
     "auto" (techniques.py)."""
-    o, t0, t1, shift = enter_medium(med.m, o, d)
+    o, t0, t1, shift = enter_media(med, o, d)
     t1 = min(t1, t_max - shift)
     if t1 <= t0:
         return (1.0, 1.0, 1.0)
@@ -228,11 +272,13 @@ EQUIANGULAR_MIS = 2
 
 
 @njit(cache=True, inline="always")
-def equiangular_mode(prm, m):
-    """EQUIANGULAR_OFF, _ALONE or _MIS for the scene (see the constants)."""
+def equiangular_mode(prm, med):
+    """EQUIANGULAR_OFF, _ALONE or _MIS for the scene (see the constants): MIS needs free
+    flight's density in closed form, so one homogeneous grey medium."""
     if prm.equiangular == 0:
         return EQUIANGULAR_OFF
-    if m.density_kind == DENSITY_CONSTANT and m.spectral == SPECTRAL_GREY:
+    m = med[0].m
+    if len(med) == 1 and m.density_kind == DENSITY_CONSTANT and m.spectral == SPECTRAL_GREY:
         return EQUIANGULAR_MIS
     return EQUIANGULAR_ALONE
 
@@ -298,7 +344,7 @@ def light_ray(prm, m, ea, kind, c, o, d, t0, t1, t):
 
 
 @njit(cache=True)
-def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, counters):
+def sample_direct(prm, lights, med, k, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, counters):
     """Direct light scattered at p = o + t d towards -d, per unit throughput (RGB). The
     vertex was reached by free flight along segment [t0, t1] of the ray o + t d (unit d: the
     direction the path arrived in); ``ea`` is equiangular_mode; (pix, s, b): pixel, sample and
@@ -309,19 +355,19 @@ def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, 
     sampled uniformly over the sphere, each weighted by the heuristic render.mis against
     phase sampling with the sample counts in it (w = N p_l / (N p_l + p_phase) for the
     balance heuristic; the phase-sampled path that escapes gets the complement). A point
-    light's estimate is weighted against equiangular sampling (point_light_nee_weight)."""
-    m = med.m
+    light's estimate is weighted against equiangular sampling (point_light_nee_weight). The
+    vertex scattered in medium k, whose phase function weighs the lights."""
     p = madd3(o, d, t)
     n = prm.light_samples
     inv_n = 1.0 / n
     L = (0.0, 0.0, 0.0)
     for i in range(prm.n_lights):
         lt = lights[i]
-        wl, dist, falloff = light_ray(prm, m, ea, lt.type, (lt.vec[0], lt.vec[1], lt.vec[2]),
-                                      o, d, t0, t1, t)
+        wl, dist, falloff = light_ray(prm, med[0].m, ea, lt.type,
+                                      (lt.vec[0], lt.vec[1], lt.vec[2]), o, d, t0, t1, t)
         if not falloff > 0.0:
             continue
-        f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * falloff * inv_n
+        f = medium_phase_eval(med, k, dot(d, wl)) * falloff * inv_n
         for _ in range(n):
             tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
             L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]), scale3(tr, f)))
@@ -330,7 +376,7 @@ def sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, 
         for j in range(n):
             ua, ub = path_u2(prm, pix, s, pair, j, n, rng)
             wl, pdf_l = sample_uniform_sphere(ua, ub)
-            f = phase_eval(m.phase_kind, m.g, dot(d, wl))
+            f = medium_phase_eval(med, k, dot(d, wl))
             tr = shadow_transmittance(prm, med, p, wl, math.inf, 0, rng_s, counters)
             w = mis_weight(prm.mis, n * pdf_l, f) * inv_n
             L = add3(L, mul3((prm.env[0], prm.env[1], prm.env[2]), scale3(tr, f * w / pdf_l)))
@@ -348,8 +394,9 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
 
     with T(t0, t) and T_light unbiased estimates of render.transmittance (exact in a
     homogeneous medium), so the estimate stays unbiased in any medium. Weighted against
-    free flight's next-event estimate by MIS when ``ea`` is EQUIANGULAR_MIS."""
-    m = med.m
+    free flight's next-event estimate by MIS when ``ea`` is EQUIANGULAR_MIS. Several media:
+    sigma_s f is the sum over the media at the sampled point (in_scattering)."""
+    m = med[0].m
     L = (0.0, 0.0, 0.0)
     for i in range(prm.n_lights):
         lt = lights[i]
@@ -367,8 +414,11 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
         wl, dist = direction_to(p, c)
         if not dist > 0.0:
             continue
-        sig = scale3(medium_chroma(med), extinction(med, p, math.inf, counters))
-        sig_s = mul3(sig, (m.albedo[0], m.albedo[1], m.albedo[2]))
+        if len(med) == 1:
+            sig = scale3(medium_chroma(med), extinction(med, p, math.inf, counters))
+            sig_s = mul3(sig, (m.albedo[0], m.albedo[1], m.albedo[2]))
+        else:   # sigma_s times the phase function, summed over the media at p
+            sig_s = in_scattering(med, p, dot(d, wl), counters)
         if max3(sig_s) <= 0.0:
             continue
         counters[C_SHADOW] += 1
@@ -378,7 +428,9 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
         w = 1.0
         if ea == EQUIANGULAR_MIS:
             w = mis_weight(prm.mis, pdf, free_flight_pdf(m, t0, t))
-        f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * w / (dist * dist * pdf)
+        f = w / (dist * dist * pdf)
+        if len(med) == 1:
+            f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * w / (dist * dist * pdf)
         L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]),
                          scale3(mul3(sig_s, mul3(t_cam, t_lt)), f)))
     return L
@@ -411,8 +463,10 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
     estimates it: the weight of its first flight's escape (0 when it scatters or is capped,
     1 when the ray misses the medium), or the transmittance estimate of a scene that cannot
     scatter. With prm.transparent the camera ray does not see the environment."""
-    m = med.m
-    albedo = (m.albedo[0], m.albedo[1], m.albedo[2])
+    m = med[0].m
+    top = 0.0   # the largest albedo of any medium
+    for i in range(len(med)):
+        top = max(top, max3(medium_albedo(med, i)))
     env = (prm.env[0], prm.env[1], prm.env[2])
     L = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
@@ -422,7 +476,7 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
     if prm.aperture > 0.0:
         v1, v2 = path_u2(prm, pix, s, SAMPLER_PAIR_LENS, 0, 1, rng)
     o, d = camera_ray(prm, px, py, u1, u2, v1, v2)
-    if (prm.max_depth == 0 or max3(albedo) <= 0.0) and m.emission_kind == EMISSION_NONE:
+    if (prm.max_depth == 0 or top <= 0.0) and not media_emit(med):
         # No scattering can contribute: the pixel is the environment seen through the
         # medium, so estimate the transmittance instead of sampling a collision (exact for
         # a homogeneous medium, lower variance than a 0/1 free-flight outcome for grids).
@@ -442,11 +496,12 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
             beta = (3.0 if c == 0 else 0.0, 3.0 if c == 1 else 0.0, 3.0 if c == 2 else 0.0)
     depth = 0
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
-    ea = equiangular_mode(prm, m)
+    ea = equiangular_mode(prm, med)
+    k = ZERO   # the medium the path scattered in last
     n_env = prm.light_samples * uniform_sphere_pdf()   # light sampling's n p for MIS
     alpha = 0.0
     while True:
-        o, t0, t1, _ = enter_medium(m, o, d)
+        o, t0, t1, _ = enter_media(med, o, d)
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:
@@ -490,12 +545,14 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
         if prm.max_depth >= 0 and depth > prm.max_depth:
             break
         counters[C_SCATTER] += 1
+        k = medium_pick(med, madd3(o, d, t), rng, counters)
+        albedo = medium_albedo(med, k)
         beta = mul3(beta, albedo)
         beta_w = mul3(beta_w, albedo)
         if max3(beta_w) <= 0.0:
             break
-        L = add3(L, mul3(beta_w, sample_direct(prm, lights, med, ea, o, d, t0, t1, t, pix, s,
-                                               depth - 1, rng, rng_s, counters)))
+        L = add3(L, mul3(beta_w, sample_direct(prm, lights, med, k, ea, o, d, t0, t1, t, pix,
+                                               s, depth - 1, rng, rng_s, counters)))
         p = madd3(o, d, t)
         if depth >= prm.rr_depth:
             q = survival_probability(prm, beta_w, albedo)
@@ -503,19 +560,22 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
                 break
             beta = div3(beta, q)
         u1, u2 = path_u2(prm, pix, s, bounce_pair(depth - 1, SAMPLER_PHASE), 0, 1, rng)
-        d, pdf_phase = phase_sample(m.phase_kind, m.g, u1, u2, d)
+        d, pdf_phase = medium_phase_sample(med, k, u1, u2, d)
         o = p
     return L[0], L[1], L[2], alpha
 
 
 @njit(cache=True)
-def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rec,
-                 pix, sample_start, n_samples, film_sum, film_sq, cnt):
+def render_pixel(params, lights, media, rec, pix, sample_start, n_samples, film_sum, film_sq,
+                 cnt):
     """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film;
-    ``rec``: the pixel's segment record [K + 1, 9] or the [1, 9] placeholder; ``cnt``: the
-    pixel's counters [N_COUNTERS], accumulated in place."""
+    ``rec``: the pixel's segment record [K + 1, 9] or the [1, 9] placeholder (the first
+    medium's record becomes it); ``cnt``: the pixel's counters [N_COUNTERS], accumulated in
+    place."""
     prm = params[0]
-    med = MediumData(medium[0], grid, maj, mnr, emis, table, bricks, pool, nodes, rec)
+    a = media[0]
+    med = (MediumData(a.m, a.grid, a.maj, a.mnr, a.emis, a.table, a.bricks, a.pool, a.nodes,
+                      rec),) + media[1:]
     py = pix // prm.width
     px = pix - py * prm.width
     seed = (np.uint64(prm.seed_hi) << np.uint64(32)) | np.uint64(prm.seed_lo)
@@ -555,14 +615,16 @@ def render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     film_sq[py, px, 3] += qa
 
 
-@njit(cache=True, parallel=True)
-def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rec,
-                 pix_start, n_pix, sample_start, n_samples, film_sum, film_sq, counters):
+@njit(cache=True, nogil=True)
+def render_batch(params, lights, media, rec, pix_start, n_pix, sample_start, n_samples, film_sum,
+                 film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of pixels [pix_start, pix_start +
     n_pix) (row-major pixel indices; a band of rows, or every pixel) to the film.
 
     params: one-element array of ``params_dtype(float64)``; lights: array of
-    ``light_dtype(float64)``; medium: one-element array of ``medium_dtype(float64)``; grid:
+    ``light_dtype(float64)``; media: a tuple of ``MediumData``, one per medium (``media_data``
+    in medium.py; their ``rec`` is a placeholder), whose record is a ``medium_dtype(float64)``
+    record and whose arrays are: grid:
     float64 [nz, ny, nx] density (a 1x1x1 placeholder unless the density is a grid); maj,
     mnr: per-cell density bounds [cz, cy, cx] of the majorant grid (per node, [1, 1, n], of
     an octree); emis: float64 emission
@@ -577,13 +639,14 @@ def render_batch(params, lights, medium, grid, maj, mnr, emis, table, bricks, po
     float64 [height, width, 4] (RGBA) running sums of sample values and of their squares;
     counters: int64 [n_pix, N_COUNTERS], the launch's pixels (row i: pixel pix_start + i),
     accumulated in place. A pixel's samples depend on its index alone, so any split into
-    bands gives the same image. Pixels are independent, so the loop runs in parallel.
+    bands gives the same image. Pixels are independent: the backend runs pixel ranges on
+    threads (nogil; Numba's parallel loops cannot take the media tuple).
     """
-    for i in prange(n_pix):
+    for i in range(n_pix):
         pix = pix_start + i
         rp = rec[pix] if rec.shape[1] > 1 else rec[0]
-        render_pixel(params, lights, medium, grid, maj, mnr, emis, table, bricks, pool, nodes, rp,
-                     pix, sample_start, n_samples, film_sum, film_sq, counters[i])
+        render_pixel(params, lights, media, rp, pix, sample_start, n_samples, film_sum, film_sq,
+                     counters[i])
 
 
 def new_counters(width, height):

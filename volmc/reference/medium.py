@@ -53,16 +53,19 @@ from numba import njit
 
 from ..constants import (BLACKBODY_TABLE_SIZE, COMB_COUNT_LIMIT, DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_COSINE,
                          DENSITY_GAUSS_BUMP, DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP,
-                         EMISSION_RADIANCE, MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
+                         EMISSION_NONE, EMISSION_RADIANCE, MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
                          TWO_PI)
 from ..params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT, medium_dtype
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .grid import grid_lookup
 from .octree import OCTREE_STATE_SIZE, octree_init, octree_next
+from .rng import rng_next
 from .sparse_grid import sparse_lookup
 from .vec import madd3
 
-#: A medium record with its arrays: the density grid [nz, ny, nx], the majorant grid's
+#: A medium record with its arrays. Every function below takes the scene's media, ``med``:
+#: a tuple of these, one per medium (its length is the kernels' MEDIA_COUNT); ``(med, i)``
+#: names medium i. The arrays: the density grid [nz, ny, nx], the majorant grid's
 #: per-cell density maxima and minima [cz, cy, cx] (an octree's: per node, [1, 1, n_nodes]),
 #: the emission field grid [nz, ny, nx], the blackbody table [BLACKBODY_TABLE_SIZE, 3], a
 #: brick grid's index table int32 [bz, by, bx] and pool [n_slots, 8, 8, 8], and an octree's
@@ -71,6 +74,11 @@ from .vec import madd3
 #: (``record_segment``; a [1, 9] placeholder when not recording).
 MediumData = namedtuple("MediumData", ["m", "grid", "maj", "mnr", "emis", "table", "bricks",
                                        "pool", "nodes", "rec"])
+
+#: The index of the first medium, as jitted code must pass it: Numba types a literal 0
+#: passed on as an index into the media tuple by compiling a getter that returns the
+#: medium's record, which it cannot do; np.intp(0) is an ordinary integer.
+ZERO = np.intp(0)
 
 #: Iterator state: [done, t0, t1, unused] then the DDA's or the octree walk's state.
 ITER_STATE_SIZE = 4 + max(DDA_STATE_SIZE, OCTREE_STATE_SIZE)
@@ -118,30 +126,62 @@ def to_medium_dir(m, d):
 
 
 @njit(cache=True, inline="always")
-def medium_density(med, p):
-    """Density at point p (a 3-tuple) of the scene frame, before the scale: "what is
-    here"."""
-    m = med.m
-    p = to_medium(m, p)
+def density_at(med, i, q):
+    """Density of medium i at q, a point of its own space (no box test)."""
+    md = med[i]
+    m = md.m
     kind = m.density_kind
     if kind == DENSITY_GRID:
-        return grid_lookup(med.grid, (m.bmin[0], m.bmin[1], m.bmin[2]),
-                           (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), p)
+        return grid_lookup(md.grid, (m.bmin[0], m.bmin[1], m.bmin[2]),
+                           (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), q)
     if kind == DENSITY_BRICKS:
-        return sparse_lookup(med.bricks, med.pool, (m.dims[0], m.dims[1], m.dims[2]),
+        return sparse_lookup(md.bricks, md.pool, (m.dims[0], m.dims[1], m.dims[2]),
                              (m.bmin[0], m.bmin[1], m.bmin[2]),
-                             (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), p)
+                             (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), q)
     if kind == DENSITY_CONSTANT:
         return m.density
-    return profile_density(kind, m.profile, p[0])
+    return profile_density(kind, m.profile, q[0])
 
 
 @njit(cache=True, inline="always")
-def extinction(med, p, sigma_maj, counters):
-    """Extinction at p (1/world unit): one counted lookup; a value above the majorant
-    sigma_maj of the segment being tracked is counted too."""
-    mu = med.m.scale * medium_density(med, p)
+def in_box(m, q):
+    """True if q (the medium's space) lies in the medium's box, faces included."""
+    return (m.bmin[0] <= q[0] <= m.bmax[0] and m.bmin[1] <= q[1] <= m.bmax[1]
+            and m.bmin[2] <= q[2] <= m.bmax[2])
+
+
+@njit(cache=True, inline="always")
+def medium_density(med, i, p):
+    """Density of medium i at point p (a 3-tuple) of the scene frame, before the scale:
+    "what is here". With several media it is 0 outside the medium's box (one medium is only
+    ever asked inside it)."""
+    md = med[i]
+    q = to_medium(md.m, p)
+    if len(med) > 1 and not in_box(md.m, q):
+        return 0.0
+    return density_at(med, i, q)
+
+
+@njit(cache=True)
+def medium_extinction(med, i, p, counters):
+    """Extinction of medium i alone at p (its largest channel): a counted lookup if p lies
+    in its box, else 0 without one."""
+    md = med[i]
+    q = to_medium(md.m, p)
+    if len(med) > 1 and not in_box(md.m, q):
+        return 0.0
     counters[C_LOOKUPS] += 1
+    return md.m.scale * density_at(med, i, q)
+
+
+@njit(cache=True)
+def extinction(med, p, sigma_maj, counters):
+    """Extinction at p (1/world unit), summed over the media: one counted lookup per medium
+    whose box holds p (one medium: one lookup); a value above the majorant sigma_maj of the
+    segment being tracked is counted too."""
+    mu = 0.0
+    for i in range(len(med)):
+        mu += medium_extinction(med, i, p, counters)
     if mu > sigma_maj:
         counters[C_OVER_MAJORANT] += 1
     return mu
@@ -149,38 +189,84 @@ def extinction(med, p, sigma_maj, counters):
 
 @njit(cache=True, inline="always")
 def medium_chroma(med):
-    """Extinction per channel relative to ``extinction`` (the largest channel's): RGB."""
-    c = med.m.chroma
+    """Extinction per channel relative to ``extinction`` (the largest channel's): RGB. Several
+    media share it (schema.py requires it)."""
+    c = med[0].m.chroma
     return (c[0], c[1], c[2])
 
 
-@njit(cache=True, inline="always")
-def emitted_radiance(med, p):
-    """Emitted radiance Le at point p of the scene frame, RGB: ``emission_rgb`` x field(p) for
-    EMISSION_RADIANCE; ``emission_rgb`` x the blackbody table at temperature(p) (linear in
-    kelvin between entries, 0 at or below 0 K, the last entry above the table) for
+@njit(cache=True)
+def emitted_radiance(med, i, p):
+    """Emitted radiance Le of medium i at point p of the scene frame, RGB: ``emission_rgb`` x
+    field(p) for EMISSION_RADIANCE; ``emission_rgb`` x the blackbody table at temperature(p)
+    (linear in kelvin between entries, 0 at or below 0 K, the last entry above the table) for
     EMISSION_TEMPERATURE. The field is trilinear in the emission grid over the medium box."""
-    m = med.m
+    md = med[i]
+    m = md.m
     e = m.emission_rgb
     p = to_medium(m, p)
-    f = grid_lookup(med.emis, (m.bmin[0], m.bmin[1], m.bmin[2]),
+    f = grid_lookup(md.emis, (m.bmin[0], m.bmin[1], m.bmin[2]),
                     (m.inv_extent[0], m.inv_extent[1], m.inv_extent[2]), p)
     if m.emission_kind == EMISSION_RADIANCE:
         return (e[0] * f, e[1] * f, e[2] * f)
     x = min(max(f * m.table_scale, 0.0), BLACKBODY_TABLE_SIZE - 1.0)
     i0 = min(int(x), BLACKBODY_TABLE_SIZE - 2)
     w = x - i0
-    tb = med.table
+    tb = md.table
     return (e[0] * (tb[i0, 0] * (1.0 - w) + tb[i0 + 1, 0] * w),
             e[1] * (tb[i0, 1] * (1.0 - w) + tb[i0 + 1, 1] * w),
             e[2] * (tb[i0, 2] * (1.0 - w) + tb[i0 + 1, 2] * w))
 
 
 @njit(cache=True, inline="always")
-def majorant_iter_init(it, med, o, d, t0, t1):
-    """Start walking the majorant segments of ray o + t d over [t0, t1] (clipped to the box)."""
-    m = med.m
+def media_emit(med):
+    """True if some medium emits."""
+    for i in range(len(med)):
+        if med[i].m.emission_kind != EMISSION_NONE:
+            return True
+    return False
+
+
+@njit(cache=True)
+def medium_pick(med, p, rng, counters):
+    """The medium a real collision at p chose: medium i with probability mu_i / sum(mu), its
+    share of the extinction that decided the event (every medium's real collisions, summed,
+    are the scene's). A uniform is drawn only where two or more media are present (so one
+    medium, and media that do not overlap, draw nothing); a point outside every box (by
+    rounding) takes medium 0. One counted lookup per medium present."""
+    n = len(med)
+    if n == 1:
+        return ZERO
+    mu = np.empty(n)
+    total = 0.0
+    present = 0
+    for i in range(n):
+        mu[i] = medium_extinction(med, i, p, counters)
+        total += mu[i]
+        if mu[i] > 0.0:
+            present += 1
+    x = rng_next(rng) * total if present >= 2 else 0.0
+    acc = 0.0
+    last = 0
+    for i in range(n):
+        acc += mu[i]
+        if mu[i] > 0.0:
+            last = i
+            if x < acc:
+                return i
+    return last
+
+
+@njit(cache=True)
+def medium_iter_init(it, med, i, o, d, t0, t1):
+    """Start medium i's walk of the majorant segments of ray o + t d over [t0, t1] (state
+    ``it``, ITER_STATE_SIZE). With several media the segment is first clipped to medium i's
+    box (one medium's rays were clipped by enter_media)."""
+    m = med[i].m
     o, d = to_medium(m, o), to_medium_dir(m, d)
+    if len(med) > 1:
+        te, tx = ray_box(o, d, m.bmin, m.bmax)
+        t0, t1 = max(t0, te), min(t1, tx)
     it[0] = 0.0 if t1 > t0 else 1.0
     it[1] = t0
     it[2] = t1
@@ -192,34 +278,110 @@ def majorant_iter_init(it, med, o, d, t0, t1):
                     (m.bmax[0], m.bmax[1], m.bmax[2]), m.octree_depth)
 
 
-@njit(cache=True, inline="always")
-def majorant_next(it, med):
-    """Next non-empty segment: (ok, t_min, t_max, sigma_maj, sigma_min); ok is False at the
-    end. Segments tile [t0, t1] in order; empty and zero-length ones are skipped."""
-    m = med.m
+@njit(cache=True)
+def medium_iter_next(it, med, i):
+    """Medium i's next non-empty segment: (ok, t_min, t_max, sigma_maj, sigma_min); ok is
+    False at the end. Segments tile [t0, t1] in order; empty and zero-length ones are
+    skipped."""
+    md = med[i]
+    m = md.m
     if m.majorant_kind == MAJORANT_GRID:
         while True:
             ok, ta, tb, iz, iy, ix = dda_next(it[4:])
             if not ok:
                 return False, 0.0, 0.0, 0.0, 0.0
-            s_maj = m.scale * med.maj[iz, iy, ix]
+            s_maj = m.scale * md.maj[iz, iy, ix]
             if s_maj > 0.0 and tb > ta:
-                return True, ta, tb, s_maj, m.scale * med.mnr[iz, iy, ix]
+                return True, ta, tb, s_maj, m.scale * md.mnr[iz, iy, ix]
     if m.majorant_kind == MAJORANT_OCTREE:
         while True:
-            ok, ta, tb, node = octree_next(it[4:], med.nodes, (m.bmin[0], m.bmin[1], m.bmin[2]),
+            ok, ta, tb, node = octree_next(it[4:], md.nodes, (m.bmin[0], m.bmin[1], m.bmin[2]),
                                            (m.bmax[0], m.bmax[1], m.bmax[2]), m.octree_depth)
             if not ok:
                 return False, 0.0, 0.0, 0.0, 0.0
-            s_maj = m.scale * med.maj[0, 0, node]
+            s_maj = m.scale * md.maj[0, 0, node]
             if s_maj > 0.0 and tb > ta:
-                return True, ta, tb, s_maj, m.scale * med.mnr[0, 0, node]
+                return True, ta, tb, s_maj, m.scale * md.mnr[0, 0, node]
     if it[0] != 0.0:
         return False, 0.0, 0.0, 0.0, 0.0
     it[0] = 1.0
     if not m.sigma_maj > 0.0:
         return False, 0.0, 0.0, 0.0, 0.0
     return True, it[1], it[2], m.sigma_maj, m.sigma_min
+
+
+#: Per medium of several, after its walk's state: [has, t_min, t_max, sigma_maj, sigma_min]
+#: of its pending segment; the merge's position t comes last.
+_PENDING = 5
+
+
+@njit(cache=True, inline="always")
+def iter_state_size(n):
+    """Floats of the state of majorant_iter_init / majorant_next for n media."""
+    return ITER_STATE_SIZE if n == 1 else n * (ITER_STATE_SIZE + _PENDING) + 1
+
+
+@njit(cache=True, inline="always")
+def new_iter(med):
+    """An uninitialised iterator state for the media ``med``."""
+    return np.empty(iter_state_size(len(med)))
+
+
+@njit(cache=True, inline="always")
+def majorant_iter_init(it, med, o, d, t0, t1):
+    """Start walking the majorant segments of ray o + t d over [t0, t1] through every medium
+    (state ``it``: ``new_iter(med)``)."""
+    n = len(med)
+    if n == 1:
+        medium_iter_init(it, med, ZERO, o, d, t0, t1)
+        return
+    w = ITER_STATE_SIZE + _PENDING
+    for i in range(n):
+        medium_iter_init(it[i * w:i * w + ITER_STATE_SIZE], med, i, o, d, t0, t1)
+        it[i * w + ITER_STATE_SIZE] = 0.0
+    it[n * w] = t0
+
+
+@njit(cache=True, inline="always")
+def majorant_next(it, med):
+    """Next non-empty segment of the media: (ok, t_min, t_max, sigma_maj, sigma_min); ok is
+    False at the end. One medium: its own segments. Several: each medium's segments merged
+    into pieces from the nearest point at or after the merge's position where some medium
+    has a segment to the nearest point where one begins or ends, with the sums of the
+    majorants and minorants of the media whose segment covers the piece (outside its box a
+    medium adds nothing). Tracking then sees one ordinary walk, and the extinction it looks
+    up is the sum too (``extinction``)."""
+    n = len(med)
+    if n == 1:
+        return medium_iter_next(it, med, ZERO)
+    w = ITER_STATE_SIZE + _PENDING
+    t = it[n * w]
+    start = math.inf
+    for i in range(n):
+        b = i * w + ITER_STATE_SIZE
+        if not (it[b] != 0.0 and it[b + 2] > t):   # passed: the medium's next segment
+            ok, ta, tb, s_maj, s_min = medium_iter_next(it[i * w:b], med, i)
+            it[b] = 1.0 if ok else 0.0
+            if ok:
+                it[b + 1], it[b + 2], it[b + 3], it[b + 4] = ta, tb, s_maj, s_min
+        if it[b] != 0.0:
+            start = min(start, max(it[b + 1], t))
+    if start == math.inf:
+        return False, 0.0, 0.0, 0.0, 0.0
+    end = math.inf
+    s_maj = 0.0
+    s_min = 0.0
+    for i in range(n):
+        b = i * w + ITER_STATE_SIZE
+        if it[b] != 0.0:
+            if it[b + 1] <= start:
+                end = min(end, it[b + 2])
+                s_maj += it[b + 3]
+                s_min += it[b + 4]
+            else:
+                end = min(end, it[b + 1])
+    it[n * w] = end
+    return True, start, end, s_maj, s_min
 
 
 @njit(cache=True, inline="always")
@@ -256,14 +418,35 @@ def segment_degenerate(L, mbar, counters, max_steps, min_steps):
 
 
 @njit(cache=True, inline="always")
+def ray_box(o, d, bmin, bmax):
+    """Slab test of ray o + t d against the box. Returns (t_enter, t_exit); no hit when
+    t_enter >= t_exit. Axis-parallel rays (d component 0 or -0) are handled without 0 * inf."""
+    t0 = -math.inf
+    t1 = math.inf
+    for a in range(3):
+        if d[a] == 0.0:
+            if o[a] < bmin[a] or o[a] > bmax[a]:
+                return math.inf, -math.inf
+        else:
+            inv = 1.0 / d[a]
+            ta = (bmin[a] - o[a]) * inv
+            tb = (bmax[a] - o[a]) * inv
+            if ta > tb:
+                ta, tb = tb, ta
+            t0 = max(t0, ta)
+            t1 = min(t1, tb)
+    return t0, t1
+
+
+@njit(cache=True, inline="always")
 def record_segment(med, o, d, t0, t1, kind):
     """Append the transmittance segment (o, d, t0, t1) of kind ``kind`` (RECORD_CAMERA,
     RECORD_SHADOW) to the pixel's record ``med.rec`` [K + 1, 9]: row 0 holds the count so far
     (column 0) and the capacity K (column 1, set by the host); rows 1..K hold o(3), d(3), t0,
     t1, kind, the layout of the estimator runners' rays. A full record or the [1, 9]
     placeholder records nothing. No random number is drawn, so a recording render is the
-    same render."""
-    rec = med.rec
+    same render. The record is the first medium's (``med`` a tuple of MediumData)."""
+    rec = med[0].rec
     if rec.shape[0] <= 1:
         return
     n = int(rec[0, 0])
@@ -288,10 +471,20 @@ def no_field_arrays():
 
 
 def medium_data(m, grid, maj, mnr):
-    """A ``MediumData`` of record ``m``, density grid ``grid`` and majorant grid (maj, mnr),
-    float64, with ``no_field_arrays`` for the rest (host side; jitted code calls
-    ``no_field_arrays`` and builds the tuple itself)."""
-    return MediumData(m, grid, maj, mnr, *no_field_arrays())
+    """The media of one medium, ``(MediumData,)``, of record ``m``, density grid ``grid``
+    and majorant grid (maj, mnr), float64, with ``no_field_arrays`` for the rest (host side;
+    jitted code calls ``no_field_arrays`` and builds the tuple itself)."""
+    return (MediumData(m, grid, maj, mnr, *no_field_arrays()),)
+
+
+def media_data(pk):
+    """The media of a packed scene (pack.pack_scene, float64) as the reference takes them: a
+    tuple of ``MediumData``, one per medium, each with a placeholder segment record."""
+    rec = np.zeros((1, 9))
+    f, i = np.ascontiguousarray, np.int32   # one type for every medium: a tuple Numba indexes
+    return tuple(MediumData(a.medium[0], f(a.grid, float), f(a.maj, float), f(a.mnr, float),
+                            f(a.emis, float), f(a.table, float), f(a.bricks, i),
+                            f(a.pool, float), f(a.nodes, i), rec) for a in pk.parts)
 
 
 def new_medium():

@@ -98,8 +98,9 @@ from ..constants import (AUTO_THIN_DEPTH, EMISSION_NONE, EVENT_CAPPED, EVENT_ESC
                          TRACK_FREE_FLIGHT, TRACK_LENGTH, TRACK_NEXT_FLIGHT,
                          TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, C_LOOKUPS, N_COUNTERS
-from .medium import (ITER_STATE_SIZE, MediumData, emitted_radiance, extinction,
-                     majorant_iter_init, majorant_next, medium_chroma, no_field_arrays)
+from .medium import (MediumData, emitted_radiance, extinction, majorant_iter_init,
+                     majorant_next, media_emit, medium_chroma, medium_extinction, new_iter,
+                     no_field_arrays)
 from .rng import rng_new, rng_next
 from .sampling import sample_exponential
 from .vec import add3, exp_neg3, madd3, max3, mul3, one_minus3, scale3
@@ -139,20 +140,26 @@ def spec_roulette(T, rng):
     return True, scale3(T, TR_RR_THRESHOLD / a)
 
 
-@njit(cache=True, inline="always")
-def emission_term(med, p, mu, s_maj, W):
+@njit(cache=True)
+def emission_term(med, p, mu, s_maj, W, counters):
     """What one tentative collision at p adds to the emission estimate: W sigma_a(p) Le(p) /
     sigma_maj per channel, sigma_a = (1 - albedo) x chroma x mu the absorption coefficient,
     W the weight so far. Summed over every tentative collision of a walk at rate sigma_maj
     it estimates the integral of T sigma_a Le along the ray without bias (the collision
-    estimator of pbrt-v4 and Cycles)."""
-    m = med.m
+    estimator of pbrt-v4 and Cycles). Several media: the sum of every emitting medium's
+    sigma_a Le, each from its own counted lookup (mu, the sum, does not split)."""
     k = medium_chroma(med)
-    Le = emitted_radiance(med, p)
-    s = mu / s_maj
-    return ((1.0 - m.albedo[0]) * k[0] * s * Le[0] * W[0],
-            (1.0 - m.albedo[1]) * k[1] * s * Le[1] * W[1],
-            (1.0 - m.albedo[2]) * k[2] * s * Le[2] * W[2])
+    out = ZERO3
+    for i in range(len(med)):
+        m = med[i].m
+        if m.emission_kind == EMISSION_NONE:
+            continue
+        s = (mu if len(med) == 1 else medium_extinction(med, i, p, counters)) / s_maj
+        Le = emitted_radiance(med, i, p)
+        out = add3(out, ((1.0 - m.albedo[0]) * k[0] * s * Le[0] * W[0],
+                         (1.0 - m.albedo[1]) * k[1] * s * Le[1] * W[1],
+                         (1.0 - m.albedo[2]) * k[2] * s * Le[2] * W[2]))
+    return out
 
 
 @njit(cache=True, inline="always")
@@ -213,12 +220,11 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, rng, counters, 
     ``beta`` (RGB) is the path throughput the choices are weighed by (spectral tracking);
     with ``hero`` = c, channel c's delta tracking decides and ``beta`` holds the path's
     decision-probability ratios so far (hero MIS, below)."""
-    m = med.m
-    spectral = m.spectral != SPECTRAL_GREY
-    emissive = technique == TRACK_FREE_FLIGHT and m.emission_kind != EMISSION_NONE
+    spectral = med[0].m.spectral != SPECTRAL_GREY
+    emissive = technique == TRACK_FREE_FLIGHT and media_emit(med)
     k = medium_chroma(med)
     o = madd3(o, d, t0)
-    it = np.empty(ITER_STATE_SIZE)
+    it = new_iter(med)
     majorant_iter_init(it, med, o, d, 0.0, t1 - t0)
     budget = -1.0   # optical depth left to the next tentative collision; < 0: not drawn yet
     T = ONE3
@@ -280,11 +286,12 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, rng, counters, 
                     W = (1.0 if hero == 0 else 0.0, 1.0 if hero == 1 else 0.0,
                          1.0 if hero == 2 else 0.0)
                     if emissive:
-                        E = add3(E, emission_term(med, p, mu, s_maj, mis_weights(mul3(T, beta))))
+                        E = add3(E, emission_term(med, p, mu, s_maj, mis_weights(mul3(T, beta)),
+                                                     counters))
                 else:
                     W = mul3(T, beta) if technique == TRACK_FREE_FLIGHT else T
                     if emissive:
-                        E = add3(E, emission_term(med, p, mu, s_maj, T))
+                        E = add3(E, emission_term(med, p, mu, s_maj, T, counters))
                 real, f = spectral_choice(W, k, mu, s_maj, rng_next(rng))
                 if real:
                     if tech == TRACK_LENGTH:
@@ -309,7 +316,7 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, rng, counters, 
                 if emissive:
                     if mu < 0.0:
                         mu = extinction(med, p, s_maj, counters)
-                    E = add3(E, emission_term(med, p, mu, s_maj, ONE3))
+                    E = add3(E, emission_term(med, p, mu, s_maj, ONE3, counters))
                 if real:
                     return EVENT_SCATTER, t0 + t, ONE3 if technique == TRACK_FREE_FLIGHT \
                         else ZERO3, E
@@ -356,7 +363,7 @@ def track_batch(technique, use_control, media, grid, maj, mnr, rays, n_per_ray, 
         r = i // n_per_ray
         rng = rng_new(seed, r, i % n_per_ray, STREAM_TEST)
         counters = np.zeros(N_COUNTERS, np.int64)
-        med = MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes, rec)
+        med = (MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes, rec),)
         ev, t, T, _ = track(med, (rays[r, 0], rays[r, 1], rays[r, 2]),
                             (rays[r, 3], rays[r, 4], rays[r, 5]), rays[r, 6], rays[r, 7],
                             technique, use_control, ONE3, -1, rng, counters, max_steps)

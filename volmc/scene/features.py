@@ -50,20 +50,22 @@ TOOL_FEATURES = {
 
 
 def features(scene) -> frozenset:
-    """The set of feature names (keys of FEATURES) a loaded Scene needs."""
-    m, r = scene.medium, scene.render
-    out = set()
-    if not isinstance(m.density, ConstantDensity) and r.majorant == "grid":
-        out.add("MAJORANT_GRID")
-    if not isinstance(m.density, ConstantDensity) and r.majorant == "octree":
-        out.add("MAJORANT_OCTREE")
-    if m.chromatic:
-        out.add("CHROMATIC")
-    if m.emission is not None:
-        out.add("EMISSION")
+    """The set of feature names (keys of FEATURES) a loaded Scene needs: what any of its
+    media needs."""
     from .transform import placement
-    if m.bounds is not None and placement(m)[2] is not None:
-        out.add("TRANSFORM")
+    r = scene.render
+    out = set()
+    for m in scene.spec.media:
+        if not isinstance(m.density, ConstantDensity) and r.majorant == "grid":
+            out.add("MAJORANT_GRID")
+        if not isinstance(m.density, ConstantDensity) and r.majorant == "octree":
+            out.add("MAJORANT_OCTREE")
+        if m.chromatic:
+            out.add("CHROMATIC")
+        if m.emission is not None:
+            out.add("EMISSION")
+        if m.bounds is not None and placement(m)[2] is not None:
+            out.add("TRANSFORM")
     return frozenset(out)
 
 

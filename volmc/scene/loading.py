@@ -31,11 +31,24 @@ class Scene:
     ``grid`` is the float32 [z, y, x] density array, or None for a homogeneous medium;
     ``emission_grid`` the float32 [z, y, x] emission field (radiance emission) or temperature
     (kelvin) spanning the medium box, a 1x1x1 array for a constant one, None without emission.
-    A VDB density's bounds are in ``spec.medium.bounds`` once loaded.
+    A VDB density's bounds are in ``spec.medium.bounds`` once loaded. These describe the
+    first medium; a scene of several media (``[[media]]``) has ``parts``, one one-medium
+    Scene per medium (the first is grid and emission_grid's), which ``media_scenes`` lists.
     """
     spec: SceneSpec
     grid: Optional[np.ndarray] = field(default=None, compare=False, repr=False)
     emission_grid: Optional[np.ndarray] = field(default=None, compare=False, repr=False)
+    parts: tuple = field(default=(), compare=False, repr=False)
+
+    @property
+    def media_scenes(self):
+        """One Scene per medium, each with this scene's camera, lights and render: the
+        scene itself when it has one medium."""
+        return self.parts if self.parts else (self,)
+
+    @property
+    def media(self):
+        return self.spec.media
 
     @property
     def file(self):
@@ -61,7 +74,16 @@ class Scene:
         """This scene with some ``render`` keys replaced (spp, seed, techniques); the
         grid is shared, not copied. The values are taken as given (not re-validated)."""
         spec = replace(self.spec, render=replace(self.spec.render, **keys))
-        return Scene(spec, self.grid, self.emission_grid)
+        parts = tuple(p.with_render(**keys) for p in self.parts)
+        return Scene(spec, self.grid, self.emission_grid, parts)
+
+
+def require_one_medium(scene, what):
+    """SceneError unless ``scene`` has one medium: for the tools (``what``) that replay or
+    analyse one medium's grid."""
+    if len(scene.spec.media) > 1:
+        raise SceneError(scene.file, "media", f"{what} takes one medium; this scene has "
+                                              f"{len(scene.spec.media)}")
 
 
 def read_toml(path):
@@ -257,37 +279,38 @@ def _vdb_bricks(vg, path, key):
     return BrickGrid.from_blocks(dims, np.asarray(vg.origins) - lo, v)
 
 
-def load_density(spec: SceneSpec, cache=None):
-    """(density grid or None for a homogeneous medium, VdbGrid or None). The grid is a
-    float32 [z, y, x] array, or a BrickGrid for a VDB file whose background is 0 (unless
-    render.grid_storage = "dense"): its leaves become bricks without a dense copy."""
+def load_density(spec: SceneSpec, cache=None, p="medium."):
+    """(density grid or None for a homogeneous medium, VdbGrid or None) of spec.medium (keys
+    named with prefix ``p``). The grid is a float32 [z, y, x] array, or a BrickGrid for a
+    VDB file whose background is 0 (unless render.grid_storage = "dense"): its leaves become
+    bricks without a dense copy."""
     d = spec.medium.density
     if isinstance(d, ConstantDensity):
         return None, None
-    raw, vg = _read_source(spec, d, "medium.density", cache=cache)
+    raw, vg = _read_source(spec, d, p + "density", cache=cache)
     where = d.resolved if isinstance(d, FileDensity) else spec.file
     if raw is None and spec.render.grid_storage != "dense" and vg.background == 0.0:
-        grid = _vdb_bricks(vg, where, "medium.density")
+        grid = _vdb_bricks(vg, where, p + "density")
     else:
-        grid = validate_grid(_dense(vg, where, "medium.density") if raw is None else raw, where,
-                             "medium.density")
+        grid = validate_grid(_dense(vg, where, p + "density") if raw is None else raw, where,
+                             p + "density")
     # The float32 kernels hold the global majorant scale * max(density).
     top = max(spec.medium.scale) * float(grid.max())
     if top > FLOAT32_MAX:
-        raise SceneError(spec.file, "medium.scale",
+        raise SceneError(spec.file, p + "scale",
                          f"scale * max(density) = {top:g} overflows float32 (at most "
                          f"{FLOAT32_MAX:g})")
     return grid, vg
 
 
-def load_emission(spec: SceneSpec, vdb_density=None, cache=None):
-    """The emission field or temperature grid (float32 [z, y, x]; 1x1x1 when constant), or
-    None without emission."""
+def load_emission(spec: SceneSpec, vdb_density=None, cache=None, p="medium."):
+    """The emission field or temperature grid (float32 [z, y, x]; 1x1x1 when constant) of
+    spec.medium, or None without emission."""
     e = spec.medium.emission
     if e is None:
         return None
-    src, key = (e.field, "medium.emission.field") if e.radiance is not None else \
-        (e.temperature, "medium.emission.temperature")
+    src, key = (e.field, p + "emission.field") if e.radiance is not None else \
+        (e.temperature, p + "emission.temperature")
     if isinstance(src, ConstantDensity):
         return np.full((1, 1, 1), src.value, np.float32)
     raw, vg = _read_source(spec, src, key, vdb_density, cache)
@@ -296,9 +319,20 @@ def load_emission(spec: SceneSpec, vdb_density=None, cache=None):
 
 
 def _complete(spec: SceneSpec):
-    """Load every grid; a VDB density without medium.bounds gives the box."""
+    """Load every grid; a VDB density without bounds gives the box. Several media load one
+    by one (a Scene part each; generated grids are shared through one cache)."""
     cache = {}
-    grid, vg = load_density(spec, cache)
+    if not spec.others:
+        return _complete_one(spec, cache)
+    parts = tuple(_complete_one(replace(spec, medium=m, others=()), cache, f"media[{i}].")
+                  for i, m in enumerate(spec.media))
+    media = tuple(p.spec.medium for p in parts)
+    whole = replace(spec, medium=media[0], others=media[1:])
+    return Scene(whole, parts[0].grid, parts[0].emission_grid, parts)
+
+
+def _complete_one(spec, cache, p="medium."):
+    grid, vg = load_density(spec, cache, p)
     if spec.medium.bounds is None:
         # The file's own placement: its world box, or (a turned, mirrored or sheared map) its
         # index box with the map as a transform, under the medium's transform if any.
@@ -309,10 +343,10 @@ def _complete(spec: SceneSpec):
 
         def fail(key, msg):
             raise SceneError(spec.medium.density.resolved, key, msg)
-        check_box(fail, lo, hi)
+        check_box(fail, lo, hi, p + "bounds")
         spec = replace(spec, medium=replace(spec.medium, bounds=(tuple(lo), tuple(hi)),
                                             transform=transform))
-    return Scene(spec, grid, load_emission(spec, vg, cache))
+    return Scene(spec, grid, load_emission(spec, vg, cache, p))
 
 
 def load_scene(path, overrides=()):

@@ -177,12 +177,24 @@ class Render:
 
 @dataclass(frozen=True)
 class SceneSpec:
-    """A validated scene description (grids not loaded yet)."""
+    """A validated scene description (grids not loaded yet). ``medium`` is the first medium
+    (a ``[medium]`` table, or ``[[media]]``'s first), ``others`` the rest of ``[[media]]``;
+    ``media`` is all of them, in file order."""
     file: str
     camera: Camera
     medium: Medium
     lights: tuple
     render: Render
+    others: tuple = ()
+
+    @property
+    def media(self):
+        return (self.medium,) + tuple(self.others)
+
+    @property
+    def chromatic(self):
+        """True when extinction depends on colour in some medium."""
+        return any(m.chromatic for m in self.media)
 
 
 # (key, default or REQUIRED); the kind of each key is checked in the section functions.
@@ -212,7 +224,10 @@ LIGHT_KEYS = {
     "directional": ("type", "direction", "irradiance"),
     "point": ("type", "position", "intensity"),
 }
-TOP_KEYS = ("camera", "medium", "lights", "render")
+TOP_KEYS = ("camera", "medium", "media", "lights", "render")
+#: Most media in a scene (``[[media]]``), and so most media overlapping at one point: the
+#: kernels keep a majorant walk per medium (kernels/media.h), unrolled at compile time.
+MAX_MEDIA = 8
 FILE_DENSITY_KEYS = ("file", "grid")
 GENERATOR_KEYS = ("generator", "resolution", "seed", "channel")
 
@@ -401,12 +416,11 @@ def _source(c, v, key, file_dir, channel="density"):
     return ConstantDensity(c.number(v, key, 0.0))
 
 
-def _density(c, v, file_dir):
-    return _source(c, v, "medium.density", file_dir)
+def _density(c, v, file_dir, p="medium."):
+    return _source(c, v, p + "density", file_dir)
 
 
-def _emission(c, raw, file_dir):
-    p = "medium.emission."
+def _emission(c, raw, file_dir, p="medium.emission."):
     c.table(raw, p[:-1])
     c.known(raw, EMISSION_KEYS, p)
     if ("radiance" in raw) == ("temperature" in raw):
@@ -426,14 +440,13 @@ def _emission(c, raw, file_dir):
     return Emission(temperature=temperature, scale=scale)
 
 
-def _medium(c, raw, file_dir):
-    p = "medium."
+def _medium(c, raw, file_dir, p="medium."):
     c.known(raw, MEDIUM_KEYS, p)
-    density = _density(c, c.required(raw, "density", p), file_dir)
+    density = _density(c, c.required(raw, "density", p), file_dir, p)
     from_file = isinstance(density, FileDensity) and \
         density.path.lower().endswith((".vdb", ".nvdb"))
     if "bounds" in raw or not from_file:
-        lo, hi = _bounds(c, c.required(raw, "bounds", p))
+        lo, hi = _bounds(c, c.required(raw, "bounds", p), p)
         bounds = (lo, hi)
     else:
         bounds = None   # from the VDB file's active voxels (loading.py)
@@ -451,19 +464,19 @@ def _medium(c, raw, file_dir):
                      lo_open=True, hi_open=True)
     elif "g" in ph:
         c.fail(p + "phase.g", "only the 'hg' phase function takes g")
-    emission = _emission(c, raw["emission"], file_dir) if "emission" in raw else None
+    emission = _emission(c, raw["emission"], file_dir, p + "emission.") \
+        if "emission" in raw else None
     transform = parse_transform(c, raw["transform"], p + "transform") \
         if "transform" in raw else None
     return Medium(bounds, density, scale, albedo, Phase(ptype, g), emission, transform)
 
 
-def _bounds(c, b):
-    p = "medium."
+def _bounds(c, b, p="medium."):
     if not isinstance(b, list) or len(b) != 2:
         c.fail(p + "bounds", f"expected [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {_show(b)}")
     lo = c.vec3(b[0], p + "bounds")
     hi = c.vec3(b[1], p + "bounds")
-    check_box(c.fail, lo, hi)
+    check_box(c.fail, lo, hi, p + "bounds")
     return lo, hi
 
 
@@ -552,7 +565,7 @@ def validate(raw: dict, file: str, file_dir: Optional[str] = None) -> SceneSpec:
     file_dir = file_dir if file_dir is not None else os.path.dirname(os.path.abspath(file))
     c.known(raw, TOP_KEYS, "")
     camera = _camera(c, c.table(c.required(raw, "camera", ""), "camera"))
-    medium = _medium(c, c.table(c.required(raw, "medium", ""), "medium"), file_dir)
+    media = _media(c, raw, file_dir)
     lights_raw = raw.get("lights", [])
     if not isinstance(lights_raw, list):
         c.fail("lights", f"expected an array of tables ([[lights]]), got {_show(lights_raw)}")
@@ -566,8 +579,42 @@ def validate(raw: dict, file: str, file_dir: Optional[str] = None) -> SceneSpec:
                                                 f"{max(env):g}, which overflows float32")
     render = _render(c, c.table(raw.get("render", {}), "render"))
     est = ESTIMATORS[render.transmittance]
-    if medium.chromatic and not est.chromatic:
+    if any(m.chromatic for m in media) and not est.chromatic:
         c.fail("render.transmittance", f"'{est.name}' estimates grey transmittance only; "
                "medium.scale differs per channel, so use one of "
                f"{', '.join(chromatic_estimators())}")
-    return SceneSpec(str(file), camera, medium, lights, render)
+    return SceneSpec(str(file), camera, media[0], lights, render, media[1:])
+
+
+def chroma(scale):
+    """Extinction per channel relative to the largest channel ((1, 1, 1) when black)."""
+    top = max(scale)
+    return tuple(x / top for x in scale) if top > 0.0 else (1.0, 1.0, 1.0)
+
+
+def _media(c, raw, file_dir):
+    """The media of a scene: ``[medium]`` (one) or ``[[media]]`` (1 to MAX_MEDIA), never
+    both. Several media share one chroma (the ratios of their scale's channels): the kernels
+    keep extinction as one scalar field times one per-channel ratio (pack.py)."""
+    if "medium" in raw and "media" in raw:
+        c.fail("media", "give either [medium] (one medium) or [[media]] (several), not both")
+    if "media" not in raw:
+        return (_medium(c, c.table(c.required(raw, "medium", ""), "medium"), file_dir),)
+    lst = raw["media"]
+    if not isinstance(lst, list) or not lst:
+        c.fail("media", f"expected a non-empty array of tables ([[media]]), got {_show(lst)}")
+    if len(lst) > MAX_MEDIA:
+        c.fail("media", f"{len(lst)} media; a scene holds at most {MAX_MEDIA} (and so at most "
+                        f"{MAX_MEDIA} overlap at one point)")
+    media = tuple(_medium(c, c.table(m, f"media[{i}]"), file_dir, f"media[{i}].")
+                  for i, m in enumerate(lst))
+    k0 = chroma(media[0].scale)
+    for i, m in enumerate(media[1:], 1):
+        k = chroma(m.scale)
+        if max(m.scale) == 0.0:   # no extinction: nothing to share
+            continue
+        if max(abs(a - b) for a, b in zip(k, k0)) > 1e-6 * max(k0):
+            c.fail(f"media[{i}].scale", f"per-channel ratios {_show(list(k))} differ from "
+                   f"media[0]'s {_show(list(k0))}: several media must share the ratios of "
+                   "their scale's channels (scale them as a whole)")
+    return media

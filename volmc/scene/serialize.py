@@ -12,14 +12,7 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
     """Plain dictionary in the TOML layout of docs/scene_format.md, every key explicit. A grid
     given as a numpy array stays the array, or is ``array_as(array)`` when given (a TOML
     file cannot hold the array: ``to_toml`` needs a stand-in)."""
-    c, m, r = spec.camera, spec.medium, spec.render
-
-    def _source(d):
-        return _grid_source(d, array_as)
-    density = _source(m.density)
-    phase = {"type": m.phase.type}
-    if m.phase.type == "hg":
-        phase["g"] = m.phase.g
+    c, r = spec.camera, spec.render
     lights = []
     for lt in spec.lights:
         if isinstance(lt, EnvironmentLight):
@@ -30,7 +23,35 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
         elif isinstance(lt, PointLight):
             lights.append({"type": "point", "position": list(lt.position),
                            "intensity": list(lt.intensity)})
-    medium = {"density": density,
+    media = [_medium(m, array_as) for m in spec.media]
+    camera = {"type": c.type, "eye": list(c.eye), "target": list(c.target), "up": list(c.up),
+              "fov": c.fov, "size": c.size, "resolution": list(c.resolution),
+              "aperture": c.aperture}
+    if c.focus_distance is not None:   # None (a Camera not validated yet): eye to target
+        camera["focus_distance"] = c.focus_distance
+    return {
+        "camera": camera,
+        **({"medium": media[0]} if len(media) == 1 else {"media": media}),
+        "lights": lights,
+        "render": {"spp": r.spp, "max_depth": r.max_depth, "rr_depth": r.rr_depth,
+                   "seed": r.seed, "max_steps": r.max_steps, "transmittance": r.transmittance,
+                   "majorant": r.majorant, "majorant_resolution": list(r.majorant_resolution),
+                   "free_flight": r.free_flight, "spectral": r.spectral,
+                   "grid_storage": r.grid_storage, "mis": r.mis,
+                   "sampler": r.sampler, "light_samples": r.light_samples,
+                   "equiangular": r.equiangular, "rr": r.rr,
+                   "transparent_background": r.transparent_background},
+    }
+
+
+def _medium(m, array_as=None):
+    """One medium's table."""
+    def _source(d):
+        return _grid_source(d, array_as)
+    phase = {"type": m.phase.type}
+    if m.phase.type == "hg":
+        phase["g"] = m.phase.g
+    medium = {"density": _source(m.density),
               "scale": m.scale[0] if not m.chromatic else list(m.scale),
               "albedo": list(m.albedo), "phase": phase}
     if m.bounds is not None:
@@ -43,24 +64,7 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
             medium["emission"] = {"radiance": list(e.radiance), "field": _source(e.field)}
         else:
             medium["emission"] = {"temperature": _source(e.temperature), "scale": e.scale}
-    camera = {"type": c.type, "eye": list(c.eye), "target": list(c.target), "up": list(c.up),
-              "fov": c.fov, "size": c.size, "resolution": list(c.resolution),
-              "aperture": c.aperture}
-    if c.focus_distance is not None:   # None (a Camera not validated yet): eye to target
-        camera["focus_distance"] = c.focus_distance
-    return {
-        "camera": camera,
-        "medium": medium,
-        "lights": lights,
-        "render": {"spp": r.spp, "max_depth": r.max_depth, "rr_depth": r.rr_depth,
-                   "seed": r.seed, "max_steps": r.max_steps, "transmittance": r.transmittance,
-                   "majorant": r.majorant, "majorant_resolution": list(r.majorant_resolution),
-                   "free_flight": r.free_flight, "spectral": r.spectral,
-                   "grid_storage": r.grid_storage, "mis": r.mis,
-                   "sampler": r.sampler, "light_samples": r.light_samples,
-                   "equiangular": r.equiangular, "rr": r.rr,
-                   "transparent_background": r.transparent_background},
-    }
+    return medium
 
 
 def _grid_source(d, array_as=None):
