@@ -47,6 +47,38 @@ def peer_scene(camera=None, medium=None, render=None, lights=None):
     return scene_from_dict(raw)
 
 
+#: Two media side by side ([[media]]) whose placed boxes do not overlap: on the left the
+#: cloud of peer_scene, turned 35 degrees about y; on the right a homogeneous box with backward
+#: HG, turned 30 degrees about (1, 0, 1). The sun shines from the right, almost level, so the
+#: box shadows part of the cloud (shadow rays cross both boxes).
+TWO_MEDIA = [
+    {"bounds": [[-1.0, -0.6, -0.7], [1.0, 0.9, 0.7]],
+     "density": {"generator": "cloud", "resolution": 20, "seed": 3},
+     "scale": 12.0, "albedo": [0.9, 0.7, 0.5], "phase": {"type": "hg", "g": 0.6},
+     "transform": {"rotate": [0, 1, 0, 35.0], "translate": [-1.35, 0.0, 0.0]}},
+    {"bounds": [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]], "density": 1.0, "scale": 1.5,
+     "albedo": [0.6, 0.8, 0.95], "phase": {"type": "hg", "g": -0.3},
+     "transform": {"rotate": [1, 0, 1, 30.0], "translate": [1.3, 0.0, 0.2]}},
+]
+TWO_MEDIA_LIGHTS = [LIGHTS[0], {"type": "directional", "direction": [-1.0, -0.1, -0.15],
+                                "irradiance": [3.0, 2.8, 2.5]}]
+
+
+def peer_media_scene(media=None, camera=None, render=None, lights=None):
+    """A scene of several media (``[[media]]``, default TWO_MEDIA), framed to show both
+    boxes of TWO_MEDIA, multiple scattering; camera and render update their tables."""
+    raw = {
+        "camera": {"eye": [0.0, 0.6, 5.0], "target": [-0.25, 0.15, 0.0], "fov": 30.0,
+                   "resolution": [32, 16]},
+        "media": media or TWO_MEDIA,
+        "lights": lights or TWO_MEDIA_LIGHTS,
+        "render": {"spp": 256, "max_depth": -1},
+    }
+    for key, part in (("camera", camera), ("render", render)):
+        raw[key].update(part or {})
+    return scene_from_dict(raw)
+
+
 def slab_scene(tmp_path, density, scale=1.0):
     """An absorbing slab 0.5 thick along the view axis, seen by an orthographic camera against
     an environment of radiance 1: every pixel is exp(-tau). density: a number, or the density

@@ -19,8 +19,9 @@ import math
 import numpy as np
 import pytest
 
-from peer_common import (LIGHTS, assert_passes_match, assert_peer_cli_error_when_hidden,
-                         needs_peer, peer_scene, run_peer_cli, slab_scene)
+from peer_common import (LIGHTS, TWO_MEDIA, assert_passes_match,
+                         assert_peer_cli_error_when_hidden, needs_peer, peer_media_scene,
+                         peer_scene, run_peer_cli, slab_scene)
 from volmc.peers import compare
 from volmc.peers.cycles import probe
 from volmc.peers.errors import PeerUnavailable
@@ -37,6 +38,12 @@ def _edges_grid():
     return (0.7 + 0.5 * np.sin(5 * x + 1) * np.cos(4 * y) * np.cos(3 * z + 0.5)).astype(
         np.float32)
 
+
+#: TWO_MEDIA's box moved to overlap the cloud's right half, with an albedo proportional to
+#: the cloud's (0.7 x): Cycles then mixes the two phase functions as volmc does (see
+#: volmc/peers/cycles.py; unproportional albedos are refused).
+OVERLAPPING_BOX = dict(TWO_MEDIA[1], albedo=[0.63, 0.49, 0.35],
+                       transform={"rotate": [1, 0, 1, 30.0], "translate": [-0.9, 0.1, 0.2]})
 
 CASES = {
     # Multiple scattering in a grid of non-cubic bounds, all three light types.
@@ -103,6 +110,12 @@ CASES = {
                                             "target": [2.0, 0.6, -3.0],
                                             "resolution": [48, 24]},
                                     lights=LIGHTS[:2]),
+    # Two media apart ([[media]]): a turned cloud and a turned homogeneous box shadowing it.
+    "two_media": lambda: peer_media_scene(),
+    # The box moved into the cloud: coefficients add where they overlap, and the phase
+    # functions (forward and backward HG) mix by sigma_s in both renderers (proportional
+    # albedos: the mix is the same in every channel).
+    "overlapping_media": lambda: peer_media_scene(media=[TWO_MEDIA[0], OVERLAPPING_BOX]),
 }
 
 
@@ -152,6 +165,8 @@ def _break(monkeypatch, wrong):
             np.save(g["file"], np.ascontiguousarray(np.load(g["file"])[:, ::-1, :]))
         elif wrong == "no_clip":
             med["clip_to_bounds"] = False
+        elif wrong == "second_unplaced":
+            job["others"][0]["transform"] = None
         elif wrong == "emission_albedo":
             # Emission of sigma_t Le instead of sigma_a Le.
             med["emission"]["colour"] = [c / (1.0 - a) for c, a in
@@ -168,7 +183,7 @@ def _break(monkeypatch, wrong):
     ("hg_sign", "single_scatter"), ("depth_offset", "single_scatter"),
     ("fov_axis", "single_scatter"), ("grid_flip", "grid_environment"),
     ("point_power", "single_scatter"), ("no_clip", "edges"),
-    ("emission_albedo", "emission")])
+    ("emission_albedo", "emission"), ("second_unplaced", "two_media")])
 def test_wrong_translation_is_detected(wrong, case, monkeypatch):
     """Each convention the translation handles, broken on purpose, makes the images differ."""
     _break(monkeypatch, wrong)
@@ -223,6 +238,51 @@ def test_job_conventions(tmp_path):
     nos = CASES["no_scattering"]()
     assert json.load(open(pc.write_job(nos, str(tmp_path), [4], [1])))["medium"][
         "albedo"] == [0.0, 0.0, 0.0]
+
+
+def test_several_media_job(tmp_path):
+    """Several media, without Blender: the first is the job's "medium", the others follow
+    in "others", each with its own coefficients, transform and grid files."""
+    from volmc.peers import cycles as pc
+    second = dict(TWO_MEDIA[0], density={"generator": "cloud", "resolution": 12, "seed": 5},
+                  transform={"translate": [0.0, 2.5, 0.0]}, albedo=0.5)
+    scene = peer_media_scene(media=[TWO_MEDIA[0], second, TWO_MEDIA[1]])
+    job = json.load(open(pc.write_job(scene, str(tmp_path), [4], [1])))
+    first, others = job["medium"], job["others"]
+    assert len(others) == 2
+    assert first["scale"] == [12.0] * 3 and first["g"] == 0.6
+    assert others[0]["albedo"] == [0.5] * 3 and others[0]["transform"][1][3] == 2.5
+    assert others[1]["grid"] is None and others[1]["density"] == 1.0
+    assert others[1]["g"] == -0.3 and others[1]["scale"] == [1.5] * 3
+    files = [first["grid"]["density"]["file"], others[0]["grid"]["density"]["file"]]
+    assert files[0] != files[1]
+    assert np.load(files[0]).shape == (20, 20, 20) and np.load(files[1]).shape == (12, 12, 12)
+    # One medium: no others, the job as before.
+    assert json.load(open(pc.write_job(CASES["grid"](), str(tmp_path), [4], [1])))[
+        "others"] == []
+
+
+@pytest.mark.parametrize("change,refused", [
+    ({}, False),                                                   # proportional albedos
+    ({"albedo": TWO_MEDIA[1]["albedo"]}, True),                    # not proportional
+    ({"albedo": TWO_MEDIA[1]["albedo"], "phase": TWO_MEDIA[0]["phase"]}, False),  # same phase
+    ({"albedo": TWO_MEDIA[1]["albedo"],
+      "transform": TWO_MEDIA[1]["transform"]}, False),             # apart
+], ids=["proportional", "unproportional", "same_phase", "apart"])
+def test_overlapping_media_mixing_phases_by_channel_are_refused(change, refused):
+    """Overlapping media with different phase functions and unproportional albedos: volmc
+    mixes the phase functions per channel by sigma_s, Cycles with one weight for all
+    channels, so the scene is refused before Cycles is needed; proportional albedos, equal
+    phase functions or boxes apart are translated. With max_depth 0 nothing scatters."""
+    from volmc.peers.cycles import check_translatable
+    scene = peer_media_scene(media=[TWO_MEDIA[0], dict(OVERLAPPING_BOX, **change)])
+    if refused:
+        with pytest.raises(PeerUnavailable, match=r"media\[0\] and media\[1\] overlap.*"
+                                                  r"not translatable"):
+            check_translatable(scene)
+        check_translatable(scene.with_render(max_depth=0))
+    else:
+        check_translatable(scene)
 
 
 def test_temperature_emission_is_refused():

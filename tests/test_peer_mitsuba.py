@@ -10,6 +10,10 @@ the channel each RGB extinction scale goes to).
 Colour-dependent extinction (``medium.scale`` an RGB triple): Mitsuba's translation is checked
 on its own against the closed form exp(-scale[c] * density * d) of an absorbing slab; the
 agreement with volmc ("chromatic") skips while volmc's scene format has no RGB scale.
+
+Several media (``[[media]]``) whose boxes do not overlap become one Mitsuba cube per medium
+("two_media", "two_media_chromatic"); overlapping ones are refused (volmc adds their
+coefficients, Mitsuba's volpath has one medium at a time).
 """
 
 import dataclasses
@@ -17,8 +21,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from peer_common import (assert_passes_match, assert_peer_cli_error_when_hidden, needs_peer,
-                         peer_scene, run_peer_cli, slab_scene)
+from peer_common import (TWO_MEDIA, assert_passes_match, assert_peer_cli_error_when_hidden,
+                         needs_peer, peer_media_scene, peer_scene, run_peer_cli, slab_scene)
 from volmc.peers import compare
 from volmc.peers.mitsuba import PeerUnavailable, find_libllvm, probe
 from volmc.scene import Scene, SceneError, scene_from_dict
@@ -83,6 +87,13 @@ CASES = {
     # A thin lens focused halfway to the cloud (circles of confusion of about three pixels
     # there): pins the lens radius and the focus plane.
     "thin_lens": peer_scene(camera={"aperture": 0.5, "focus_distance": 2.0}),
+    # Two media apart ([[media]]): a turned grid cloud on the left, a turned homogeneous box
+    # with backward HG on the right shadowing part of it; one Mitsuba cube per medium.
+    "two_media": peer_media_scene(),
+    # The same with colour-dependent extinction of one chroma (the media must share it):
+    # split into one grey Mitsuba scene per distinct (scale_0[c], scale_1[c]).
+    "two_media_chromatic": peer_media_scene(media=[
+        dict(TWO_MEDIA[0], scale=[12.0, 6.0, 3.0]), dict(TWO_MEDIA[1], scale=[2.0, 1.0, 0.5])]),
 }
 
 
@@ -108,6 +119,108 @@ def _compare(scene, mi_scene=None, spp=256, passes=16):
 def test_volmc_agrees_with_mitsuba(name):
     agr = _compare(_case(name))
     assert agr.passed, agr.summary("Mitsuba")
+
+
+@needs_mitsuba
+@pytest.mark.parametrize("wrong", ["albedo_swap", "second_unplaced"])
+def test_wrong_several_media_translation_is_detected(wrong, monkeypatch):
+    """Two media with each other's albedo, or the second box without its transform: the
+    images differ, so the two-media agreement above has power."""
+    import volmc.peers.mitsuba as pm
+    original = pm.scene_dict
+
+    def broken(sc, mi=None):
+        d = original(sc, mi)
+        (a, _), (b, box_b) = pm.medium_ids(0), pm.medium_ids(1)
+        if wrong == "albedo_swap":
+            alb = [d[a]["albedo"]["value"], d[b]["albedo"]]
+            d[a]["albedo"]["value"], d[b]["albedo"] = alb[1], alb[0]
+        else:
+            lo, hi = np.asarray(sc.spec.media[1].bounds, float)
+            T = pm._mi().ScalarTransform4f
+            d[box_b]["to_world"] = T().translate(((lo + hi) / 2).tolist()).scale(
+                ((hi - lo) / 2).tolist())
+        return d
+
+    monkeypatch.setattr(pm, "scene_dict", broken)
+    agr = _compare(CASES["two_media"])
+    assert not agr.passed, agr.summary("Mitsuba")
+
+
+#: [[media]] pairs for the overlap check: (first, second, overlapping). Slabs 0.2 thick turned
+#: 45 degrees about z, side by side along their normal: their world axis-aligned boxes
+#: overlap however far apart the slabs are, so only the exact test tells.
+SLAB = {"bounds": [[-1.0, -0.1, -1.0], [1.0, 0.1, 1.0]], "density": 1.0,
+        "transform": {"rotate": [0, 0, 1, 45.0]}}
+NORMAL = np.array([-1.0, 1.0, 0.0]) / np.sqrt(2.0)   # the turned slab's normal
+
+
+def _slab_at(offset):
+    return dict(SLAB, transform={"rotate": [0, 0, 1, 45.0],
+                                 "translate": (offset * NORMAL).tolist()})
+
+
+CUBE = {"bounds": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], "density": 1.0}
+OVERLAPS = {
+    "two_media": (TWO_MEDIA[0], TWO_MEDIA[1], False),
+    "slabs_apart": (SLAB, _slab_at(0.3), False),
+    "slabs_crossing": (SLAB, _slab_at(0.15), True),
+    "nested": (TWO_MEDIA[0], dict(TWO_MEDIA[1], bounds=[[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]],
+                                  transform={"translate": [-1.35, 0.1, 0.0]}), True),
+    "moved_into": (TWO_MEDIA[0], dict(TWO_MEDIA[1], transform={"translate": [-0.4, 0, 0]}),
+                   True),
+    # A cube turned 45 degrees about z whose corner pokes 0.1 into the other cube.
+    "corner": (CUBE, dict(CUBE, bounds=[[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]],
+                          transform={"rotate": [0, 0, 1, 45.0],
+                                     "translate": [0.9 + 0.5 * np.sqrt(2.0), 0, 0]}), True),
+    "corner_clear": (CUBE, dict(CUBE, bounds=[[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]],
+                                transform={"rotate": [0, 0, 1, 45.0],
+                                           "translate": [1.1 + 0.5 * np.sqrt(2.0), 0, 0]}),
+                     False),
+    # Faces in common: Mitsuba would see two coincident surfaces; refused as overlapping.
+    "touching": (CUBE, dict(CUBE, transform={"translate": [2.0, 0.0, 0.0]}), True),
+    # A mirrored box (negative determinant) apart from the other.
+    "mirrored_apart": (CUBE, dict(CUBE, transform={"scale": [-1.0, 1.0, 1.0],
+                                                   "translate": [0.0, 0.0, 2.5]}), False),
+}
+
+
+@pytest.mark.parametrize("name", sorted(OVERLAPS))
+def test_overlapping_media_are_refused(name):
+    """Media whose placed boxes overlap or touch are not translatable (volmc adds their
+    coefficients; a Mitsuba ray has one medium at a time), refused before Mitsuba is needed;
+    media apart are translated, however their world axis-aligned boxes lie."""
+    from volmc.peers.mitsuba import boxes_overlap, check_translatable
+    a, b, overlapping = OVERLAPS[name]
+    scene = peer_media_scene(media=[a, b])
+    assert boxes_overlap(*scene.spec.media) == boxes_overlap(*scene.spec.media[::-1]) \
+        == overlapping
+    if overlapping:
+        with pytest.raises(PeerUnavailable, match=r"media\[0\] and media\[1\] overlap.*not "
+                                                  r"translatable"):
+            check_translatable(scene)
+    else:
+        check_translatable(scene)
+
+
+def test_several_media_scene_dict_has_a_cube_per_medium():
+    """One Mitsuba medium and cube per volmc medium, each with its own coefficients; the
+    camera inside the second box gets it as the sensor's medium. No Mitsuba needed for
+    the dictionary's medium part, but the transforms are Mitsuba's: skipped without it."""
+    import volmc.peers.mitsuba as pm
+    try:
+        pm.probe()
+    except PeerUnavailable as e:
+        pytest.skip(f"peer absent: {e}")
+    inside = {"eye": [1.3, 0.0, 0.2], "target": [-1.3, 0.0, 0.0]}
+    d = pm.scene_dict(peer_media_scene(camera=inside))
+    (a, box_a), (b, box_b) = pm.medium_ids(0), pm.medium_ids(1)
+    assert d[a]["type"] == "heterogeneous" and d[a]["scale"] == 12.0
+    assert d[b]["type"] == "homogeneous" and d[b]["sigma_t"] == 1.5
+    assert d[b]["phase"] == {"type": "hg", "g": -0.3}
+    assert d[box_a]["interior"]["id"] == a and d[box_b]["interior"]["id"] == b
+    assert d["sensor"]["medium"]["id"] == b
+    assert "medium" not in pm.scene_dict(peer_media_scene())["sensor"]
 
 
 @needs_mitsuba

@@ -148,10 +148,10 @@ def _inside_box(nt, bounds):
     return inside
 
 
-def _material(bpy, med):
+def _material(bpy, med, name="volmc_medium"):
     """Volume Scatter + Volume Absorption (+ Emission) with volmc's coefficients
     (volmc/peers/cycles.py explains each)."""
-    mat = bpy.data.materials.new("volmc_medium")
+    mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     mat.cycles.volume_interpolation = "LINEAR"   # trilinear, as volmc
     nt = mat.node_tree
@@ -217,7 +217,8 @@ def _material(bpy, med):
     return mat
 
 
-def _medium(bpy, sc, med, folder):
+def _medium(bpy, sc, med, folder, name="volmc_medium"):
+    """The object of one medium, named ``name`` (its material and VDB file too)."""
     from mathutils import Matrix
     lo, hi = med["bounds"]
     place = Matrix(med["transform"]) if med.get("transform") else Matrix.Identity(4)
@@ -226,20 +227,21 @@ def _medium(bpy, sc, med, folder):
         obj = bpy.context.active_object
         box = Matrix.Diagonal([(hi[i] - lo[i]) / 2 for i in range(3)] + [1.0])
         box.translation = [(lo[i] + hi[i]) / 2 for i in range(3)]
+        obj.name = name
         obj.matrix_world = place @ box
-        obj.data.materials.append(_material(bpy, med))
+        obj.data.materials.append(_material(bpy, med, name))
         return
-    path = os.path.join(folder, "volmc_medium.vdb")
+    path = os.path.join(folder, f"{name}.vdb")
     _write_vdb(med["grid"], path)
-    vol = bpy.data.volumes.new("volmc_medium")
+    vol = bpy.data.volumes.new(name)
     vol.filepath = path
     vol.render.precision = "FULL"   # not half floats
     vol.render.clipping = 0.0       # no small value dropped as empty space
-    obj = bpy.data.objects.new("volmc_medium", vol)
+    obj = bpy.data.objects.new(name, vol)
     obj.matrix_world = place
     sc.collection.objects.link(obj)
     vol.grids.load()
-    vol.materials.append(_material(bpy, med))
+    vol.materials.append(_material(bpy, med, name))
 
 
 def _lights(bpy, sc, lights):
@@ -313,7 +315,9 @@ def build(job):
     sc.render.image_settings.color_depth = "32"
     sc.render.image_settings.color_mode = "RGB"
     _camera(bpy, sc, job["camera"])
-    _medium(bpy, sc, job["medium"], job["folder"])
+    # Several media: one object each; where they overlap Cycles adds their closures.
+    for i, med in enumerate([job["medium"]] + list(job.get("others", []))):
+        _medium(bpy, sc, med, job["folder"], "volmc_medium" if i == 0 else f"volmc_medium{i}")
     _lights(bpy, sc, job["lights"])
     return bpy, sc
 

@@ -18,6 +18,13 @@ or by the README's cross-check):
 - **Medium box.** A ``cube`` shape ([-1, 1]^3) scaled to ``medium.bounds`` with a ``null`` BSDF
   carries the medium as its interior. A camera inside the box gets the medium as its
   exterior medium (Mitsuba needs to be told; volmc finds it by geometry).
+- **Several media** (``[[media]]``): one cube per medium, each with its own interior medium
+  (``volmc_medium``/``box`` for the first, ``volmc_medium1``/``box1`` ... for the others),
+  as long as no two placed boxes overlap. volmc adds the coefficients of overlapping media;
+  Mitsuba's ``volpath`` keeps one current medium per ray (the interior of the last box
+  entered), so it cannot, and a scene whose boxes overlap or touch is refused
+  (PeerUnavailable), decided exactly by separating axes of the two placed boxes
+  (parallelepipeds). A lens must then be clear of every box's surface.
 - **Placement.** ``medium.transform`` (world = M x local, distances in world units on both
   sides) is the ``to_world`` of the grid and of the cube, before their own placement in the
   box; a mirroring M is taken off the cube (a symmetric shape) so its faces stay outward.
@@ -52,7 +59,8 @@ or by the README's cross-check):
   -1 (unbounded) stays -1.
 - **Colour.** Mitsuba's ``llvm_ad_rgb`` variant: RGB throughout, as in volmc.
 - **Not translated.** An emissive medium (``medium.emission``): Mitsuba 3's media do not
-  emit, so such a scene raises PeerUnavailable instead of being compared without it.
+  emit, so such a scene raises PeerUnavailable instead of being compared without it. So do
+  overlapping media (above).
 
 Mitsuba is optional (``pip install 'volmc[peers]'``). Its LLVM backend needs a libLLVM it
 can load; ``DRJIT_LIBLLVM_PATH`` names one, otherwise the newest ``libLLVM.so.1x`` in the
@@ -169,15 +177,57 @@ def _lens_straddles(cam, medium):
     return (gap if gap > 0.0 else depth) < radius
 
 
+def _box_corners(medium):
+    """(8 x 3 world corners, 3 x 3 world edge directions as rows) of the placed box."""
+    lo, hi = medium.bounds
+    c = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]]
+                  for i in (0, 1) for j in (0, 1) for k in (0, 1)], float)
+    if medium.transform is None:
+        return c, np.eye(3)
+    m = np.asarray(medium.transform, float)
+    return c @ m[:3, :3].T + m[:3, 3], m[:3, :3].T.copy()
+
+
+def boxes_overlap(a, b):
+    """Whether the placed boxes of media a and b overlap or touch (separating axes: the
+    affine images of two boxes are parallelepipeds, separated exactly when their corners'
+    projections on some face normal of either, or on the cross product of an edge of each,
+    are apart). A gap below 1e-9 of the projections' span counts as touching."""
+    ca, ea = _box_corners(a)
+    cb, eb = _box_corners(b)
+    ea = ea / np.linalg.norm(ea, axis=1, keepdims=True)
+    eb = eb / np.linalg.norm(eb, axis=1, keepdims=True)
+    axes = [np.cross(e[(i + 1) % 3], e[(i + 2) % 3]) for e in (ea, eb) for i in range(3)]
+    axes += [np.cross(x, y) for x in ea for y in eb]
+    for n in axes:
+        length = np.linalg.norm(n)
+        if length < 1e-9:   # parallel edges: the face normals cover this direction
+            continue
+        pa, pb = ca @ (n / length), cb @ (n / length)
+        tol = 1e-9 * (max(pa.max(), pb.max()) - min(pa.min(), pb.min()))
+        if pa.max() < pb.min() - tol or pb.max() < pa.min() - tol:
+            return False
+    return True
+
+
+def _key(scene, i, key):
+    """A medium's key as the scene file names it: ``medium.<key>``, or ``media[i].<key>``."""
+    return f"medium.{key}" if len(scene.spec.media) == 1 else f"media[{i}].{key}"
+
+
 def check_translatable(scene):
     """Raise PeerUnavailable when the scene has what Mitsuba 3 cannot render: an emissive
     medium (its media have no emission; neither ``volpath`` nor ``volpathmis`` adds any), a
-    panoramic camera (no equirectangular sensor), an orthographic thin lens, or a lens
-    reaching across the medium box's surface (the sensor has one medium for all its rays,
-    while volmc starts each ray in the medium its lens point is in)."""
-    if getattr(scene.spec.medium, "emission", None) is not None:
-        raise PeerUnavailable("Mitsuba 3 has no emissive media, so it cannot render "
-                              "medium.emission; compare without it")
+    panoramic camera (no equirectangular sensor), an orthographic thin lens, a lens reaching
+    across a medium box's surface (the sensor has one medium for all its rays, while volmc
+    starts each ray in the medium its lens point is in), or media whose placed boxes overlap
+    or touch (volmc adds overlapping media's coefficients; Mitsuba's ``volpath`` has one
+    medium at a time)."""
+    media = scene.spec.media
+    for i, med in enumerate(media):
+        if getattr(med, "emission", None) is not None:
+            raise PeerUnavailable(f"Mitsuba 3 has no emissive media, so it cannot render "
+                                  f"{_key(scene, i, 'emission')}; compare without it")
     cam = scene.spec.camera
     if cam.type == "panoramic":
         raise PeerUnavailable("Mitsuba 3 has no equirectangular sensor, so it cannot render "
@@ -185,22 +235,26 @@ def check_translatable(scene):
     if cam.type == "orthographic" and cam.aperture > 0.0:
         raise PeerUnavailable("Mitsuba 3's thin lens is perspective only, so it cannot render "
                               "an orthographic camera with camera.aperture > 0")
-    if cam.aperture > 0.0 and _lens_straddles(cam, scene.spec.medium):
-        raise PeerUnavailable("the lens reaches across the medium box's surface, and a "
-                              "Mitsuba 3 sensor has one medium for all its rays; move the "
-                              "camera or narrow camera.aperture")
+    for i, med in enumerate(media):
+        if cam.aperture > 0.0 and _lens_straddles(cam, med):
+            box = "medium box's" if len(media) == 1 else f"media[{i}] box's"
+            raise PeerUnavailable(f"the lens reaches across the {box} surface, and a "
+                                  "Mitsuba 3 sensor has one medium for all its rays; move the "
+                                  "camera or narrow camera.aperture")
+    for i in range(len(media)):
+        for j in range(i + 1, len(media)):
+            if boxes_overlap(media[i], media[j]):
+                raise PeerUnavailable(
+                    f"media[{i}] and media[{j}] overlap (or touch), so the scene is not "
+                    f"translatable: volmc adds the coefficients of overlapping media, while "
+                    f"Mitsuba 3's volpath has one medium at a time (the interior of the box "
+                    f"last entered); move their boxes apart")
 
 
-def scene_dict(scene, mi=None):
-    """The Mitsuba 3 scene dictionary of a volmc Scene (see the module docstring).
-
-    Raises PeerUnavailable for a scene Mitsuba cannot render (see check_translatable)."""
+def _medium_dict(mi, med, grid, grey):
+    """(Mitsuba medium dictionary, the cube's to_world) of one placed medium."""
     from ..scene.schema import ConstantDensity
-    check_translatable(scene)
-    mi = mi or _mi()
     T = mi.ScalarTransform4f
-    spec = scene.spec
-    cam, med, ren = spec.camera, spec.medium, spec.render
     (x0, y0, z0), (x1, y1, z1) = med.bounds
     ext = (x1 - x0, y1 - y0, z1 - z0)   # > 0 on every axis: scene validation ensures it
     # medium.transform places the box: Mitsuba's to_world of the grid and of the cube, both
@@ -214,7 +268,6 @@ def scene_dict(scene, mi=None):
     phase = ({"type": "hg", "g": float(med.phase.g)} if med.phase.type == "hg"
              else {"type": "isotropic"})
     scale = medium_scale(med)
-    grey = scale[0] == scale[1] == scale[2]
     if isinstance(med.density, ConstantDensity):
         sigma_t = [s * med.density.value for s in scale]
         medium = {"type": "homogeneous", "albedo": _rgb(med.albedo), "phase": phase,
@@ -223,7 +276,7 @@ def scene_dict(scene, mi=None):
                   "sigma_t": (float(sigma_t[0]) if grey else
                               {"type": "srgb", "color": sigma_t, "unbounded": True})}
     else:
-        grid = np.asarray(scene.grid, np.float32)
+        grid = np.asarray(grid, np.float32)
         if grey:
             data, mscale = grid[..., None], scale[0]
         else:
@@ -236,7 +289,30 @@ def scene_dict(scene, mi=None):
                               "to_world": place @ T().translate([x0, y0, z0])
                               .scale(list(ext))},
                   "albedo": {"type": "constvolume", "value": _rgb(med.albedo)}}
-    medium["id"] = "volmc_medium"
+    to_world = place @ T().translate([(x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2]) \
+        .scale([e / 2 for e in ext]) @ unmirror
+    return medium, to_world
+
+
+def medium_ids(i):
+    """(medium id, cube key) of medium i in the Mitsuba scene dictionary."""
+    return ("volmc_medium", "box") if i == 0 else (f"volmc_medium{i}", f"box{i}")
+
+
+def _grey(scene):
+    return all(len(set(medium_scale(p.spec.medium))) == 1 for p in scene.media_scenes)
+
+
+def scene_dict(scene, mi=None):
+    """The Mitsuba 3 scene dictionary of a volmc Scene (see the module docstring).
+
+    Raises PeerUnavailable for a scene Mitsuba cannot render (see check_translatable)."""
+    check_translatable(scene)
+    mi = mi or _mi()
+    T = mi.ScalarTransform4f
+    spec = scene.spec
+    cam, ren = spec.camera, spec.render
+    grey = _grey(scene)
 
     w, h = cam.resolution
     look = T().look_at(origin=list(cam.eye), target=list(cam.target), up=list(cam.up))
@@ -253,21 +329,24 @@ def scene_dict(scene, mi=None):
     sensor["film"] = {"type": "hdrfilm", "width": int(w), "height": int(h),
                       "rfilter": {"type": "box"}, "pixel_format": "rgb"}
     sensor["sampler"] = {"type": "independent", "sample_count": int(ren.spp)}
-    if _inside(cam.eye, med):
-        sensor["medium"] = {"type": "ref", "id": "volmc_medium"}
 
     depth = -1 if ren.max_depth < 0 else ren.max_depth + 1
     d = {"type": "scene",
          "integrator": {"type": "volpath" if grey else "volpathmis", "max_depth": int(depth),
                         "hide_emitters": bool(ren.transparent_background),
                         "rr_depth": int(ren.rr_depth + 1)},
-         "sensor": sensor,
-         "volmc_medium": medium,
-         "box": {"type": "cube", "bsdf": {"type": "null"},
-                 "interior": {"type": "ref", "id": "volmc_medium"},
-                 "to_world": place @ T().translate([(x0 + x1) / 2, (y0 + y1) / 2,
-                                                    (z0 + z1) / 2])
-                 .scale([e / 2 for e in ext]) @ unmirror}}
+         "sensor": sensor}
+    for i, part in enumerate(scene.media_scenes):
+        med = part.spec.medium
+        mid, box = medium_ids(i)
+        medium, to_world = _medium_dict(mi, med, part.grid, grey)
+        medium["id"] = mid
+        d[mid] = medium
+        d[box] = {"type": "cube", "bsdf": {"type": "null"},
+                  "interior": {"type": "ref", "id": mid}, "to_world": to_world}
+        # The boxes do not overlap (check_translatable): the eye is in at most one.
+        if _inside(cam.eye, med):
+            sensor["medium"] = {"type": "ref", "id": mid}
     for i, light in enumerate(spec.lights):
         if light.type == "environment":
             d[f"light{i}"] = {"type": "constant", "radiance": _rgb(light.radiance)}
@@ -281,9 +360,23 @@ def scene_dict(scene, mi=None):
     return d
 
 
+def with_media(scene, media):
+    """The scene with its media replaced by ``media`` (as many, in order), grids kept."""
+    from dataclasses import replace
+    from ..scene import Scene
+    parts = scene.media_scenes
+    if len(parts) == 1:
+        return Scene(replace(scene.spec, medium=media[0]), scene.grid, scene.emission_grid)
+    new = tuple(Scene(replace(p.spec, medium=m), p.grid, p.emission_grid)
+                for p, m in zip(parts, media))
+    return Scene(replace(scene.spec, medium=media[0], others=tuple(media[1:])), new[0].grid,
+                 new[0].emission_grid, parts=new)
+
+
 def split_scenes(scene):
-    """[(grey scene, channels)]: the scene once per distinct value of its RGB scale, with that
-    value on every channel, and the channels that take it.
+    """[(grey scene, channels)]: the scene once per distinct value of its RGB scale (of the
+    tuple of every medium's scale in that channel, for several media), with that value on
+    every channel, and the channels that take it.
 
     Light transport in channel c involves only channel c's extinction, albedo and light, so
     channel c of the grey scene of scale[c] is channel c of the chromatic scene. Mitsuba's
@@ -292,13 +385,13 @@ def split_scenes(scene):
     chromatic test scene of tests/test_peer_mitsuba.py its blue channel is about 10^4 times
     less efficient than a grey render, far too noisy for a per-pixel test."""
     from dataclasses import replace
-    from ..scene import Scene
-    scale = medium_scale(scene.spec.medium)
+    media = [p.spec.medium for p in scene.media_scenes]
+    scales = [medium_scale(m) for m in media]
+    keys = [tuple(s[c] for s in scales) for c in range(3)]
     out = []
-    for s in dict.fromkeys(scale):   # distinct values, in channel order
-        med = replace(scene.spec.medium, scale=(s, s, s))
-        out.append((Scene(replace(scene.spec, medium=med), scene.grid),
-                    tuple(c for c in range(3) if scale[c] == s)))
+    for key in dict.fromkeys(keys):   # distinct values, in channel order
+        grey = [replace(m, scale=(s, s, s)) for m, s in zip(media, key)]
+        out.append((with_media(scene, grey), tuple(c for c in range(3) if keys[c] == key)))
     return out
 
 
@@ -312,8 +405,7 @@ class MitsubaRenderer:
     def __init__(self, scene, split_channels=None):
         self.mi = _mi()
         self.scene = scene
-        scale = medium_scale(scene.spec.medium)
-        chromatic = len(set(scale)) > 1
+        chromatic = not _grey(scene)
         #: True: each channel comes from a grey Mitsuba scene of that channel's extinction
         #: (the default for a chromatic medium; see split_scenes).
         self.split = chromatic if split_channels is None else bool(split_channels) and chromatic
@@ -328,9 +420,12 @@ class MitsubaRenderer:
     @property
     def mode(self):
         """How the image is rendered, for reports."""
+        n = len(self.scene.spec.media)
+        boxes = "" if n == 1 else f", {n} media boxes"
         if self.split:
-            return f"volpath on {len(self.mi_scenes)} grey scenes, one per extinction scale"
-        return "volpath" if len(set(medium_scale(self.scene.spec.medium))) == 1 else "volpathmis"
+            return (f"volpath on {len(self.mi_scenes)} grey scenes, one per extinction "
+                    f"scale{boxes}")
+        return ("volpath" if _grey(self.scene) else "volpathmis") + boxes
 
     def warm_up(self):
         """Compile the megakernel once (Dr.Jit caches it), so timings exclude compilation."""
