@@ -202,14 +202,24 @@ static inline int media_emit(const MediumData *med) {
 }
 
 /* Index of the medium a real collision at p chose, by its share of the extinction there
- * (twin of medium_pick in medium.py): medium i with probability mu_i / sum mu. Lanes where
- * two or more media are present draw a uniform from rng; a lane where none is (a point
- * outside every box by rounding) takes medium 0. Counted lookups, one per medium present. */
+ * (twin of medium_pick in medium.py): medium i with probability mu_i / sum mu. Lanes whose
+ * point lies in one box take that medium without a lookup (in none, by rounding: medium 0);
+ * the others look up every medium there (counted) and, where two or more have extinction,
+ * draw a uniform from rng. */
 static inline lint medium_pick(const MediumData *med, lvec3 p, Rng *rng, lulong *counters,
                                lmask active) {
 #if MEDIA_COUNT == 1
     return (lint)(0);
 #else
+    /* A point in one box alone: that medium, without a lookup. */
+    lint boxes = (lint)(0), only = (lint)(0);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        lmask in = in_box(&med->m[i], to_medium(&med->m[i], p), active);
+        boxes = boxes + (in & 1);
+        only = select(only, (lint)(i), in);
+    }
+    active = active & (boxes >= 2);
+    if (!ANY(active)) return only;
     lfloat mu[MEDIA_COUNT];
     lfloat total = (lfloat)(0.0f);
     lint present = (lint)(0);
@@ -228,7 +238,8 @@ static inline lint medium_pick(const MediumData *med, lvec3 p, Rng *rng, lulong 
         last = select(last, (lint)(i), here);
         pick = select(pick, (lint)(i), (pick < 0) & here & (x < acc));
     }
-    return select(last, pick, pick >= 0); /* x = total by rounding: the last present */
+    /* x = total by rounding: the last present */
+    return select(only, select(last, pick, pick >= 0), active);
 #endif
 }
 
@@ -311,6 +322,8 @@ static inline void medium_iter_init(MediumIter *it, const MediumData *med, int i
     it->done = select(it->done, !(t1 > t0), active);
     it->t0 = select(it->t0, t0, active);
     it->t1 = select(it->t1, t1, active);
+    /* (several media: a medium no lane's ray crosses needs no walk) */
+    if (MEDIA_COUNT > 1 && !ANY(active & (t1 > t0))) return;
     if (FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID)
         dda_init(&it->dda, o, d, t0, t1, vec3(m->bmin), vec3(m->bmax),
                  (int3)(m->maj_res[0], m->maj_res[1], m->maj_res[2]), active);
@@ -405,11 +418,15 @@ static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segme
     lfloat t = it->t;
     lfloat start = (lfloat)(FLT_MAX);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
-        /* A medium whose segment the merge has passed takes its next one. */
-        lmask need = active & !(it->has[i] & (it->cur[i].t_max > t));
+        /* A medium whose segment the merge has passed takes its next one, unless its walk
+         * is over (done: no segment, or none left). */
+        lmask passed = active & !(it->has[i] & (it->cur[i].t_max > t));
+        it->has[i] = it->has[i] & !passed;
+        lmask need = passed & !it->one[i].done;
         if (ANY(need)) {
             Segment s;
             lmask got = medium_iter_next(&it->one[i], med, i, &s, need);
+            it->one[i].done = it->one[i].done | (need & !got);
             it->cur[i].t_min = select(it->cur[i].t_min, s.t_min, got);
             it->cur[i].t_max = select(it->cur[i].t_max, s.t_max, got);
             it->cur[i].sigma_maj = select(it->cur[i].sigma_maj, s.sigma_maj, got);

@@ -231,12 +231,22 @@ def media_emit(med):
 def medium_pick(med, p, rng, counters):
     """The medium a real collision at p chose: medium i with probability mu_i / sum(mu), its
     share of the extinction that decided the event (every medium's real collisions, summed,
-    are the scene's). A uniform is drawn only where two or more media are present (so one
-    medium, and media that do not overlap, draw nothing); a point outside every box (by
-    rounding) takes medium 0. One counted lookup per medium present."""
+    are the scene's). A point in one box alone takes that medium without a lookup (in none,
+    by rounding: medium 0); elsewhere every medium whose box holds p is looked up (counted),
+    and a uniform is drawn only where two or more have extinction, so one medium, and media
+    that do not overlap, draw nothing."""
     n = len(med)
     if n == 1:
         return ZERO
+    boxes = 0
+    only = ZERO
+    for i in range(n):
+        m = med[i].m
+        if in_box(m, to_medium(m, p)):
+            boxes += 1
+            only = i
+    if boxes < 2:   # one box holds p (none, by rounding: medium 0): no lookup
+        return only
     mu = np.empty(n)
     total = 0.0
     present = 0
@@ -359,9 +369,15 @@ def majorant_next(it, med):
     start = math.inf
     for i in range(n):
         b = i * w + ITER_STATE_SIZE
-        if not (it[b] != 0.0 and it[b + 2] > t):   # passed: the medium's next segment
-            ok, ta, tb, s_maj, s_min = medium_iter_next(it[i * w:b], med, i)
-            it[b] = 1.0 if ok else 0.0
+        # Passed: the medium's next segment, unless its walk is over (its done flag, it[0]
+        # of its state: no segment, or none left).
+        if not (it[b] != 0.0 and it[b + 2] > t):
+            it[b] = 0.0
+            if it[i * w] == 0.0:
+                ok, ta, tb, s_maj, s_min = medium_iter_next(it[i * w:b], med, i)
+                it[b] = 1.0 if ok else 0.0
+                if not ok:
+                    it[i * w] = 1.0
             if ok:
                 it[b + 1], it[b + 2], it[b + 3], it[b + 4] = ta, tb, s_maj, s_min
         if it[b] != 0.0:
