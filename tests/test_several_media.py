@@ -178,3 +178,27 @@ transform = { scale = [1, 0, 1] }
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and "media[1].transform" in lines[0], p.stderr
     assert "Traceback" not in p.stderr and not (tmp_path / "x.exr").exists()
+
+
+def test_several_media_checkpoint_and_resume(tmp_path):
+    """A scene of several media serialises back to itself (what checkpoints and EXR metadata
+    store), resumes a checkpoint to the uninterrupted render's sums bit for bit, and refuses
+    a checkpoint whose second medium differs."""
+    from volmc.resources import scenes_dir
+    from volmc.scene import load_scene
+    from volmc.scene.schema import validate
+    from volmc.scene.serialize import to_dict
+    path = scenes_dir() / "tests" / "media.toml"
+    scene = load_scene(path, ["camera.resolution=[6, 6]"])
+    spec = scene.spec
+    assert validate(to_dict(spec), spec.file) == spec
+    full = render(scene, backend="opencl", spp=8, progress=False, chunk_samples=1)
+    ck = tmp_path / "ck.npz"
+    render(scene, backend="opencl", spp=3, progress=False, checkpoint=str(ck), chunk_samples=1)
+    res = render(scene, backend="opencl", spp=8, progress=False, resume=str(ck),
+                 chunk_samples=1)
+    np.testing.assert_array_equal(res.film.sum, full.film.sum)
+    other = load_scene(path, ["camera.resolution=[6, 6]", "media.1.albedo=0.6"])
+    with pytest.raises(SceneError):
+        render(other, backend="opencl", spp=8, progress=False, resume=str(ck),
+               chunk_samples=1)
