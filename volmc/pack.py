@@ -220,7 +220,8 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
         medium[0]["octree_depth"] = depth
         emis, table = pack_emission(part, medium, real)
         parts.append(MediumArrays(medium, grid, maj, mnr, emis, table, bricks, pool, nodes))
-    media = np.concatenate([a.medium for a in parts])
+    # One medium: its record array itself, so that editing pk.medium edits what renders.
+    media = parts[0].medium if len(parts) == 1 else np.concatenate([a.medium for a in parts])
     first = parts[0]
     return Packed(params, larr, media, first.grid, first.maj, first.mnr, first.emis,
                   first.table, first.bricks, first.pool, first.nodes, tuple(parts))

@@ -42,6 +42,7 @@ class NumbaBackend(RenderBackend):
     def _launch(self, pix_start, n_pix, sample_start, n_samples, film_sum, film_sq, counters,
                 rec):
         pk = self.packed
+        self.media = media_data(pk)   # the records as they are now (tests edit them)
         # Pixel ranges on threads (render_batch releases the GIL), each writing its own film
         # pixels and counter rows.
         k = max(1, min(numba.get_num_threads(), n_pix))

@@ -148,6 +148,8 @@ class OpenCLBackend(RenderBackend):
             items = -(-n_jobs // jobs)
             launch = np.zeros(1, launch_dtype())
             launch[0] = (pix_start, n_pix, sample_start, n_samples, jobs, self.record)
+            # The records as they are now (a few hundred bytes per medium; tests edit them).
+            self.media_buf = self.clc.to_device(self.medium)
             self.clc.run(self.kernel, items, self.local_size, self.params[0], self.media_buf,
                          launch[0], self.lights_buf, self.grid_buf, self.maj_buf, self.mnr_buf,
                          self.emis_buf, self.table_buf, self.bricks_buf, self.pool_buf,
