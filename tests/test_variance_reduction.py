@@ -202,13 +202,14 @@ def test_equiangular_modes():
     from volmc.pack import pack_scene as pack
     from volmc.reference.integrator import (EQUIANGULAR_ALONE, EQUIANGULAR_MIS,
                                             EQUIANGULAR_OFF, equiangular_mode)
+    from volmc.reference.medium import media_data
     for path, keys, want in ((HOMOGENEOUS, [], EQUIANGULAR_MIS),
                              (HOMOGENEOUS, ["medium.scale=[1.0, 2.0, 3.0]"], EQUIANGULAR_ALONE),
                              (GRID, [], EQUIANGULAR_ALONE)):
         pk = pack(load_scene(path, keys + ["render.equiangular=true"]))
-        assert equiangular_mode(pk.params[0], pk.medium[0]) == want
+        assert equiangular_mode(pk.params[0], media_data(pk)) == want
     pk = pack(load_scene(GRID, []))
-    assert equiangular_mode(pk.params[0], pk.medium[0]) == EQUIANGULAR_OFF
+    assert equiangular_mode(pk.params[0], media_data(pk)) == EQUIANGULAR_OFF
     assert math.isfinite(equiangular_pdf(0.5, 0.5, 1e-30, 0.0, 1.0))
 
 
