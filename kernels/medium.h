@@ -124,16 +124,6 @@ static inline lmask in_box(const Medium *m, lvec3 q, lmask active) {
            (q.y <= m->bmax[1]) & (q.z >= m->bmin[2]) & (q.z <= m->bmax[2]);
 }
 
-/* Density of medium i at p (scene frame), before its scale; 0 outside its box when there
- * are several media (one medium is only ever asked inside its box). */
-static inline lfloat medium_density(const MediumData *med, int i, lvec3 p, lmask active) {
-    lvec3 q = to_medium(&med->m[i], p);
-    if (MEDIA_COUNT == 1) return density_at(med, i, q, active);
-    lmask in = in_box(&med->m[i], q, active);
-    if (!ANY(in)) return (lfloat)(0.0f);
-    return select((lfloat)(0.0f), density_at(med, i, q, in), in);
-}
-
 /* Extinction of medium i alone at p (its largest channel), in the lanes of `active`, with
  * a counted lookup in those whose point lies in its box (0 elsewhere). */
 static inline lfloat medium_extinction(const MediumData *med, int i, lvec3 p, lulong *counters,
@@ -154,7 +144,8 @@ static inline __attribute__((always_inline)) lfloat extinction(const MediumData 
                                                                lfloat sigma_maj,
                                                                lulong *counters, lmask active) {
 #if MEDIA_COUNT == 1
-    lfloat mu = med->m[0].scale * medium_density(med, 0, p, active);
+    /* one medium is only ever asked inside its box: no box test */
+    lfloat mu = med->m[0].scale * density_at(med, 0, to_medium(&med->m[0], p), active);
     counters[C_LOOKUPS] += lane_ones(active);
 #else
     lfloat mu = (lfloat)(0.0f);

@@ -90,7 +90,6 @@ class OpenCLBackend(RenderBackend):
                           if band_rows is None else max(1, min(int(band_rows), h)))
         clc = self.clc
         self.lights_buf = clc.to_device(pk.lights)
-        self.media_buf = clc.to_device(media)
         self.grid_buf = clc.to_device(grid)
         self.maj_buf = clc.to_device(maj)
         self.mnr_buf = clc.to_device(mnr)

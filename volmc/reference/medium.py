@@ -150,18 +150,6 @@ def in_box(m, q):
             and m.bmin[2] <= q[2] <= m.bmax[2])
 
 
-@njit(cache=True, inline="always")
-def medium_density(med, i, p):
-    """Density of medium i at point p (a 3-tuple) of the scene frame, before the scale:
-    "what is here". With several media it is 0 outside the medium's box (one medium is only
-    ever asked inside it)."""
-    md = med[i]
-    q = to_medium(md.m, p)
-    if len(med) > 1 and not in_box(md.m, q):
-        return 0.0
-    return density_at(med, i, q)
-
-
 @njit(cache=True)
 def medium_extinction(med, i, p, counters):
     """Extinction of medium i alone at p (its largest channel): a counted lookup if p lies
