@@ -25,6 +25,7 @@
 #include "free_flight.h"
 #include "estimators.h"
 #include "camera.h"
+#include "environment.h"
 
 static inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 
@@ -444,10 +445,34 @@ static inline lfloat coverage(lvec3 T) { return 1.0f - (T.x + T.y + T.z) / 3.0f;
 #define WALK_TECHNIQUES TRACK_BIT(TRACK_FREE_FLIGHT)
 #endif
 
+/* The environment's radiance from scene direction w: its map's (FEATURE_ENV_MAP) or the
+ * constant prm->env (twin in integrator.py). */
+static inline lvec3 env_light(const Params *prm, global const float *env, lvec3 w) {
+    if (FEATURE_ENV_MAP && prm->env_map) return env_radiance(prm, env, w);
+    return v3u(vec3(prm->env));
+}
+
+/* A direction for the environment's shadow rays, from the map's density or uniform over
+ * the sphere (render.env_sampling); writes its pdf per steradian. */
+static inline lvec3 sample_env_light(const Params *prm, global const float *env, lfloat u1,
+                                     lfloat u2, lfloat *pdf, lmask active) {
+    if (FEATURE_ENV_MAP && prm->env_map && prm->env_sampling == ENV_SAMPLING_IMPORTANCE)
+        return sample_environment(prm, env, u1, u2, pdf, active);
+    return sample_uniform_sphere(u1, u2, pdf);
+}
+
+/* Density per steradian of sample_env_light at scene direction w. */
+static inline lfloat env_light_pdf(const Params *prm, global const float *env, lvec3 w) {
+    if (FEATURE_ENV_MAP && prm->env_map && prm->env_sampling == ENV_SAMPLING_IMPORTANCE)
+        return environment_pdf(prm, env, w);
+    return (lfloat)(uniform_sphere_pdf());
+}
+
 /* A new path in the lanes of `fresh`, for sample s of pixel pix: its camera ray, and the
  * channel of a colour path (trace_path's first steps). A scene that cannot scatter takes
  * its transmittance at once and is done. */
-static inline STAGE void path_start(const Params *prm, MediumData *med, Path *path, ulong seed,
+static inline STAGE void path_start(const Params *prm, global const float *env,
+                                    MediumData *med, Path *path, ulong seed,
                               luint job, luint pix, luint s, Rng *rng, Rng *rng_s,
                               lulong *counters, lmask fresh) {
     const Medium *m = &med->m[0];
@@ -480,7 +505,11 @@ static inline STAGE void path_start(const Params *prm, MediumData *med, Path *pa
         spec T = shadow_transmittance(prm, med, o, d, (lfloat)(NO_LIMIT), 1, rng_s, counters,
                                       fresh);
         if (prm->has_env && !prm->transparent)
-            path->L = sel3(path->L, rgb_times(vec3(prm->env), T), fresh);
+            path->L = sel3(path->L,
+                           FEATURE_ENV_MAP && prm->env_map ? mul3(env_light(prm, env, d),
+                                                                  spec_rgb(T))
+                                                           : rgb_times(vec3(prm->env), T),
+                           fresh);
         path->alpha = select(path->alpha, coverage(spec_rgb(T)), fresh);
         path->state = select(path->state, (lint)(PATH_DONE), fresh);
         return;
@@ -563,7 +592,8 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
 /* The lanes of m have ended their free flight: its weight and emission, then escape,
  * scattering or the end of the path (trace_path after free_flight). Scattering leads to
  * next-event estimation. */
-static inline STAGE void flight_end(const Params *prm, const MediumData *med, Path *path,
+static inline STAGE void flight_end(const Params *prm, global const float *env,
+                                    const MediumData *med, Path *path,
                               const Walk *wk, Rng *rng, lulong *counters, lmask m) {
     lmask walked = m & (path->t1 > path->t0);
     lint event = wk->event;
@@ -589,11 +619,11 @@ static inline STAGE void flight_end(const Params *prm, const MediumData *med, Pa
     lmask first = m & (path->depth == 0);
     path->alpha = select(path->alpha, select((lfloat)(1.0f), coverage(beta_w), escaped), first);
     if (prm->has_env && ANY(escaped)) {
-        const float n_env = (float)prm->light_samples * uniform_sphere_pdf();
+        lfloat n_env = (float)prm->light_samples * env_light_pdf(prm, env, path->d);
         lfloat w = select((lfloat)(prm->transparent ? 0.0f : 1.0f),
-                          mis_weight(prm->mis, path->pdf_phase, (lfloat)(n_env)),
-                          path->depth > 0);
-        path->L = sel3(path->L, add3(path->L, mul3(beta_w, scale3(v3u(vec3(prm->env)), w))),
+                          mis_weight(prm->mis, path->pdf_phase, n_env), path->depth > 0);
+        path->L = sel3(path->L, add3(path->L, mul3(beta_w, scale3(env_light(prm, env, path->d),
+                                                                  w))),
                        escaped);
     }
     /* Scattering: the path goes on, unless its depth or throughput ends it. */
@@ -628,7 +658,8 @@ static inline void shadow_add(Path *path, spec T, lmask m) {
  * its walk; a lane whose rays are all done goes on to roulette. A ray that meets no medium
  * has T = 1 at once; with a per-segment shadow estimator the transmittance is estimated here
  * and the lane chooses again. */
-static inline STAGE void nee_next(const Params *prm, global const Light *lights, const MediumData *med,
+static inline STAGE void nee_next(const Params *prm, global const Light *lights,
+                                  global const float *env, const MediumData *med,
                             Path *path, Walk *wk, Rng *rng, Rng *rng_s, lulong *counters,
                             lmask m) {
     const Medium *md = &med->m[0];
@@ -660,17 +691,19 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
             dist = select(dist, di, take);
             ray = ray | take;
         }
-        lmask env = choosing & !ray & (path->light == prm->n_lights);
-        if (prm->has_env && ANY(env)) {
-            lmask take = env & (path->sample < n);
+        lmask sky = choosing & !ray & (path->light == prm->n_lights);
+        if (prm->has_env && ANY(sky)) {
+            lmask take = sky & (path->sample < n);
             lvec2 u = path_u2(prm, path->pix, path->s, bounce_pair(path->depth - 1, SAMPLER_LIGHT),
                               as_luint(path->sample), (uint)n, rng, take);
             lfloat pdf_l;
-            lvec3 w = sample_uniform_sphere(u.x, u.y, &pdf_l);
+            lvec3 w = sample_env_light(prm, env, u.x, u.y, &pdf_l, take);
             lfloat f = medium_phase_eval(med, path->medium, dot3(path->d, w));
             lfloat mw = mis_weight(prm->mis, (float)n * pdf_l, f) * inv_n;
-            path->contrib = sel3(path->contrib, mul3(path->beta_w, scale3(v3u(vec3(prm->env)),
-                                                                          f * mw / pdf_l)),
+            /* (pdf 0: a pole of the map, a set of measure zero; the ray carries nothing) */
+            lfloat g = select((lfloat)(0.0f), f * mw / pdf_l, pdf_l > 0.0f);
+            path->contrib = sel3(path->contrib, mul3(path->beta_w,
+                                                     scale3(env_light(prm, env, w), g)),
                                  take);
             wl = sel3(wl, w, take);
             dist = select(dist, (lfloat)(NO_LIMIT), take);
@@ -679,7 +712,7 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
         /* Lanes past the last light: next-event estimation is over. */
         lmask over = choosing & !ray &
                      ((path->light >= prm->n_lights + (prm->has_env ? 1 : 0)) |
-                      (env & (path->sample >= n)));
+                      (sky & (path->sample >= n)));
         path->state = select(path->state, (lint)(PATH_BOUNCE), over);
         choosing = choosing & !over;
         if (!ANY(ray)) continue;
@@ -758,7 +791,8 @@ static inline STAGE void path_write(const Params *prm, const Path *path, global 
  * gives the same values. A NaN, infinite or negative sample is written as 0 and counted as
  * dropped, exactly as in the reference. Counters: one row per work-item. */
 kernel void render_batch(const Params prm, global const Medium *media, const Launch launch,
-                         global const Light *lights, global const float *grid,
+                         global const Light *lights, global const float *env,
+                         global const float *grid,
                          global const float *maj, global const float *mnr,
                          global const float *emis, global const float *table,
                          global const int *bricks, global const float *pool,
@@ -797,11 +831,11 @@ kernel void render_batch(const Params prm, global const Medium *media, const Lau
         while (true) {
             lmask waiting = !wk.live;
             lmask m = waiting & (path.state == PATH_FLIGHT);
-            if (ANY(m)) flight_end(&prm, &med, &path, &wk, &rng, cnt, m);
+            if (ANY(m)) flight_end(&prm, env, &med, &path, &wk, &rng, cnt, m);
             m = waiting & (path.state == PATH_SHADOW);
             if (ANY(m)) shadow_end(&path, &wk, &rng, &rng_s, m);
             m = path.state == PATH_NEE;
-            if (ANY(m)) nee_next(&prm, lights, &med, &path, &wk, &rng, &rng_s, cnt, m);
+            if (ANY(m)) nee_next(&prm, lights, env, &med, &path, &wk, &rng, &rng_s, cnt, m);
             m = path.state == PATH_BOUNCE;
             if (ANY(m)) path_bounce(&prm, &med, &path, &rng, m);
             m = path.state == PATH_DONE;
@@ -821,7 +855,8 @@ kernel void render_batch(const Params prm, global const Medium *media, const Lau
                     fresh = fresh | (LANE_IOTA == l);
                 }
                 luint j = job.v;
-                path_start(&prm, &med, &path, seed, j, launch.pix_start + j / launch.n_samples,
+                path_start(&prm, env, &med, &path, seed, j,
+                           launch.pix_start + j / launch.n_samples,
                            launch.sample_start + j % launch.n_samples, &rng, &rng_s, cnt,
                            fresh);
             }

@@ -17,6 +17,7 @@
 #include "octree.h"
 #include "sampler.h"
 #include "camera.h"
+#include "environment.h"
 
 kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out, int n) {
     lmask on;
@@ -131,6 +132,25 @@ kernel void t_camera_ray(const Params prm, global const float *in, global float 
                          load_float(in, i, 6, 5), &d);
     store_float3(out, i, 6, 0, o, on);
     store_float3(out, i, 6, 3, d, on);
+}
+
+/* sample_environment of uniforms (u1, u2) = in[2 i ...] to out[8 i ...]: the direction, its
+ * pdf, environment_pdf and the radiance there (env_radiance, RGB), and invert_environment of
+ * the direction to inv[2 i ...]. */
+kernel void t_environment(const Params prm, global const float *env, global const float *in,
+                          global float *out, global float *inv, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lfloat pdf;
+    lvec3 w = sample_environment(&prm, env, load_float(in, i, 2, 0), load_float(in, i, 2, 1),
+                                 &pdf, on);
+    store_float3(out, i, 8, 0, w, on);
+    store_float(out, i, 8, 3, pdf, on);
+    store_float(out, i, 8, 4, environment_pdf(&prm, env, w), on);
+    store_float3(out, i, 8, 5, env_radiance(&prm, env, w), on);
+    lvec2 u = invert_environment(&prm, env, w);
+    store_float(inv, i, 2, 0, u.x, on);
+    store_float(inv, i, 2, 1, u.y, on);
 }
 
 kernel void t_hg_sample(global const float *u, global const float *g, float3 d_in,

@@ -17,6 +17,7 @@ coefficients, Mitsuba's volpath has one medium at a time).
 """
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -54,6 +55,20 @@ def _chromatic():
                                    "irradiance": [3.0, 2.8, 2.5]}])
     except SceneError as e:
         return e
+
+
+def _sky_map():
+    """A 32 x 16 sky (blue overhead, a bright ground band) with a 2 x 2-texel sun, written
+    once per session to a temporary EXR."""
+    import tempfile
+    from volmc.film import write_exr
+    v = (np.arange(16) + 0.5) / 16
+    sky = np.repeat((0.3 + 0.7 * np.cos(np.pi * v) ** 2)[:, None], 32, axis=1)
+    sky = np.stack([0.4 * sky, 0.6 * sky, sky], axis=-1).astype(np.float32)
+    sky[5:7, 20:22] = (60.0, 55.0, 45.0)
+    path = Path(tempfile.mkdtemp(prefix="volmc_peer_sky")) / "sky.exr"
+    write_exr(path, sky)
+    return path
 
 
 CASES = {
@@ -94,6 +109,11 @@ CASES = {
     # split into one grey Mitsuba scene per distinct (scale_0[c], scale_1[c]).
     "two_media_chromatic": peer_media_scene(media=[
         dict(TWO_MEDIA[0], scale=[12.0, 6.0, 3.0]), dict(TWO_MEDIA[1], scale=[2.0, 1.0, 0.5])]),
+    # An environment map (a sky with a sun, turned about a tilted axis), seen directly and
+    # lighting the cloud: pins the map's convention, its rotation and its units.
+    "envmap": peer_scene(lights=[{"type": "environment", "file": str(_sky_map()),
+                                  "radiance": [1.0, 0.9, 0.8], "strength": 0.7,
+                                  "rotation": [[0.2, 1.0, 0.0, 50.0]]}]),
 }
 
 

@@ -38,8 +38,10 @@ C_ONLY = {"vec3", "vec3g", "dda_cell_index", "lerp_ab",
 
 
 #: Twins whose arguments differ, and why: C passes a grid's shape beside its pointer; Numba
-#: passes the three channels that C packs in a vector.
-ARGUMENTS_DIFFER = {"grid_lookup", "sample_ok"}
+#: passes the three channels that C packs in a vector; C reads an environment map's shape
+#: from the parameters and finds a row's CDF by its start and length in one flat buffer,
+#: where Numba indexes the map's 2-D arrays.
+ARGUMENTS_DIFFER = {"grid_lookup", "sample_ok", "env_texel", "cdf_find"}
 
 
 def _kernel_signatures():

@@ -182,6 +182,14 @@ MIS_BALANCE = 0
 #: ... or the power heuristic with exponent 2 (Veach 1997).
 MIS_POWER = 1
 
+# --- Environment maps (volmc/reference/environment.py) ----------------------------------------
+
+#: How next-event estimation draws environment directions (render.env_sampling): from the
+#: map's own density ...
+ENV_SAMPLING_IMPORTANCE = 0
+#: ... or uniformly over the sphere (to measure what importance sampling gains).
+ENV_SAMPLING_UNIFORM = 1
+
 # --- Where a path's samples come from (render.sampler; integrator.py "Samplers") -------------
 
 #: Sample pairs of a path: pair 0 jitters the pixel position, pair 1's x picks the hero

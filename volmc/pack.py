@@ -8,6 +8,7 @@ import numpy as np
 
 from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PANORAMIC, CAMERA_PERSPECTIVE,
                         DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_GRID, EMISSION_NONE,
+                        ENV_SAMPLING_IMPORTANCE, ENV_SAMPLING_UNIFORM,
                         EMISSION_RADIANCE, EMISSION_TEMPERATURE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                         MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
                         MIS_BALANCE, MIS_POWER, PHASE_HG, PHASE_ISOTROPIC, RR_ALBEDO,
@@ -17,6 +18,8 @@ from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
 from .scene.schema import FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight, chroma
 from .scene.transform import box_frame, placement
+from .scene.envmap import read_env_map
+from .reference.environment import environment_distribution, no_env
 
 #: The smallest normal float32 (kernels may flush denormals to zero).
 FLOAT32_MIN_NORMAL = 2.0 ** -126
@@ -127,7 +130,7 @@ def medium_space(lo, hi, m, centre, unit):
 #: octree's first-child indices (placeholders when unused; with an octree, maj and mnr are its
 #: per-node bounds).
 Packed = namedtuple("Packed", ["params", "lights", "medium", "grid", "maj", "mnr", "emis",
-                               "table", "bricks", "pool", "nodes", "parts"])
+                               "table", "bricks", "pool", "nodes", "parts", "env"])
 #: One medium's record [1] and arrays, as Packed holds them; Packed.parts has one per medium
 #: (Packed.medium is all the records [n], and its arrays are the first medium's).
 MediumArrays = namedtuple("MediumArrays", ["medium", "grid", "maj", "mnr", "emis", "table",
@@ -169,10 +172,23 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
         p["lens_slope"] = min(cam.aperture / cam.focus_distance, LENS_SLOPE_MAX)
     env = [0.0, 0.0, 0.0]
     lights = []
-    for lt in scene.lights:
+    envmap = no_env(real)
+    p["env_rot"] = np.eye(3).ravel()
+    p["env_res"] = (1, 1)
+    p["env_sampling"] = (ENV_SAMPLING_UNIFORM if rnd.env_sampling == "uniform"
+                         else ENV_SAMPLING_IMPORTANCE)
+    for i, lt in enumerate(scene.lights):
         if isinstance(lt, EnvironmentLight):
             p["has_env"] = 1
-            env = [env[i] + lt.radiance[i] for i in range(3)]
+            env = [env[k] + lt.radiance[k] for k in range(3)]
+            if lt.file is not None:   # the scene's one environment (schema.py)
+                texels = read_env_map(lt.resolved, scene.file, f"lights[{i}].file")
+                envmap = environment_distribution(texels, rnd.env_compensation, real)
+                p["env_map"] = 1
+                p["env_res"] = (texels.shape[1], texels.shape[0])
+                env = [x * lt.strength for x in lt.radiance]
+                if lt.rotation is not None:   # scene to map: the rotation's transpose
+                    p["env_rot"] = np.asarray(lt.rotation, np.float64).T.ravel()
         elif isinstance(lt, DirectionalLight):
             lights.append((LIGHT_DIRECTIONAL, lt.direction, lt.irradiance))
         elif isinstance(lt, PointLight):
@@ -224,7 +240,16 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     media = parts[0].medium if len(parts) == 1 else np.concatenate([a.medium for a in parts])
     first = parts[0]
     return Packed(params, larr, media, first.grid, first.maj, first.mnr, first.emis,
-                  first.table, first.bricks, first.pool, first.nodes, tuple(parts))
+                  first.table, first.bricks, first.pool, first.nodes, tuple(parts), envmap)
+
+
+def env_buffer(pk):
+    """The environment map as the kernels take it (kernels/environment.h): texels, pdf,
+    marginal and conditional, flattened one after the other."""
+    e = pk.env
+    return np.ascontiguousarray(np.concatenate([np.ravel(e.texels), np.ravel(e.pdf),
+                                                np.ravel(e.marginal),
+                                                np.ravel(e.conditional)]))
 
 
 def shared_buffers(pk):

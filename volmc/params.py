@@ -40,7 +40,13 @@ PARAM_FIELDS = (
     ("rr", "i4", 1, "RR_THROUGHPUT or RR_ALBEDO: the Russian-roulette survival rule"),
     ("transparent", "i4", 1, "1: camera rays do not see the environment (it still lights)"),
     ("has_env", "i4", 1, "1 if an environment light is present"),
-    ("env", "real", 3, "environment radiance (sum of all environment lights)"),
+    ("env", "real", 3, "environment radiance (sum of all environment lights); with a map, "
+                       "the factor of its texels (radiance x strength)"),
+    ("env_map", "i4", 1, "1: the environment is a map (kernels/environment.h; env buffer)"),
+    ("env_res", "i4", 2, "the map's texels (W, H)"),
+    ("env_rot", "real", 9, "scene direction to the map's frame, 3x3 row-major"),
+    ("env_sampling", "i4", 1, "ENV_SAMPLING_IMPORTANCE or ENV_SAMPLING_UNIFORM: how "
+                              "next-event estimation draws environment directions"),
     ("n_lights", "i4", 1, "number of directional and point lights in the light array"),
     ("max_depth", "i4", 1, "scattering events per path; -1 = unbounded"),
     ("rr_depth", "i4", 1, "Russian roulette applies from this many scattering events on"),

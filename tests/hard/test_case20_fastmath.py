@@ -123,7 +123,7 @@ def test_case20_numba_guard_survives_fastmath():
         cnt = np.zeros((w * h, be.counters.shape[1]), np.int64)
         for pix in range(w * h):
             pk = be.packed
-            fm_pixel(pk.params, pk.lights, be.media, be.rec[0], pix, 0, spp, s, q, cnt[pix])
+            fm_pixel(pk.params, pk.lights, pk.env, be.media, be.rec[0], pix, 0, spp, s, q, cnt[pix])
         return s[..., :3] / spp, q[..., :3], cnt.sum(axis=0)
 
     from volmc.params import C_DROPPED

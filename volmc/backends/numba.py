@@ -50,7 +50,7 @@ class NumbaBackend(RenderBackend):
 
         def part(j):
             a, b = cuts[j], cuts[j + 1]
-            render_batch(pk.params, pk.lights, self.media, rec, pix_start + a, b - a,
+            render_batch(pk.params, pk.lights, pk.env, self.media, rec, pix_start + a, b - a,
                          sample_start, n_samples, film_sum, film_sq, counters[a:b])
         if k == 1:
             part(0)

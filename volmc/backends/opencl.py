@@ -4,7 +4,7 @@ batches on one device (volmc/cl/ has the host plumbing)."""
 import numpy as np
 
 from ..cl.context import cl_context
-from ..pack import pack_scene, shared_buffers
+from ..pack import env_buffer, pack_scene, shared_buffers
 from ..cl.lanes import resolve_lanes
 from ..film import CHANNELS
 from ..params import N_COUNTERS, launch_dtype, launch_spp
@@ -90,6 +90,7 @@ class OpenCLBackend(RenderBackend):
                           if band_rows is None else max(1, min(int(band_rows), h)))
         clc = self.clc
         self.lights_buf = clc.to_device(pk.lights)
+        self.env_buf = clc.to_device(env_buffer(pk).astype(np.float32))
         self.grid_buf = clc.to_device(grid)
         self.maj_buf = clc.to_device(maj)
         self.mnr_buf = clc.to_device(mnr)
@@ -150,7 +151,8 @@ class OpenCLBackend(RenderBackend):
             # The records as they are now (a few hundred bytes per medium; tests edit them).
             self.media_buf = self.clc.to_device(self.medium)
             self.clc.run(self.kernel, items, self.local_size, self.params[0], self.media_buf,
-                         launch[0], self.lights_buf, self.grid_buf, self.maj_buf, self.mnr_buf,
+                         launch[0], self.lights_buf, self.env_buf, self.grid_buf, self.maj_buf,
+                         self.mnr_buf,
                          self.emis_buf, self.table_buf, self.bricks_buf, self.pool_buf,
                          self.nodes_buf, self.rec_buf, self.out_buf, self.cnt_buf,
                          outs=[(self.out_host, self.out_buf), (self.cnt_host, self.cnt_buf)])

@@ -50,7 +50,10 @@ or by the README's cross-check):
   (``volpath`` before Mitsuba 3.7 chose null against real collisions by the hero channel
   alone, biased wherever that channel's extinction reaches the majorant: mitsuba3 issue
   #1387, fixed by #1628. ``volpathmis`` and the grey scenes are unaffected.)
-- **Lights.** ``environment`` becomes ``constant`` (radiance), ``directional`` stays
+- **Lights.** ``environment`` becomes ``constant`` (radiance), or with a map ``envmap``
+  (the same file's radiance, resampled at Mitsuba's texel centres on a finer grid, since
+  Mitsuba interpolates bilinearly: ENVMAP_WIDTH; the rotation as to_world);
+  ``directional`` stays
   ``directional`` (irradiance, direction of travel), ``point`` becomes ``point`` (intensity).
   The units agree: an empty scene shows the environment radiance in both.
 - **Phase.** Both use Henyey-Greenstein with g > 0 scattering forward.
@@ -348,7 +351,9 @@ def scene_dict(scene, mi=None):
         if _inside(cam.eye, med):
             sensor["medium"] = {"type": "ref", "id": mid}
     for i, light in enumerate(spec.lights):
-        if light.type == "environment":
+        if light.type == "environment" and light.file is not None:
+            d[f"light{i}"] = _envmap_dict(mi, spec, i, light)
+        elif light.type == "environment":
             d[f"light{i}"] = {"type": "constant", "radiance": _rgb(light.radiance)}
         elif light.type == "directional":
             d[f"light{i}"] = {"type": "directional", "direction": [float(x) for x in
@@ -358,6 +363,37 @@ def scene_dict(scene, mi=None):
             d[f"light{i}"] = {"type": "point", "position": [float(x) for x in light.position],
                               "intensity": _rgb(light.intensity)}
     return d
+
+
+#: Mitsuba's copy of an environment map is about ENVMAP_WIDTH texels wide (a whole multiple k
+#: of the map's width, at least 1), with k times its rows. Mitsuba's envmap interpolates
+#: bilinearly between texel centres placed at u = (i + 1/2) / W and v = j / (H - 1) (its
+#: first and last rows sit on the poles); volmc's map is piecewise constant over texels
+#: [i / W, (i + 1) / W] x [j / H, (j + 1) / H]. The copy holds volmc's radiance at Mitsuba's
+#: texel centres, so the two differ only in bands of 1 / k of a texel along volmc's texel
+#: edges, where Mitsuba blends (and, across rows, not quite symmetrically about the edge).
+ENVMAP_WIDTH = 1024
+
+
+def _envmap_dict(mi, spec, i, light):
+    """Mitsuba's ``envmap`` of an environment map light: the same convention (volmc uses
+    Mitsuba's), the texels times radiance x strength as its bitmap, and the rotation as its
+    to_world."""
+    import numpy as np
+    from ..scene.envmap import read_env_map
+    px = read_env_map(light.resolved, spec.file, f"lights[{i}].file")
+    px = px * (np.asarray(light.radiance, np.float32) * np.float32(light.strength))
+    h, w = px.shape[:2]
+    k = max(1, ENVMAP_WIDTH // w)
+    hk, wk = h * k, w * k
+    rows = np.minimum((np.arange(hk) / (hk - 1) * h).astype(int), h - 1)
+    cols = np.minimum(((np.arange(wk) + 0.5) / wk * w).astype(int), w - 1)
+    px = np.ascontiguousarray(px[rows][:, cols], np.float32)
+    m = np.eye(4)
+    if light.rotation is not None:
+        m[:3, :3] = np.asarray(light.rotation, float)
+    return {"type": "envmap", "bitmap": mi.Bitmap(px),
+            "to_world": mi.ScalarTransform4f(m.tolist())}
 
 
 def with_media(scene, media):

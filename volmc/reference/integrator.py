@@ -54,7 +54,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..constants import (DENSITY_CONSTANT, EVENT_CAPPED,
+from ..constants import (DENSITY_CONSTANT, ENV_SAMPLING_IMPORTANCE, EVENT_CAPPED,
                          EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, RECORD_CAMERA,
                          RECORD_SHADOW, RR_ALBEDO,
                          RR_MAX_SURVIVAL, SAMPLER_BOUNCES, SAMPLER_EQUIANGULAR,
@@ -65,6 +65,7 @@ from ..constants import (DENSITY_CONSTANT, EVENT_CAPPED,
                          UNIFORM_SCALE)
 from ..params import C_DROPPED, C_SCATTER, C_SHADOW, N_COUNTERS
 from .camera import camera_ray
+from .environment import env_radiance, environment_pdf, sample_environment
 from .estimators import transmittance
 from .free_flight import free_flight
 from .guards import sample_ok
@@ -344,7 +345,34 @@ def light_ray(prm, m, ea, kind, c, o, d, t0, t1, t):
 
 
 @njit(cache=True)
-def sample_direct(prm, lights, med, k, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s, counters):
+def env_light(prm, env, w):
+    """The environment's radiance from scene direction w: its map's (environment.py) or the
+    constant prm.env."""
+    if prm.env_map != 0:
+        return env_radiance(prm, env, w)
+    return (prm.env[0], prm.env[1], prm.env[2])
+
+
+@njit(cache=True)
+def sample_env_light(prm, env, u1, u2):
+    """A direction for the environment's shadow rays: from the map's density (render.
+    env_sampling = "importance") or uniform over the sphere. Returns (w, pdf per sr)."""
+    if prm.env_map != 0 and prm.env_sampling == ENV_SAMPLING_IMPORTANCE:
+        return sample_environment(prm, env, u1, u2)
+    return sample_uniform_sphere(u1, u2)
+
+
+@njit(cache=True)
+def env_light_pdf(prm, env, w):
+    """Density per steradian of ``sample_env_light`` at scene direction w."""
+    if prm.env_map != 0 and prm.env_sampling == ENV_SAMPLING_IMPORTANCE:
+        return environment_pdf(prm, env, w)
+    return uniform_sphere_pdf()
+
+
+@njit(cache=True)
+def sample_direct(prm, lights, env, med, k, ea, o, d, t0, t1, t, pix, s, b, rng, rng_s,
+                  counters):
     """Direct light scattered at p = o + t d towards -d, per unit throughput (RGB). The
     vertex was reached by free flight along segment [t0, t1] of the ray o + t d (unit d: the
     direction the path arrived in); ``ea`` is equiangular_mode; (pix, s, b): pixel, sample and
@@ -375,11 +403,13 @@ def sample_direct(prm, lights, med, k, ea, o, d, t0, t1, t, pix, s, b, rng, rng_
         pair = bounce_pair(b, SAMPLER_LIGHT)
         for j in range(n):
             ua, ub = path_u2(prm, pix, s, pair, j, n, rng)
-            wl, pdf_l = sample_uniform_sphere(ua, ub)
+            wl, pdf_l = sample_env_light(prm, env, ua, ub)
             f = medium_phase_eval(med, k, dot(d, wl))
             tr = shadow_transmittance(prm, med, p, wl, math.inf, 0, rng_s, counters)
             w = mis_weight(prm.mis, n * pdf_l, f) * inv_n
-            L = add3(L, mul3((prm.env[0], prm.env[1], prm.env[2]), scale3(tr, f * w / pdf_l)))
+            # (pdf 0: a pole of the map, a set of measure zero; the ray carries nothing)
+            g = f * w / pdf_l if pdf_l > 0.0 else 0.0
+            L = add3(L, mul3(env_light(prm, env, wl), scale3(tr, g)))
     return L
 
 
@@ -457,7 +487,7 @@ def coverage(T):
 
 
 @njit(cache=True)
-def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
+def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
     """(r, g, b, a): the radiance carried by sample s of pixel (px, py), and its coverage
     a = coverage(T), T the camera ray's transmittance to the background as this path
     estimates it: the weight of its first flight's escape (0 when it scatters or is capped,
@@ -467,7 +497,6 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
     top = 0.0   # the largest albedo of any medium
     for i in range(len(med)):
         top = max(top, max3(medium_albedo(med, i)))
-    env = (prm.env[0], prm.env[1], prm.env[2])
     L = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
     pix = py * prm.width + px
@@ -482,7 +511,7 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
         # a homogeneous medium, lower variance than a 0/1 free-flight outcome for grids).
         T = shadow_transmittance(prm, med, o, d, math.inf, 1, rng_s, counters)
         if prm.has_env != 0 and prm.transparent == 0:
-            L = mul3(env, T)
+            L = mul3(env_light(prm, env, d), T)
         return L[0], L[1], L[2], coverage(T)
     hero = -1
     R = (1.0, 1.0, 1.0)   # hero MIS: each channel's decision probability over the hero's
@@ -498,7 +527,6 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
     pdf_phase = 0.0  # pdf of the direction d when it came from phase sampling
     ea = equiangular_mode(prm, med)
     k = ZERO   # the medium the path scattered in last
-    n_env = prm.light_samples * uniform_sphere_pdf()   # light sampling's n p for MIS
     alpha = 0.0
     while True:
         o, t0, t1, _ = enter_media(med, o, d)
@@ -537,9 +565,11 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
             break
         if event == EVENT_ESCAPE:
             if prm.has_env != 0:
+                # light sampling's n p for MIS
+                n_env = prm.light_samples * env_light_pdf(prm, env, d)
                 w = mis_weight(prm.mis, pdf_phase, n_env) if depth > 0 else \
                     (0.0 if prm.transparent != 0 else 1.0)
-                L = add3(L, mul3(beta_w, scale3(env, w)))
+                L = add3(L, mul3(beta_w, scale3(env_light(prm, env, d), w)))
             break
         depth += 1
         if prm.max_depth >= 0 and depth > prm.max_depth:
@@ -551,8 +581,8 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
         beta_w = mul3(beta_w, albedo)
         if max3(beta_w) <= 0.0:
             break
-        L = add3(L, mul3(beta_w, sample_direct(prm, lights, med, k, ea, o, d, t0, t1, t, pix,
-                                               s, depth - 1, rng, rng_s, counters)))
+        L = add3(L, mul3(beta_w, sample_direct(prm, lights, env, med, k, ea, o, d, t0, t1, t,
+                                               pix, s, depth - 1, rng, rng_s, counters)))
         p = madd3(o, d, t)
         if depth >= prm.rr_depth:
             q = survival_probability(prm, beta_w, albedo)
@@ -566,8 +596,8 @@ def trace_path(prm, lights, med, px, py, s, rng, rng_s, counters):
 
 
 @njit(cache=True)
-def render_pixel(params, lights, media, rec, pix, sample_start, n_samples, film_sum, film_sq,
-                 cnt):
+def render_pixel(params, lights, env, media, rec, pix, sample_start, n_samples, film_sum,
+                 film_sq, cnt):
     """Add samples [sample_start, sample_start + n_samples) of pixel ``pix`` to the film;
     ``rec``: the pixel's segment record [K + 1, 9] or the [1, 9] placeholder (the first
     medium's record becomes it); ``cnt``: the pixel's counters [N_COUNTERS], accumulated in
@@ -592,7 +622,7 @@ def render_pixel(params, lights, media, rec, pix, sample_start, n_samples, film_
     for s in range(sample_start, sample_start + n_samples):
         rng_init(rng, seed, pix, s, STREAM_PATH)
         rng_init(rng_s, seed, pix, s, STREAM_SHADOW)
-        r, g, b, a = trace_path(prm, lights, med, px, py, s, rng, rng_s, cnt)
+        r, g, b, a = trace_path(prm, lights, env, med, px, py, s, rng, rng_s, cnt)
         if not sample_ok(r, g, b, prm.signed_samples):
             # The sample counts as 0 in every channel (guard "sample filter", guards.py).
             cnt[C_DROPPED] += 1
@@ -616,13 +646,14 @@ def render_pixel(params, lights, media, rec, pix, sample_start, n_samples, film_
 
 
 @njit(cache=True, nogil=True)
-def render_batch(params, lights, media, rec, pix_start, n_pix, sample_start, n_samples, film_sum,
-                 film_sq, counters):
+def render_batch(params, lights, env, media, rec, pix_start, n_pix, sample_start, n_samples,
+                 film_sum, film_sq, counters):
     """Add samples [sample_start, sample_start + n_samples) of pixels [pix_start, pix_start +
     n_pix) (row-major pixel indices; a band of rows, or every pixel) to the film.
 
     params: one-element array of ``params_dtype(float64)``; lights: array of
-    ``light_dtype(float64)``; media: a tuple of ``MediumData``, one per medium (``media_data``
+    ``light_dtype(float64)``; env: the environment map's ``EnvMap`` (environment.py;
+    ``no_env()`` without one); media: a tuple of ``MediumData``, one per medium (``media_data``
     in medium.py; their ``rec`` is a placeholder), whose record is a ``medium_dtype(float64)``
     record and whose arrays are: grid:
     float64 [nz, ny, nx] density (a 1x1x1 placeholder unless the density is a grid); maj,
@@ -645,8 +676,8 @@ def render_batch(params, lights, media, rec, pix_start, n_pix, sample_start, n_s
     for i in range(n_pix):
         pix = pix_start + i
         rp = rec[pix] if rec.shape[1] > 1 else rec[0]
-        render_pixel(params, lights, media, rp, pix, sample_start, n_samples, film_sum, film_sq,
-                     counters[i])
+        render_pixel(params, lights, env, media, rp, pix, sample_start, n_samples, film_sum,
+                     film_sq, counters[i])
 
 
 def new_counters(width, height):

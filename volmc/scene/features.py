@@ -31,6 +31,8 @@ FEATURES = {
                 "collision",
     "TRANSFORM": "a medium placed by a transform that turns, mirrors or shears it "
                  "(medium.transform): points and rays enter its space",
+    "ENV_MAP": "an environment map (lights.environment.file): radiance looked up and "
+               "directions sampled per texel",
 }
 
 
@@ -66,6 +68,8 @@ def features(scene) -> frozenset:
             out.add("EMISSION")
         if m.bounds is not None and placement(m)[2] is not None:
             out.add("TRANSFORM")
+    if any(getattr(lt, "file", None) is not None for lt in scene.spec.lights):
+        out.add("ENV_MAP")
     return frozenset(out)
 
 

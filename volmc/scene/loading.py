@@ -318,9 +318,25 @@ def load_emission(spec: SceneSpec, vdb_density=None, cache=None, p="medium."):
     return validate_grid(_dense(vg, where, key) if raw is None else raw, where, key)
 
 
+def check_env_map(spec: SceneSpec):
+    """Read the environment map, if any (scene/envmap.py caches it for pack.py), and check
+    that its radiance stays in float32."""
+    from .envmap import read_env_map
+    from .schema import EnvironmentLight
+    for i, lt in enumerate(spec.lights):
+        if isinstance(lt, EnvironmentLight) and lt.file is not None:
+            px = read_env_map(lt.resolved, spec.file, f"lights[{i}].file")
+            top = float(px.max()) * max(lt.radiance) * lt.strength
+            if top > FLOAT32_MAX:
+                raise SceneError(spec.file, f"lights[{i}].strength",
+                                 f"the map's brightest texel x radiance x strength = {top:g} "
+                                 "overflows float32")
+
+
 def _complete(spec: SceneSpec):
     """Load every grid; a VDB density without bounds gives the box. Several media load one
     by one (a Scene part each; generated grids are shared through one cache)."""
+    check_env_map(spec)
     cache = {}
     if not spec.others:
         return _complete_one(spec, cache)

@@ -129,9 +129,15 @@ class Medium:
 
 @dataclass(frozen=True)
 class EnvironmentLight:
-    """Constant radiance arriving from every direction."""
+    """Radiance arriving from every direction: constant, or a lat-long map (``file``, read
+    by scene/envmap.py; conventions in reference/environment.py) times ``radiance`` x
+    ``strength``, turned by ``rotation`` (3x3, world = rotation x map; None: unturned)."""
     radiance: RGB
     type: str = "environment"
+    file: Optional[str] = None        # as written in the scene
+    resolved: Optional[str] = None    # absolute path
+    strength: float = 1.0
+    rotation: Optional[tuple] = None
 
 
 @dataclass(frozen=True)
@@ -173,6 +179,8 @@ class Render:
     equiangular: bool = False
     rr: str = "throughput"
     transparent_background: bool = False
+    env_sampling: str = "importance"
+    env_compensation: bool = False
 
 
 @dataclass(frozen=True)
@@ -206,7 +214,9 @@ EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
                "majorant_resolution", "free_flight", "spectral", "grid_storage", "mis",
-               "sampler", "light_samples", "equiangular", "rr", "transparent_background")
+               "sampler", "light_samples", "equiangular", "rr", "transparent_background",
+               "env_sampling", "env_compensation")
+ENV_SAMPLINGS = ("importance", "uniform")
 MIS_HEURISTICS = ("balance", "power")
 SAMPLERS = ("independent", "stratified", "sobol")
 RR_RULES = ("throughput", "albedo")
@@ -220,7 +230,7 @@ FREE_FLIGHTS = ("delta", "decomposition")
 #: (volmc/techniques.py) except those exact only on homogeneous segments.
 TRANSMITTANCE_ESTIMATORS = grid_estimators()
 LIGHT_KEYS = {
-    "environment": ("type", "radiance"),
+    "environment": ("type", "radiance", "file", "strength", "rotation"),
     "directional": ("type", "direction", "irradiance"),
     "point": ("type", "position", "intensity"),
 }
@@ -493,13 +503,13 @@ def check_box(fail, lo, hi, key="medium.bounds"):
                       "1 / extent overflows float32")
 
 
-def _light(c, raw, i):
+def _light(c, raw, i, file_dir):
     p = f"lights[{i}]."
     c.table(raw, p[:-1])
     ltype = c.choice(c.required(raw, "type", p), p + "type", LIGHT_TYPES)
     c.known(raw, LIGHT_KEYS[ltype], p)
     if ltype == "environment":
-        return EnvironmentLight(c.rgb(c.required(raw, "radiance", p), p + "radiance"))
+        return _environment(c, raw, p, file_dir)
     if ltype == "directional":
         direction = c.vec3(c.required(raw, "direction", p), p + "direction", nonzero=True)
         # Scale by a power of two first (exact) so that the squares neither underflow nor
@@ -515,6 +525,38 @@ def _light(c, raw, i):
                                 c.rgb(c.required(raw, "irradiance", p), p + "irradiance"))
     return PointLight(c.vec3(c.required(raw, "position", p), p + "position"),
                       c.rgb(c.required(raw, "intensity", p), p + "intensity"))
+
+
+def _environment(c, raw, p, file_dir):
+    """An environment light: constant ``radiance``, or a map ``file`` (radiance, default 1,
+    multiplies it) with ``strength`` and ``rotation`` (degrees about +y, or rotations
+    written as a medium's ``rotate``)."""
+    import os
+    import numpy as np
+    from .transform import _rotations, compose
+    if "file" not in raw:
+        for k in ("strength", "rotation"):
+            if k in raw:
+                c.fail(p + k, "applies to an environment map; give 'file'")
+        return EnvironmentLight(c.rgb(c.required(raw, "radiance", p), p + "radiance"))
+    path = raw["file"]
+    if not isinstance(path, str) or not path:
+        c.fail(p + "file", f"expected a path to an image file, got {_show(path)}")
+    resolved = path if os.path.isabs(path) else os.path.join(file_dir, path)
+    radiance = c.rgb(raw.get("radiance", 1.0), p + "radiance")
+    strength = c.number(raw.get("strength", 1.0), p + "strength", 0.0)
+    rot = raw.get("rotation", 0.0)
+    if isinstance(rot, list):
+        rots = _rotations(c, rot, p + "rotation")
+    else:
+        rots = [((0.0, 1.0, 0.0), c.number(rot, p + "rotation"))]
+    m = compose(rotations=rots)[:3, :3]
+    if not np.all(np.isfinite(m)):
+        c.fail(p + "rotation", "the rotation is not finite")
+    rotation = None if np.array_equal(m, np.eye(3)) else \
+        tuple(tuple(float(x) for x in row) for row in m)
+    return EnvironmentLight(radiance, file=path, resolved=resolved, strength=strength,
+                            rotation=rotation)
 
 
 def _render(c, raw):
@@ -547,6 +589,10 @@ def _render(c, raw):
         transparent_background=c.boolean(raw.get("transparent_background",
                                                  d.transparent_background),
                                          p + "transparent_background"),
+        env_sampling=c.choice(raw.get("env_sampling", d.env_sampling), p + "env_sampling",
+                              ENV_SAMPLINGS),
+        env_compensation=c.boolean(raw.get("env_compensation", d.env_compensation),
+                                   p + "env_compensation"),
     )
 
 
@@ -569,7 +615,14 @@ def validate(raw: dict, file: str, file_dir: Optional[str] = None) -> SceneSpec:
     lights_raw = raw.get("lights", [])
     if not isinstance(lights_raw, list):
         c.fail("lights", f"expected an array of tables ([[lights]]), got {_show(lights_raw)}")
-    lights = tuple(_light(c, lt, i) for i, lt in enumerate(lights_raw))
+    lights = tuple(_light(c, lt, i, file_dir) for i, lt in enumerate(lights_raw))
+    envs = [i for i, lt in enumerate(lights) if isinstance(lt, EnvironmentLight)]
+    maps = [i for i in envs if lights[i].file is not None]
+    if maps and len(envs) > 1:
+        other = next(i for i in envs if i != maps[0])
+        c.fail(f"lights[{other}]", f"lights[{maps[0]}] is an environment map; a scene has "
+                                   "one environment when it has a map (fold a constant sky "
+                                   "into the map's radiance)")
     env = [0.0, 0.0, 0.0]   # environment lights are summed into one float32 radiance
     for i, lt in enumerate(lights):
         if isinstance(lt, EnvironmentLight):

@@ -4,6 +4,7 @@
 and renders store the fully resolved scene in their EXR metadata for reproducibility.
 """
 
+from .transform import axis_angle
 from .schema import (ArrayDensity, ConstantDensity, DirectionalLight, EnvironmentLight,
                      FileDensity, GeneratedDensity, PointLight, SceneSpec)
 
@@ -16,7 +17,12 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
     lights = []
     for lt in spec.lights:
         if isinstance(lt, EnvironmentLight):
-            lights.append({"type": "environment", "radiance": list(lt.radiance)})
+            env = {"type": "environment", "radiance": list(lt.radiance)}
+            if lt.file is not None:
+                env.update(file=lt.resolved, strength=lt.strength)
+                if lt.rotation is not None:
+                    env["rotation"] = axis_angle(lt.rotation)
+            lights.append(env)
         elif isinstance(lt, DirectionalLight):
             lights.append({"type": "directional", "direction": list(lt.direction),
                            "irradiance": list(lt.irradiance)})
@@ -40,7 +46,8 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
                    "grid_storage": r.grid_storage, "mis": r.mis,
                    "sampler": r.sampler, "light_samples": r.light_samples,
                    "equiangular": r.equiangular, "rr": r.rr,
-                   "transparent_background": r.transparent_background},
+                   "transparent_background": r.transparent_background,
+                   "env_sampling": r.env_sampling, "env_compensation": r.env_compensation},
     }
 
 

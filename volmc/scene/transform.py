@@ -34,6 +34,22 @@ def rotation(axis, degrees):
     return c * np.eye(3) + s * k + (1.0 - c) * np.outer(a, a)
 
 
+def axis_angle(r):
+    """[ax, ay, az, degrees] of the 3x3 rotation r (a scene's ``rotate`` value that gives it
+    back to rounding)."""
+    r = np.asarray(r, float)
+    c = min(max((np.trace(r) - 1.0) * 0.5, -1.0), 1.0)
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    if np.linalg.norm(v) > 1e-6:
+        axis = v / np.linalg.norm(v)
+    elif c > 0.0:
+        return [0.0, 1.0, 0.0, 0.0]
+    else:   # a half turn: r = 2 a a^T - I
+        k = int(np.argmax(np.diag(r)))
+        axis = (r[:, k] + np.eye(3)[k]) / np.linalg.norm(r[:, k] + np.eye(3)[k])
+    return [float(x) for x in axis] + [math.degrees(math.acos(c))]
+
+
 def compose(scale=(1.0, 1.0, 1.0), rotations=(), translate=(0.0, 0.0, 0.0)):
     """The 4x4 matrix translate @ rotate_n @ ... @ rotate_1 @ scale."""
     lin = np.diag(np.asarray(scale, float))

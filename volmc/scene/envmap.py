@@ -1,0 +1,93 @@
+"""Reading environment maps (lights.environment.file): lat-long RGB images, float.
+
+EXR goes through OpenEXR (a dependency; every compression it reads, DWAB included). Other
+formats (Radiance .hdr, ...) go through OpenImageIO, the optional extra ``volmc[images]``;
+without it they get a one-line error naming the extra. Every texel must be finite and
+non-negative; the error counts the bad ones. A luminance channel alone (Y) is taken as grey.
+Maps are cached by path, size and modification time: every backend of a render packs the
+same map.
+"""
+
+import os
+
+import numpy as np
+
+from .errors import SceneError
+
+#: Files this large are refused before they are read (a lat-long map of 32768 x 16384 RGB
+#: float32 texels is 6 GiB).
+MAX_TEXELS = 1 << 29
+
+_cache = {}
+
+
+def read_env_map(path, scene_file, key):
+    """The map at ``path`` as float32 [H, W, 3]; SceneError(scene_file or path, key) if it
+    cannot be read or has bad texels."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise SceneError(scene_file, key, f"cannot read {path}: {e.strerror}") from None
+    tag = (str(path), st.st_size, st.st_mtime_ns)
+    if tag not in _cache:
+        _cache.clear()   # one map at a time: a scene has at most one
+        _cache[tag] = _validated(_read(path, key), path, key)
+    return _cache[tag]
+
+
+def _read(path, key):
+    if str(path).lower().endswith(".exr"):
+        return _read_exr(path, key)
+    try:
+        import OpenImageIO as oiio
+    except ImportError:
+        raise SceneError(path, key, "reading this format needs OpenImageIO: pip install "
+                                    "'volmc[images]' (or give an OpenEXR .exr map)") from None
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise SceneError(path, key, f"not an image OpenImageIO reads: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        if spec.width * spec.height > MAX_TEXELS:
+            raise SceneError(path, key, f"{spec.width} x {spec.height} texels; at most "
+                                        f"{MAX_TEXELS} are read")
+        px = inp.read_image(0, 0, 0, min(spec.nchannels, 3), "float")
+    finally:
+        inp.close()
+    if px is None:
+        raise SceneError(path, key, f"cannot read the pixels: {oiio.geterror()}")
+    px = np.asarray(px, np.float32).reshape(spec.height, spec.width, -1)
+    return px if px.shape[2] == 3 else np.repeat(px[..., :1], 3, axis=2)
+
+
+def _read_exr(path, key):
+    import OpenEXR
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            ch = f.channels()
+            names = "RGB" if all(c in ch for c in "RGB") else "YYY" if "Y" in ch else None
+            if names is None:
+                raise SceneError(path, key, f"no R, G, B (or Y) channels; the file has "
+                                            f"{', '.join(sorted(ch)) or 'none'}")
+            planes = [np.asarray(ch[c].pixels, np.float32) for c in names]
+    except SceneError:
+        raise
+    except Exception as e:   # OpenEXR raises bare exceptions on damaged files
+        raise SceneError(path, key, f"not a readable OpenEXR file: "
+                                    f"{(str(e).splitlines() or [type(e).__name__])[0]}") from None
+    if planes[0].ndim != 2 or planes[0].size > MAX_TEXELS:
+        raise SceneError(path, key, f"expected a 2-D image of at most {MAX_TEXELS} texels, "
+                                    f"got shape {planes[0].shape}")
+    return np.stack(planes, axis=-1)
+
+
+def _validated(px, path, key):
+    if px.shape[0] < 1 or px.shape[1] < 1:
+        raise SceneError(path, key, "the map has no texels")
+    bad = ~np.isfinite(px) | (px < 0.0)
+    if bad.any():
+        n = int(bad.any(axis=2).sum())
+        raise SceneError(path, key, f"{n} of {px.shape[0] * px.shape[1]} texels are negative, "
+                                    "NaN or infinite; an environment's radiance must be "
+                                    "finite and >= 0")
+    return np.ascontiguousarray(px, np.float32)
