@@ -19,11 +19,10 @@ configuration of its family (below 1 is faster).
 """
 
 import argparse
-import json
-import time
 
 import numpy as np
 
+from . import report_main
 from ..resources import default_scene
 from ..scene.loading import read_toml, scene_from_dict
 
@@ -134,13 +133,7 @@ def main(argv=None):
     p.add_argument("--lanes", type=int, default=None)
     p.add_argument("--json", default=None, help="write the report here")
     a = p.parse_args(argv)
-    t = time.perf_counter()
-    report = run(tuple(a.resolution), a.spp, a.rounds, lanes=a.lanes)
-    print_report(report)
-    print(f"\n{time.perf_counter() - t:.0f} s")
-    if a.json:
-        with open(a.json, "w") as f:
-            json.dump(report, f, indent=1)
+    report_main(lambda: run(tuple(a.resolution), a.spp, a.rounds, lanes=a.lanes), print_report, a.json)
 
 
 if __name__ == "__main__":
