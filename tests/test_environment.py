@@ -306,3 +306,28 @@ def test_hdr_map_through_openimageio(tmp_path, monkeypatch):
     (tmp_path / "other.hdr").write_bytes(path.read_bytes())
     with pytest.raises(SceneError, match=r"volmc\[images\]"):
         read_env_map(str(tmp_path / "other.hdr"), "s.toml", "lights[0].file")
+
+
+def test_memory_estimate_counts_the_map(tmp_path):
+    """The memory check counts the map (its texels, sampling density and OpenCL buffer),
+    named by its key, in proportion to its texels."""
+    from volmc.memory import estimate
+    sizes = {}
+    for h, w in ((8, 16), (32, 64)):
+        sc = _scene(_write(tmp_path, f"m{h}", np.ones((h, w, 3), np.float32)))
+        for backend in ("opencl", "numba"):
+            comps = [c for c in estimate(sc, backend, rows=1).components
+                     if c.key == "lights[0].file"]
+            assert len(comps) == 1
+            sizes[h, backend] = comps[0].host + comps[0].device
+            if backend == "opencl":
+                assert comps[0].buffer == h * w * 20   # texels, pdf, conditional CDF
+    assert sizes[32, "opencl"] == 16 * sizes[8, "opencl"]
+    assert sizes[32, "numba"] == 16 * sizes[8, "numba"]
+
+
+def test_cycles_peer_refuses_a_map(tmp_path):
+    from volmc.peers.cycles import check_translatable
+    from volmc.peers.errors import PeerUnavailable
+    with pytest.raises(PeerUnavailable, match=r"lights\[0\] is an environment map"):
+        check_translatable(_scene(_write(tmp_path, "c", _maps()["constant 3x2"])))

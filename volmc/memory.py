@@ -202,6 +202,25 @@ def _emission_components(scene, backend):
                       device=e.size * 4 if cl else 0, buffer=e.size * 4 if cl else 0)]
 
 
+def _env_components(scene, backend):
+    """The environment map, if any: the texels read (float32, RGB), the sampling density
+    built in float64 (pdf and conditional CDF, one value per texel each) and kept in the
+    backend's reals with the texels, and for OpenCL the flat buffer of all of it."""
+    from .scene.envmap import read_env_map
+    from .scene.schema import EnvironmentLight
+    for i, lt in enumerate(scene.lights):
+        if isinstance(lt, EnvironmentLight) and lt.file is not None:
+            key = f"lights[{i}].file"
+            n = read_env_map(lt.resolved, scene.file, key).shape[:2]
+            n = n[0] * n[1]
+            real = 8 if backend == "numba" else 4
+            cl = backend != "numba"
+            return [Component(key, "the environment map and its sampling density",
+                              host=n * 12 + n * 5 * 8 + n * 5 * real + (n * 20 if cl else 0),
+                              device=n * 20 if cl else 0, buffer=n * 20 if cl else 0)]
+    return []
+
+
 def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
              device_is_host=True, film=True, scene_data=True):
     """The ``Estimate`` of a render of ``scene`` with ``backend`` ("opencl" or "numba") in
@@ -227,6 +246,7 @@ def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
                     own.append(Component(f"media[{i}].density", "its share of the media's "
                                          "shared buffers", host=sum(c.device for c in own)))
             comps += own
+        comps += _env_components(scene, backend)
     host, device, buffer = launch_bytes_per_pixel(backend, w, h)
     px = rows * w
     comps.append(Component("camera.resolution",
