@@ -8,7 +8,10 @@ Maps are cached by path, size and modification time: every backend of a render p
 same map.
 """
 
+import contextlib
 import os
+import sys
+import tempfile
 
 import numpy as np
 
@@ -60,21 +63,47 @@ def _read(path, key):
     return px if px.shape[2] == 3 else np.repeat(px[..., :1], 3, axis=2)
 
 
+@contextlib.contextmanager
+def _output_to(sink):
+    """Redirect file descriptors 1 and 2, where OpenEXR's bindings and library report damage
+    they read past, to the file ``sink`` for the block."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    try:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+        yield
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for fd, old in zip((1, 2), saved):
+            os.dup2(old, fd)
+            os.close(old)
+
+
 def _read_exr(path, key):
     import OpenEXR
-    try:
-        with OpenEXR.File(str(path), separate_channels=True) as f:
-            ch = f.channels()
-            names = "RGB" if all(c in ch for c in "RGB") else "YYY" if "Y" in ch else None
-            if names is None:
-                raise SceneError(path, key, f"no R, G, B (or Y) channels; the file has "
-                                            f"{', '.join(sorted(ch)) or 'none'}")
-            planes = [np.asarray(ch[c].pixels, np.float32) for c in names]
-    except SceneError:
-        raise
-    except Exception as e:   # OpenEXR raises bare exceptions on damaged files
-        raise SceneError(path, key, f"not a readable OpenEXR file: "
-                                    f"{(str(e).splitlines() or [type(e).__name__])[0]}") from None
+    with tempfile.TemporaryFile() as log:
+        try:
+            with _output_to(log), OpenEXR.File(str(path), separate_channels=True) as f:
+                ch = f.channels()
+                names = "RGB" if all(c in ch for c in "RGB") else "YYY" if "Y" in ch else None
+                if names is None:
+                    raise SceneError(path, key, f"no R, G, B (or Y) channels; the file has "
+                                                f"{', '.join(sorted(ch)) or 'none'}")
+                planes = [np.asarray(ch[c].pixels, np.float32) for c in names]
+        except SceneError:
+            raise
+        except Exception as e:   # OpenEXR raises bare exceptions on damaged files
+            raise SceneError(path, key, f"not a readable OpenEXR file: "
+                                        f"{(str(e).splitlines() or [type(e).__name__])[0]}") \
+                from None
+        log.seek(0)
+        said = log.read().decode("utf-8", "replace").strip()
+    if said:   # the library read past damage (a truncated file: missing scanlines)
+        raise SceneError(path, key, "not a readable OpenEXR file: "
+                                    f"{said.splitlines()[0].strip()[:200]}")
     if planes[0].ndim != 2 or planes[0].size > MAX_TEXELS:
         raise SceneError(path, key, f"expected a 2-D image of at most {MAX_TEXELS} texels, "
                                     f"got shape {planes[0].shape}")
