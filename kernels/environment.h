@@ -36,11 +36,12 @@ static inline lvec3 env_from_map(const Params *prm, lvec3 m) {
               r[2] * m.x + r[5] * m.y + r[8] * m.z);
 }
 
-/* Index row W + column of the texel holding (u, v); writes its row. */
+/* Index row W + column of the texel holding (u, v); writes its row. Clamped on both sides:
+ * lanes not in use may hold any direction, NaN included, and still read inside the map. */
 static inline lint env_texel(const Params *prm, lfloat u, lfloat v, lint *row) {
     int w = prm->env_res[0], h = prm->env_res[1];
-    *row = min(to_lint_rtz(v * (float)h), h - 1);
-    return *row * w + min(to_lint_rtz(u * (float)w), w - 1);
+    *row = clamp(to_lint_rtz(v * (float)h), 0, h - 1);
+    return *row * w + clamp(to_lint_rtz(u * (float)w), 0, w - 1);
 }
 
 /* Radiance arriving from scene direction w (unit), RGB. */

@@ -113,9 +113,10 @@ def env_from_map(prm, m):
 
 @njit(cache=True, inline="always")
 def env_texel(env, u, v):
-    """(row, column) of the texel holding (u, v); coordinates at 1 go to the last."""
+    """(row, column) of the texel holding (u, v); coordinates at 1 go to the last (clamped on
+    both sides, as the kernels' lanes need)."""
     h, w = env.pdf.shape
-    return min(int(v * h), h - 1), min(int(u * w), w - 1)
+    return max(0, min(int(v * h), h - 1)), max(0, min(int(u * w), w - 1))
 
 
 @njit(cache=True)
