@@ -369,3 +369,18 @@ def test_damaged_maps_are_refused_not_crashed_on(tmp_path):
             outcomes["ok"] += 1
         path.unlink()
     assert outcomes["refused"] > 100 and outcomes["ok"] > 10, outcomes
+
+
+def test_a_loaded_scene_carries_its_map(tmp_path):
+    """A loaded scene holds the map's texels (as it holds its grids), so a copy sent to a
+    cluster worker that cannot see the file packs the same map."""
+    import pickle
+    from volmc.scene import envmap
+    texels = _maps()["sky with sun"]
+    path = _write(tmp_path, "sky", texels)
+    sc = _scene(path, 25.0)
+    path.unlink()
+    envmap._cache.clear()
+    again = pickle.loads(pickle.dumps(sc))
+    assert np.array_equal(pack_scene(again).env.texels, texels)
+    assert again.spec == sc.spec

@@ -206,12 +206,12 @@ def _env_components(scene, backend):
     """The environment map, if any: the texels read (float32, RGB), the sampling density
     built in float64 (pdf and conditional CDF, one value per texel each) and kept in the
     backend's reals with the texels, and for OpenCL the flat buffer of all of it."""
-    from .scene.envmap import read_env_map
+    from .scene.envmap import light_texels
     from .scene.schema import EnvironmentLight
     for i, lt in enumerate(scene.lights):
         if isinstance(lt, EnvironmentLight) and lt.file is not None:
             key = f"lights[{i}].file"
-            n = read_env_map(lt.resolved, scene.file, key).shape[:2]
+            n = light_texels(lt, scene.file, i).shape[:2]
             n = n[0] * n[1]
             real = 8 if backend == "numba" else 4
             cl = backend != "numba"

@@ -18,7 +18,7 @@ from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
 from .scene.schema import FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight, chroma
 from .scene.transform import box_frame, placement
-from .scene.envmap import read_env_map
+from .scene.envmap import light_texels
 from .reference.environment import environment_distribution, no_env
 
 #: The smallest normal float32 (kernels may flush denormals to zero).
@@ -182,7 +182,7 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
             p["has_env"] = 1
             env = [env[k] + lt.radiance[k] for k in range(3)]
             if lt.file is not None:   # the scene's one environment (schema.py)
-                texels = read_env_map(lt.resolved, scene.file, f"lights[{i}].file")
+                texels = light_texels(lt, scene.file, i)
                 envmap = environment_distribution(texels, rnd.env_compensation, real)
                 p["env_map"] = 1
                 p["env_res"] = (texels.shape[1], texels.shape[0])

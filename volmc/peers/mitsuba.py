@@ -380,8 +380,8 @@ def _envmap_dict(mi, spec, i, light):
     Mitsuba's), the texels times radiance x strength as its bitmap, and the rotation as its
     to_world."""
     import numpy as np
-    from ..scene.envmap import read_env_map
-    px = read_env_map(light.resolved, spec.file, f"lights[{i}].file")
+    from ..scene.envmap import light_texels
+    px = light_texels(light, spec.file, i)
     px = px * (np.asarray(light.radiance, np.float32) * np.float32(light.strength))
     h, w = px.shape[:2]
     k = max(1, ENVMAP_WIDTH // w)

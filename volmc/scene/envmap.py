@@ -38,6 +38,14 @@ def read_env_map(path, scene_file, key):
     return _cache[tag]
 
 
+def light_texels(light, scene_file, i):
+    """The texels of environment light ``light`` (lights[i] of ``scene_file``): those the
+    loaded scene carries, else read from its file."""
+    if light.texels is not None:
+        return light.texels
+    return read_env_map(light.resolved, scene_file, f"lights[{i}].file")
+
+
 def _read(path, key):
     if str(path).lower().endswith(".exr"):
         return _read_exr(path, key)

@@ -318,12 +318,13 @@ def load_emission(spec: SceneSpec, vdb_density=None, cache=None, p="medium."):
     return validate_grid(_dense(vg, where, key) if raw is None else raw, where, key)
 
 
-def check_env_map(spec: SceneSpec):
-    """Read the environment map, if any (scene/envmap.py caches it for pack.py), and check
-    that its radiance stays in float32."""
+def load_env_map(spec: SceneSpec):
+    """The spec with its environment map, if any, read into its light (``texels``), after
+    checking that its radiance stays in float32."""
     from .envmap import read_env_map
     from .schema import EnvironmentLight
-    for i, lt in enumerate(spec.lights):
+    lights = list(spec.lights)
+    for i, lt in enumerate(lights):
         if isinstance(lt, EnvironmentLight) and lt.file is not None:
             px = read_env_map(lt.resolved, spec.file, f"lights[{i}].file")
             top = float(px.max()) * max(lt.radiance) * lt.strength
@@ -331,12 +332,14 @@ def check_env_map(spec: SceneSpec):
                 raise SceneError(spec.file, f"lights[{i}].strength",
                                  f"the map's brightest texel x radiance x strength = {top:g} "
                                  "overflows float32")
+            lights[i] = replace(lt, texels=px)
+    return replace(spec, lights=tuple(lights))
 
 
 def _complete(spec: SceneSpec):
     """Load every grid; a VDB density without bounds gives the box. Several media load one
     by one (a Scene part each; generated grids are shared through one cache)."""
-    check_env_map(spec)
+    spec = load_env_map(spec)
     cache = {}
     if not spec.others:
         return _complete_one(spec, cache)

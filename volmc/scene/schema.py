@@ -11,7 +11,7 @@ import json
 import math
 import re
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional, Union
 
 from ..techniques import ESTIMATORS, chromatic_estimators, grid_estimators
@@ -138,6 +138,9 @@ class EnvironmentLight:
     resolved: Optional[str] = None    # absolute path
     strength: float = 1.0
     rotation: Optional[tuple] = None
+    # The map's float32 [H, W, 3] texels once loaded (scene/loading.py), so a scene sent to
+    # cluster workers carries them as it carries its grids.
+    texels: object = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
