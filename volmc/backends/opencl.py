@@ -90,7 +90,7 @@ class OpenCLBackend(RenderBackend):
                           if band_rows is None else max(1, min(int(band_rows), h)))
         clc = self.clc
         self.lights_buf = clc.to_device(pk.lights)
-        self.env_buf = clc.to_device(env_buffer(pk).astype(np.float32))
+        self.env_buf = clc.to_device(env_buffer(pk))   # float32: pk is
         self.grid_buf = clc.to_device(grid)
         self.maj_buf = clc.to_device(maj)
         self.mnr_buf = clc.to_device(mnr)

@@ -63,13 +63,14 @@ def environment_distribution(texels, compensate=False, real=np.float64):
     total = row.sum()
     marginal = np.concatenate([[0.0], np.cumsum(row) / total])
     marginal[-1] = 1.0
+    # Each row's CDF over its columns; a row of weight 0 (never picked) a uniform one.
+    some = row > 0.0
     conditional = np.empty((h, w + 1))
-    for r in range(h):
-        if row[r] > 0.0:
-            conditional[r] = np.concatenate([[0.0], np.cumsum(wt[r]) / row[r]])
-        else:
-            conditional[r] = np.arange(w + 1) / w
-        conditional[r, -1] = 1.0
+    conditional[:, 0] = 0.0
+    conditional[:, 1:] = np.where(some[:, None],
+                                  np.cumsum(wt, axis=1) / np.where(some, row, 1.0)[:, None],
+                                  np.arange(1, w + 1) / w)
+    conditional[:, -1] = 1.0
     pdf = wt / total * (h * w)
     return EnvMap(np.ascontiguousarray(t, real), np.ascontiguousarray(pdf, real),
                   np.ascontiguousarray(marginal, real), np.ascontiguousarray(conditional, real))

@@ -363,11 +363,11 @@ def majorant_next(it, med):
             it[b] = 0.0
             if it[i * w] == 0.0:
                 ok, ta, tb, s_maj, s_min = medium_iter_next(it[i * w:b], med, i)
-                it[b] = 1.0 if ok else 0.0
-                if not ok:
+                if ok:
+                    it[b] = 1.0
+                    it[b + 1], it[b + 2], it[b + 3], it[b + 4] = ta, tb, s_maj, s_min
+                else:
                     it[i * w] = 1.0
-            if ok:
-                it[b + 1], it[b + 2], it[b + 3], it[b + 4] = ta, tb, s_maj, s_min
         if it[b] != 0.0:
             start = min(start, max(it[b + 1], t))
     if start == math.inf:
