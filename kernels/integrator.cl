@@ -26,8 +26,7 @@
 #include "estimators.h"
 #include "camera.h"
 #include "environment.h"
-
-static inline float3 vec3g(global const float v[3]) { return (float3)(v[0], v[1], v[2]); }
+#include "lights.h"
 
 /* Guard "entry re-basing" (robustness case 10, 11, 13): clips ray o + t d to the box and, when the
  * box is entered from outside (t_enter > 0), moves the origin to the entry point, snapped onto
@@ -240,24 +239,53 @@ static inline lfloat point_light_nee_weight(const Params *prm, const Medium *m, 
 /* rgb * s per lane, for a spec s (RGB, or one value for all channels). */
 static inline lvec3 rgb_times(float3 rgb, spec s) { return mul3(v3u(rgb), spec_rgb(s)); }
 
-/* The ray of next-event estimation towards light `kind` at c (a directional light's
- * propagation direction, or a point light's position) from p = o + t d: returns the unit
- * direction; writes the distance (NO_LIMIT for a directional light) and the falloff (1, or a
- * point light's MIS weight over the squared distance; 0: this light sends nothing to p).
- * Twin of light_ray in integrator.py. */
-static inline lvec3 light_ray(const Params *prm, const Medium *m, int ea, int kind, float3 c,
-                              lvec3 o, lvec3 d, lfloat t0, lfloat t1, lfloat t, lfloat *dist,
-                              lfloat *falloff) {
-    if (kind == LIGHT_DIRECTIONAL) {
+/* The ray of next-event estimation towards delta light lt (parallel, point or spot) from
+ * p = o + t d: returns the unit direction; writes the distance (NO_LIMIT for a directional
+ * light) and the falloff (1, or a point light's MIS weight over the squared distance times a
+ * spot's falloff; 0: this light sends nothing to p). Twin of light_ray in integrator.py. */
+static inline lvec3 light_ray(const Params *prm, const Medium *m, int ea,
+                              global const Light *lt, lvec3 o, lvec3 d, lfloat t0, lfloat t1,
+                              lfloat t, lfloat *dist, lfloat *falloff) {
+    float3 c = vec3g(lt->vec);
+    if (lt->type == LIGHT_DIRECTIONAL) {
         *dist = (lfloat)(NO_LIMIT);
         *falloff = (lfloat)(1.0f);
         return v3u(-c);
     }
     lvec3 wl = direction_to(madd3(o, d, t), c, dist);
-    *falloff = select((lfloat)(0.0f),
-                      point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t) / (*dist * *dist),
-                      *dist > 0.0f);
+    lfloat f = point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t) / (*dist * *dist);
+    if (lt->type == LIGHT_SPOT) f = f * spot_falloff(lt, wl);
+    *falloff = select((lfloat)(0.0f), f, *dist > 0.0f);
     return wl;
+}
+
+/* The index for path_u2 of sample j of light i (n_lights: the environment); writes the
+ * count (twin of light_point in integrator.py, which gives the layout). */
+static inline luint light_point(const Params *prm, int i, luint j, uint *count) {
+    uint n = (uint)prm->light_samples;
+    if (prm->area_lights == 0) {
+        *count = n;
+        return j;
+    }
+    *count = (uint)(prm->n_lights + 1) * n;
+    return (uint)i * n + j;
+}
+
+/* Lanes whose ray from p along w meets a sphere light other than target before dist. */
+static inline lmask occluded(const Params *prm, global const Light *lights, lvec3 p, lvec3 w,
+                             lfloat dist, lint target) {
+    if (!prm->spheres) return (lmask)(0);
+    lint i;
+    lfloat t = nearest_sphere(prm, lights, p, w, &i);
+    return (i >= 0) & (i != target) & (t < dist);
+}
+
+/* Weight of light found by a ray that light sampling could also have found (twin in
+ * integrator.py). */
+static inline lfloat escape_weight(const Params *prm, lint depth, lfloat pdf_phase,
+                                   lfloat n_pdf_light) {
+    return select((lfloat)(prm->transparent ? 0.0f : 1.0f),
+                  mis_weight(prm->mis, pdf_phase, n_pdf_light), depth > 0);
 }
 
 /* The albedo of medium i (per lane: the medium each lane scattered in), RGB. */
@@ -332,7 +360,7 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
     const Medium *m = &med->m[0];
     lvec3 L = v3s(0.0f);
     for (int i = 0; i < prm->n_lights; ++i) {
-        if (lights[i].type != LIGHT_POINT) continue;
+        if (lights[i].type != LIGHT_POINT && lights[i].type != LIGHT_SPOT) continue;
         lfloat u = path_u1(prm, pix, s, bounce_pair(b, SAMPLER_EQUIANGULAR), 0, (luint)(i),
                            (uint)prm->n_lights, rng, active);
         float3 c = vec3g(lights[i].vec);
@@ -346,6 +374,9 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
         lfloat dist;
         lvec3 wl = direction_to(p, c, &dist);
         ok = ok & (dist > 0.0f);
+        lfloat spot = lights[i].type == LIGHT_SPOT ? spot_falloff(&lights[i], wl)
+                                                   : (lfloat)(1.0f);
+        ok = ok & (spot > 0.0f) & !occluded(prm, lights, p, wl, dist, (lint)(-1));
         if (!ANY(ok)) continue;
 #if MEDIA_COUNT == 1
         lfloat mu = extinction(med, p, (lfloat)(NO_LIMIT), counters, ok);
@@ -370,7 +401,7 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
 #endif
         L = sel3(L,
                  add3(L, mul3(v3u(vec3g(lights[i].color)),
-                              scale3(mul3(sig_s, spec_rgb(spec_mul(t_cam, t_lt))), f))),
+                              scale3(mul3(sig_s, spec_rgb(spec_mul(t_cam, t_lt))), f * spot))),
                  ok);
     }
     return L;
@@ -425,6 +456,8 @@ typedef struct {
     lint light, sample;      /* next-event estimation: light (n_lights: the environment) */
     lvec3 contrib;           /* what the pending shadow ray's transmittance adds to L */
     lfloat alpha;            /* coverage of the camera ray (trace_path) */
+    lint hit;                /* the sphere light the flight's ray meets (-1: none) ... */
+    lfloat pdf_hit;          /* ... and sample_sphere_light's pdf of that direction */
 } Path;
 
 /* A = 1 - T of a camera ray's transmittance estimate T (twin in integrator.py). */
@@ -468,10 +501,33 @@ static inline lfloat env_light_pdf(const Params *prm, global const float *env, l
     return (lfloat)(uniform_sphere_pdf());
 }
 
+/* Radiance a ray escaping along d sees in the sky: the environment and every sun disc whose
+ * cone holds d, weighted by escape_weight (twin in integrator.py). */
+static inline lvec3 escape_light(const Params *prm, global const Light *lights,
+                                 global const float *env, lvec3 d, lfloat pdf_phase,
+                                 lint depth) {
+    const float n = (float)prm->light_samples;
+    lvec3 L = v3s(0.0f);
+    if (prm->has_env)
+        L = scale3(env_light(prm, env, d),
+                   escape_weight(prm, depth, pdf_phase, n * env_light_pdf(prm, env, d)));
+    if (prm->area_lights > 0) {
+        for (int i = 0; i < prm->n_lights; ++i) {
+            global const Light *lt = &lights[i];
+            if (lt->type != LIGHT_DIRECTIONAL || !(lt->size > 0.0f)) continue;
+            lfloat pdf_l = cone_pdf(d, v3u(-vec3g(lt->vec)), (lfloat)(lt->size));
+            lfloat w = escape_weight(prm, depth, pdf_phase, n * pdf_l) * sun_radiance(lt);
+            L = sel3(L, add3(L, scale3(v3u(vec3g(lt->color)), w)), pdf_l > 0.0f);
+        }
+    }
+    return L;
+}
+
 /* A new path in the lanes of `fresh`, for sample s of pixel pix: its camera ray, and the
  * channel of a colour path (trace_path's first steps). A scene that cannot scatter takes
  * its transmittance at once and is done. */
-static inline STAGE void path_start(const Params *prm, global const float *env,
+static inline STAGE void path_start(const Params *prm, global const Light *lights,
+                                    global const float *env,
                                     MediumData *med, Path *path, ulong seed,
                               luint job, luint pix, luint s, Rng *rng, Rng *rng_s,
                               lulong *counters, lmask fresh) {
@@ -502,15 +558,27 @@ static inline STAGE void path_start(const Params *prm, global const float *env,
     const int emissive = FEATURE_EMISSION ? media_emit(med) : 0;
     if (!emissive && (prm->max_depth == 0 || top <= 0.0f)) {
         /* No scattering can contribute: environment times transmittance (see integrator.py). */
-        spec T = shadow_transmittance(prm, med, o, d, (lfloat)(NO_LIMIT), 1, rng_s, counters,
-                                      fresh);
-        if (prm->has_env && !prm->transparent)
+        lint hit = (lint)(-1);
+        lfloat t_hit = prm->spheres ? nearest_sphere(prm, lights, o, d, &hit)
+                                    : (lfloat)(NO_LIMIT);
+        spec T = shadow_transmittance(prm, med, o, d, t_hit, 1, rng_s, counters, fresh);
+        if (prm->area_lights > 0)
+            path->L = sel3(path->L, mul3(escape_light(prm, lights, env, d, (lfloat)(0.0f),
+                                                      (lint)(0)),
+                                         spec_rgb(T)),
+                           fresh);
+        else if (prm->has_env && !prm->transparent)
             path->L = sel3(path->L,
                            FEATURE_ENV_MAP && prm->env_map ? mul3(env_light(prm, env, d),
                                                                   spec_rgb(T))
                                                            : rgb_times(vec3(prm->env), T),
                            fresh);
         path->alpha = select(path->alpha, coverage(spec_rgb(T)), fresh);
+        for (int i = 0; prm->spheres && i < prm->n_lights; ++i) { /* an opaque sphere light */
+            lmask at = fresh & (hit == i);
+            path->L = sel3(path->L, rgb_times(vec3g(lights[i].color), T), at);
+            path->alpha = select(path->alpha, (lfloat)(1.0f), at);
+        }
         path->state = select(path->state, (lint)(PATH_DONE), fresh);
         return;
     }
@@ -553,7 +621,22 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
                                 const MediumData *med, Path *path, Walk *wk, Rng *rng,
                                 Rng *rng_s, lulong *counters, lmask m) {
     lfloat t0, t1, shift;
+    lint hit = (lint)(-1);
+    lfloat t_hit = (lfloat)(NO_LIMIT);
+    if (prm->spheres) { /* the sphere light the ray meets first, from the vertex */
+        t_hit = nearest_sphere(prm, lights, path->o, path->d, &hit);
+        lfloat pdf_hit = (lfloat)(0.0f);
+        for (int i = 0; i < prm->n_lights; ++i) {
+            lmask at = m & (hit == i);
+            if (ANY(at))
+                pdf_hit = select(pdf_hit, sphere_light_pdf(&lights[i], path->o, path->d, t_hit),
+                                 at);
+        }
+        path->pdf_hit = select(path->pdf_hit, pdf_hit, m);
+    }
+    path->hit = select(path->hit, hit, m);
     lvec3 o = enter_media(med, path->o, path->d, &t0, &t1, &shift);
+    if (prm->spheres) t1 = fmin(t1, t_hit - shift);
     path->o = sel3(path->o, o, m);
     path->t0 = select(path->t0, t0, m);
     path->t1 = select(path->t1, t1, m);
@@ -592,7 +675,8 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
 /* The lanes of m have ended their free flight: its weight and emission, then escape,
  * scattering or the end of the path (trace_path after free_flight). Scattering leads to
  * next-event estimation. */
-static inline STAGE void flight_end(const Params *prm, global const float *env,
+static inline STAGE void flight_end(const Params *prm, global const Light *lights,
+                                    global const float *env,
                                     const MediumData *med, Path *path,
                               const Walk *wk, Rng *rng, lulong *counters, lmask m) {
     lmask walked = m & (path->t1 > path->t0);
@@ -617,15 +701,29 @@ static inline STAGE void flight_end(const Params *prm, global const float *env,
     lvec3 beta_w = weighted_beta(path);
     lmask escaped = m & (event == EVENT_ESCAPE);
     lmask first = m & (path->depth == 0);
-    path->alpha = select(path->alpha, select((lfloat)(1.0f), coverage(beta_w), escaped), first);
-    if (prm->has_env && ANY(escaped)) {
-        lfloat n_env = (float)prm->light_samples * env_light_pdf(prm, env, path->d);
-        lfloat w = select((lfloat)(prm->transparent ? 0.0f : 1.0f),
-                          mis_weight(prm->mis, path->pdf_phase, n_env), path->depth > 0);
-        path->L = sel3(path->L, add3(path->L, mul3(beta_w, scale3(env_light(prm, env, path->d),
-                                                                  w))),
-                       escaped);
+    path->alpha = select(path->alpha, select((lfloat)(1.0f), coverage(beta_w),
+                                             escaped & (path->hit < 0)),
+                         first);
+    if (prm->spheres) { /* a sphere light ends the ray */
+        for (int i = 0; i < prm->n_lights; ++i) {
+            lmask at = escaped & (path->hit == i);
+            if (!ANY(at)) continue;
+            lfloat w = select((lfloat)(1.0f),
+                              mis_weight(prm->mis, path->pdf_phase,
+                                         (float)prm->light_samples * path->pdf_hit),
+                              path->depth > 0);
+            path->L = sel3(path->L, add3(path->L, mul3(beta_w, scale3(v3u(vec3g(
+                                                                     lights[i].color)), w))),
+                           at);
+        }
+        escaped = escaped & (path->hit < 0);
     }
+    if ((prm->has_env || prm->area_lights > 0) && ANY(escaped))
+        path->L = sel3(path->L, add3(path->L, mul3(beta_w, escape_light(prm, lights, env,
+                                                                        path->d,
+                                                                        path->pdf_phase,
+                                                                        path->depth))),
+                       escaped);
     /* Scattering: the path goes on, unless its depth or throughput ends it. */
     lmask go = m & (event == EVENT_SCATTER);
     path->depth = path->depth + (go & 1);
@@ -670,23 +768,42 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
     lmask choosing = m;
     while (ANY(choosing)) {
         /* The ray each choosing lane takes now (if it has one). */
-        lmask ray = (lmask)(0);
+        lmask ray = (lmask)(0), dark = (lmask)(0); /* dark: a sample without a ray */
+        lint target = (lint)(-1);                    /* the sphere the ray is for */
         lvec3 wl = v3s(0.0f);
         lfloat dist = (lfloat)(NO_LIMIT);
         for (int i = 0; i < prm->n_lights; ++i) {
             lmask at = choosing & (path->light == i);
             if (!ANY(at)) continue;
-            lfloat di, falloff;
-            lvec3 w = light_ray(prm, md, ea, lights[i].type, vec3g(lights[i].vec), path->o,
-                                path->d, path->t0, path->t1, path->t, &di, &falloff);
-            lmask take = at & (falloff > 0.0f) & (path->sample < n);
+            global const Light *lt = &lights[i];
+            lfloat di, f;
+            lvec3 w;
+            lmask take;
+            if (is_area_light(lt)) { /* a sampled direction per shadow ray */
+                take = at & (path->sample < n);
+                uint count;
+                luint j = light_point(prm, i, as_luint(path->sample), &count);
+                lvec2 u = path_u2(prm, path->pix, path->s,
+                                  bounce_pair(path->depth - 1, SAMPLER_LIGHT), j, count, rng,
+                                  take);
+                lfloat pdf_l, le;
+                w = sample_area_light(lt, p, u.x, u.y, &di, &pdf_l, &le);
+                lfloat fp = medium_phase_eval(med, path->medium, dot3(path->d, w));
+                f = fp * le * mis_weight(prm->mis, (float)n * pdf_l, fp) * inv_n / pdf_l;
+                dark = dark | (take & !(pdf_l > 0.0f));
+                target = select(target, (lint)(i), take);
+            } else {
+                lfloat falloff;
+                w = light_ray(prm, md, ea, lt, path->o, path->d, path->t0, path->t1, path->t,
+                              &di, &falloff);
+                take = at & (falloff > 0.0f) & (path->sample < n);
+                f = medium_phase_eval(med, path->medium, dot3(path->d, w)) * falloff * inv_n;
+            }
             /* An unlit light, or one whose rays are all done: the next light. */
             path->light = path->light + ((at & !take) & 1);
             path->sample = select(path->sample, (lint)(0), at & !take);
-            lfloat f = medium_phase_eval(med, path->medium, dot3(path->d, w)) * falloff * inv_n;
-            path->contrib = sel3(path->contrib, mul3(path->beta_w, scale3(v3u(vec3g(
-                                                                  lights[i].color)), f)),
-                                 take);
+            path->contrib = sel3(path->contrib,
+                                 mul3(path->beta_w, scale3(v3u(vec3g(lt->color)), f)), take);
             wl = sel3(wl, w, take);
             dist = select(dist, di, take);
             ray = ray | take;
@@ -694,8 +811,10 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
         lmask sky = choosing & !ray & (path->light == prm->n_lights);
         if (prm->has_env && ANY(sky)) {
             lmask take = sky & (path->sample < n);
+            uint count;
+            luint j = light_point(prm, prm->n_lights, as_luint(path->sample), &count);
             lvec2 u = path_u2(prm, path->pix, path->s, bounce_pair(path->depth - 1, SAMPLER_LIGHT),
-                              as_luint(path->sample), (uint)n, rng, take);
+                              j, count, rng, take);
             lfloat pdf_l;
             lvec3 w = sample_env_light(prm, env, u.x, u.y, &pdf_l, take);
             lfloat f = medium_phase_eval(med, path->medium, dot3(path->d, w));
@@ -709,6 +828,11 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
             dist = select(dist, (lfloat)(NO_LIMIT), take);
             ray = ray | take;
         }
+        /* A sample without a direction, or whose ray a sphere light blocks: no ray, and no
+         * transmittance estimated (sample_direct's `continue`). */
+        lmask blocked = ray & (dark | occluded(prm, lights, p, wl, dist, target));
+        path->sample = path->sample + (blocked & 1);
+        ray = ray & !blocked;
         /* Lanes past the last light: next-event estimation is over. */
         lmask over = choosing & !ray &
                      ((path->light >= prm->n_lights + (prm->has_env ? 1 : 0)) |
@@ -831,7 +955,7 @@ kernel void render_batch(const Params prm, global const Medium *media, const Lau
         while (true) {
             lmask waiting = !wk.live;
             lmask m = waiting & (path.state == PATH_FLIGHT);
-            if (ANY(m)) flight_end(&prm, env, &med, &path, &wk, &rng, cnt, m);
+            if (ANY(m)) flight_end(&prm, lights, env, &med, &path, &wk, &rng, cnt, m);
             m = waiting & (path.state == PATH_SHADOW);
             if (ANY(m)) shadow_end(&path, &wk, &rng, &rng_s, m);
             m = path.state == PATH_NEE;
@@ -855,7 +979,7 @@ kernel void render_batch(const Params prm, global const Medium *media, const Lau
                     fresh = fresh | (LANE_IOTA == l);
                 }
                 luint j = job.v;
-                path_start(&prm, env, &med, &path, seed, j,
+                path_start(&prm, lights, env, &med, &path, seed, j,
                            launch.pix_start + j / launch.n_samples,
                            launch.sample_start + j % launch.n_samples, &rng, &rng_s, cnt,
                            fresh);

@@ -86,6 +86,30 @@ static inline lvec3 from_frame(lvec3 n, lfloat cos_theta, lfloat sin_theta, lflo
                 scale3(n, cos_theta));
 }
 
+/* Uniform direction in the cone about unit axis with 1 - cos theta_max = omc (twin of
+ * sample_cone in sampling.py, which says why omc); writes the pdf 1 / (2 pi omc). */
+static inline lvec3 sample_cone(lfloat u1, lfloat u2, lvec3 axis, lfloat omc, lfloat *pdf) {
+    lfloat x = u1 * omc;
+    *pdf = 1.0f / (TWO_PI * omc);
+    return from_frame(axis, 1.0f - x, sqrt(fmax(0.0f, x * (2.0f - x))), TWO_PI * u2);
+}
+
+/* Density of sample_cone at unit w: 0 outside the cone (1 - cos theta = |w - axis|^2 / 2). */
+static inline lfloat cone_pdf(lvec3 w, lvec3 axis, lfloat omc) {
+    lvec3 v = sub3(w, axis);
+    return select(1.0f / (TWO_PI * omc), (lfloat)(0.0f), 0.5f * dot3(v, v) > omc);
+}
+
+/* (u1, u2) that sample_cone maps to w. */
+static inline lvec2 invert_cone(lvec3 w, lvec3 axis, lfloat omc) {
+    lvec3 v = sub3(w, axis), s, t;
+    coordinate_system(axis, &s, &t);
+    lfloat phi = atan2(dot3(w, t), dot3(w, s));
+    phi = select(phi, phi + TWO_PI, phi < 0.0f);
+    lvec2 u = {0.5f * dot3(v, v) / omc, phi / TWO_PI};
+    return u;
+}
+
 /* Balance-heuristic weight of strategy a against b, one sample each (Veach 1997). */
 static inline lfloat mis_balance(lfloat pdf_a, lfloat pdf_b) { return pdf_a / (pdf_a + pdf_b); }
 

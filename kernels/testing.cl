@@ -18,6 +18,7 @@
 #include "sampler.h"
 #include "camera.h"
 #include "environment.h"
+#include "lights.h"
 
 kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out, int n) {
     lmask on;
@@ -402,4 +403,47 @@ kernel void t_sampler_pairs(global const uint *in, global uint *out, int n) {
         store_uint(out, i, 2, 0, p.x, one);
         store_uint(out, i, 2, 1, p.y, one);
     }
+}
+
+/* sample_cone of in[2 i ...] about axis: out[6 i ...] = w, pdf, cone_pdf(w); inv[2 i ...] =
+ * invert_cone(w). */
+kernel void t_cone(global const float *in, float3 axis, float omc, global float *out,
+                   global float *inv, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    lfloat pdf;
+    lvec3 w = sample_cone(load_float(in, i, 2, 0), load_float(in, i, 2, 1), v3u(axis),
+                          (lfloat)(omc), &pdf);
+    store_float3(out, i, 6, 0, w, on);
+    store_float(out, i, 6, 3, pdf, on);
+    store_float(out, i, 6, 4, cone_pdf(w, v3u(axis), (lfloat)(omc)), on);
+    lvec2 u = invert_cone(w, v3u(axis), (lfloat)(omc));
+    store_float(inv, i, 2, 0, u.x, on);
+    store_float(inv, i, 2, 1, u.y, on);
+}
+
+/* Light li from point p with uniforms u and direction w (in[8 i ...] = p, u, w): out[12 i
+ * ...] = sample_area_light's direction, distance, pdf and radiance (an area light), then
+ * sphere_hit and sphere_light_pdf along w (a sphere), spot_falloff of w (a spot). */
+kernel void t_lights(global const Light *lights, int li, global const float *in,
+                     global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    global const Light *lt = &lights[li];
+    lvec3 p = load_float3(in, i, 8, 0), w = load_float3(in, i, 8, 5);
+    if (is_area_light(lt)) {
+        lfloat dist, pdf, le;
+        lvec3 ws = sample_area_light(lt, p, load_float(in, i, 8, 3), load_float(in, i, 8, 4),
+                                     &dist, &pdf, &le);
+        store_float3(out, i, 12, 0, ws, on);
+        store_float(out, i, 12, 3, dist, on);
+        store_float(out, i, 12, 4, pdf, on);
+        store_float(out, i, 12, 5, le, on);
+    }
+    if (lt->type == LIGHT_SPHERE) {
+        lfloat t = sphere_hit(lt, p, w);
+        store_float(out, i, 12, 6, t, on);
+        store_float(out, i, 12, 7, sphere_light_pdf(lt, p, w, t), on);
+    }
+    if (lt->type == LIGHT_SPOT) store_float(out, i, 12, 8, spot_falloff(lt, w), on);
 }

@@ -96,10 +96,20 @@ def test_vector_maths_differs_by_at_most_one_ulp():
                                   outs[w][:, names.index(pair)]), (pair, w)
 
 
+#: A spot's soft edge amplifies a 1-ulp move of the point it lights: the smoothstep s(x),
+#: x = (cos - cos_outer) / (cos_inner - cos_outer), changes by up to 1.5 dcos / (cos_inner -
+#: cos_outer), 1e-4 of the spot's full intensity per ulp of cos for the gallery's spot (16
+#: degrees, blend 0.35: a band 0.0135 wide in cos), which relative to a sample that the edge
+#: lights dimly is many ulps. Equiangular sampling's atan2, 1 ulp apart between the widths'
+#: maths libraries for 0.5 % of arguments, moves the point: measured at most 7.9e-6
+#: relative with the scene's seed, 1.3e-5 over six seeds. A wrong lane's value would be O(1)
+#: off, and every decision (counter) is still compared exactly.
+SPOT_EDGE = 5e-5
+
 #: Scenes and overrides that between them take every feature of the kernels: grid and octree
 #: majorants, decomposition tracking, the samplers, several light samples, every shadow
 #: estimator family, the three spectral modes, emission, equiangular sampling, bricks, the
-#: thin lens and the panoramic camera.
+#: thin lens and the panoramic camera, sun discs, spot and sphere lights.
 CONFIGS = [
     ("cloud", None, {}),
     ("octree, ratio", None, {"render.majorant": "octree", "render.transmittance": "ratio"}),
@@ -121,6 +131,11 @@ CONFIGS = [
     ("thin lens, sobol", None, {"camera.aperture": 0.3, "render.sampler": "sobol"}),
     ("panoramic", None, {"camera.type": "panoramic"}),
     ("three media: overlap, placed, emitting", "tests/media.toml", {}),
+    ("spot and sphere lights, equiangular, overlap", "gallery/spotlight.toml",
+     {"render.equiangular": "true"},
+     SPOT_EDGE),
+    ("sun disc, sobol, 2 light samples", None,
+     {"lights.1.angle": 6.0, "render.sampler": "sobol", "render.light_samples": 2}),
 ]
 
 
@@ -133,12 +148,14 @@ def _samples(scene, lanes, spp, jobs_per_item=None):
     return be.out_host[:w * h * spp].copy(), be.counter_totals()
 
 
-@pytest.mark.parametrize("name,path,overrides", CONFIGS, ids=[c[0] for c in CONFIGS])
-def test_every_width_traces_the_same_paths(name, path, overrides):
+@pytest.mark.parametrize("name,path,overrides,bound",
+                         [c if len(c) == 4 else c + (2e-6,) for c in CONFIGS],
+                         ids=[c[0] for c in CONFIGS])
+def test_every_width_traces_the_same_paths(name, path, overrides, bound):
     """Per sample, W = 16 against W = 1 (and W = 4 and 8 on the cloud): the same decisions
     (every counter but the lanes' is equal) and the same values up to the maths library's
     ulps, compounded along a path: at most 2e-6 relative (16 ulps; measured at most 7.4e-7
-    over 23 configurations), and most samples bit for bit."""
+    over 23 configurations; a spot's soft edge: SPOT_EDGE), and most samples bit for bit."""
     ov = dict(overrides)
     ov["camera.resolution"] = [12, 12]
     scene = load_scene(SCENES / (path or "cloud.toml"), [f"{k}={v}" for k, v in ov.items()])
@@ -149,7 +166,7 @@ def test_every_width_traces_the_same_paths(name, path, overrides):
         out, c = _samples(scene, w, 6)
         np.testing.assert_array_equal(c[keep], c1[keep])
         rel = np.abs(out - base) / np.maximum(np.abs(base), 1e-30)
-        assert rel.max() <= 2e-6, (w, rel.max())
+        assert rel.max() <= bound, (w, rel.max())
         assert np.all(out == base, axis=1).mean() > 0.9
         # Occupancy: the lanes active per iteration of the walk loop, at most all of them.
         assert 0 < c[C_LANE_ACTIVE] <= w * c[C_LANE_ROUNDS]

@@ -114,6 +114,18 @@ CASES = {
     "envmap": peer_scene(lights=[{"type": "environment", "file": str(_sky_map()),
                                   "radiance": [1.0, 0.9, 0.8], "strength": 0.7,
                                   "rotation": [[0.2, 1.0, 0.0, 50.0]]}]),
+    # A spot with a hard edge (Mitsuba's cutoff_angle = beam_width) aimed at the cloud from
+    # above the camera, its cone's edge on the cloud: pins its position, axis, angle and
+    # intensity.
+    "spot": peer_scene(lights=[{"type": "environment", "radiance": [0.02, 0.03, 0.04]},
+                               {"type": "spot", "position": [0.5, 1.5, 2.4],
+                                "direction": [-0.5, -1.5, -2.4],
+                                "intensity": [20.0, 18.0, 15.0], "angle": 16.0}]),
+    # A sphere light beside the cloud, in view: its radiance seen directly, its light
+    # sampled and found by phase-sampled rays (MIS), and its shadow on the cloud.
+    "sphere": peer_scene(lights=[{"type": "environment", "radiance": [0.05, 0.07, 0.1]},
+                                 {"type": "sphere", "position": [1.5, 0.8, 0.6],
+                                  "radius": 0.3, "radiance": [6.0, 5.0, 4.0]}]),
 }
 
 
@@ -410,3 +422,41 @@ def test_welch_test_has_stated_size():
     agr = compare.agreement(a, np.full_like(a, 1e-6), mean_p * 1.2, var_p,
                             passes.mean(axis=(1, 2)) * 1.2, 10**6)
     assert not agr.passed
+
+
+@pytest.mark.parametrize("light, words", [
+    ({"type": "directional", "direction": [0, -1, 0], "irradiance": 1.0, "angle": 2.0},
+     "sun disc"),
+    ({"type": "spot", "position": [0, 2, 0], "direction": [0, -1, 0], "intensity": 1.0,
+      "angle": 20.0, "blend": 0.2}, "blend"),
+    ({"type": "sphere", "position": [0.3, 0.4, 4.0], "radius": 0.5, "radiance": 1.0},
+     "inside"),
+])
+def test_lights_mitsuba_lacks_are_refused(light, words):
+    from volmc.peers.mitsuba import check_translatable
+    with pytest.raises(PeerUnavailable, match=words):
+        check_translatable(peer_scene(lights=[light]))
+
+
+@needs_mitsuba
+@pytest.mark.parametrize("wrong", ["spot_angle", "spot_axis", "sphere_radius"])
+def test_wrong_light_translation_is_detected(wrong, monkeypatch):
+    """The spot's cone and axis and the sphere's size, each broken a little on purpose
+    (angle x 1.15, the axis turned about 8 degrees, radius x 1.15), make the images differ."""
+    import volmc.peers.mitsuba as pm
+    original = pm.scene_dict
+
+    def broken(sc, mi=None):
+        d = original(sc, mi)
+        lt = d["light1"]
+        if wrong == "spot_angle":
+            lt["cutoff_angle"] = lt["beam_width"] = lt["cutoff_angle"] * 1.15
+        elif wrong == "spot_axis":
+            lt["to_world"] = lt["to_world"] @ pm._mi().ScalarTransform4f().rotate([1, 0, 0], 8.0)
+        else:
+            lt["radius"] *= 1.15
+        return d
+
+    monkeypatch.setattr(pm, "scene_dict", broken)
+    agr = _compare(CASES["sphere" if wrong == "sphere_radius" else "spot"])
+    assert not agr.passed, agr.summary("Mitsuba")

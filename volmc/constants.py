@@ -226,8 +226,14 @@ CAMERA_ORTHOGRAPHIC = 1
 #: ... or equirectangular, 360 x 180 degrees around the eye (panoramic_direction).
 CAMERA_PANORAMIC = 2
 
+#: Light types (the light array; volmc/reference/lights.py): parallel light or a sun disc ...
 LIGHT_DIRECTIONAL = 0
+#: ... an isotropic point ...
 LIGHT_POINT = 1
+#: ... a point shining into a cone ...
+LIGHT_SPOT = 2
+#: ... or an emitting, opaque sphere.
+LIGHT_SPHERE = 3
 
 # --- Russian roulette ----------------------------------------------------------------------
 

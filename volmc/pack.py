@@ -10,13 +10,15 @@ from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PANORAMIC, CAMERA_PERSPECTIV
                         DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_GRID, EMISSION_NONE,
                         ENV_SAMPLING_IMPORTANCE, ENV_SAMPLING_UNIFORM,
                         EMISSION_RADIANCE, EMISSION_TEMPERATURE, LIGHT_DIRECTIONAL, LIGHT_POINT,
+                        LIGHT_SPHERE, LIGHT_SPOT,
                         MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
                         MIS_BALANCE, MIS_POWER, PHASE_HG, PHASE_ISOTROPIC, RR_ALBEDO,
                         RR_THROUGHPUT, SAMPLER_INDEPENDENT, SAMPLER_SOBOL, SAMPLER_STRATIFIED,
                         SPECTRAL_CHANNEL, SPECTRAL_GREY, SPECTRAL_HERO, SPECTRAL_TRACKING)
 from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
-from .scene.schema import FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight, chroma
+from .scene.schema import (FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight,
+                           SphereLight, SpotLight, chroma)
 from .scene.transform import box_frame, placement
 from .scene.envmap import light_texels
 from .reference.environment import environment_distribution, no_env
@@ -190,14 +192,28 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
                 if lt.rotation is not None:   # scene to map: the rotation's transpose
                     p["env_rot"] = np.asarray(lt.rotation, np.float64).T.ravel()
         elif isinstance(lt, DirectionalLight):
-            lights.append((LIGHT_DIRECTIONAL, lt.direction, lt.irradiance))
+            # 1 - cos(angle / 2) as 2 sin^2(angle / 4): no cancellation for a small sun
+            omc = 2.0 * math.sin(math.radians(lt.angle) / 4.0) ** 2
+            lights.append((LIGHT_DIRECTIONAL, lt.direction, lt.irradiance, (0, 0, 0), omc, 0))
         elif isinstance(lt, PointLight):
             lights.append((LIGHT_POINT, local(lt.position),
-                           [c / (unit * unit) for c in lt.intensity]))
+                           [c / (unit * unit) for c in lt.intensity], (0, 0, 0), 0, 0))
+        elif isinstance(lt, SpotLight):
+            cos_outer = math.cos(math.radians(lt.angle))
+            lights.append((LIGHT_SPOT, local(lt.position),
+                           [c / (unit * unit) for c in lt.intensity], lt.direction, cos_outer,
+                           cos_outer + lt.blend * (1.0 - cos_outer)))
+        elif isinstance(lt, SphereLight):
+            lights.append((LIGHT_SPHERE, local(lt.position), lt.radiance, (0, 0, 0),
+                           lt.radius / unit, 0))
     p["env"] = env
     larr = np.zeros(len(lights), light_dtype(real))
-    for i, (t, v, c) in enumerate(lights):
+    for i, (t, v, c, axis, size, inner) in enumerate(lights):
         larr[i]["type"], larr[i]["vec"], larr[i]["color"] = t, v, c
+        larr[i]["axis"], larr[i]["size"], larr[i]["inner"] = axis, size, inner
+    p["area_lights"] = sum(1 for x in lights if x[0] == LIGHT_SPHERE or
+                           (x[0] == LIGHT_DIRECTIONAL and x[4] > 0.0))
+    p["spheres"] = int(any(x[0] == LIGHT_SPHERE for x in lights))
     p["n_lights"] = len(lights)
     p["max_depth"] = rnd.max_depth
     p["rr_depth"] = rnd.rr_depth

@@ -47,7 +47,10 @@ PARAM_FIELDS = (
     ("env_rot", "real", 9, "scene direction to the map's frame, 3x3 row-major"),
     ("env_sampling", "i4", 1, "ENV_SAMPLING_IMPORTANCE or ENV_SAMPLING_UNIFORM: how "
                               "next-event estimation draws environment directions"),
-    ("n_lights", "i4", 1, "number of directional and point lights in the light array"),
+    ("n_lights", "i4", 1, "number of lights in the light array (every type but environment)"),
+    ("area_lights", "i4", 1, "lights that sample a direction (suns with an angle, spheres): "
+                             "with any, every light has its own points of the light pair"),
+    ("spheres", "i4", 1, "1 if a sphere light is present: rays test them as occluders"),
     ("max_depth", "i4", 1, "scattering events per path; -1 = unbounded"),
     ("rr_depth", "i4", 1, "Russian roulette applies from this many scattering events on"),
     ("max_steps", "i4", 1, "step cap per free-flight walk and per transmittance estimate"),
@@ -96,9 +99,14 @@ MEDIUM_FIELDS = (
 )
 
 LIGHT_FIELDS = (
-    ("type", "i4", 1, "LIGHT_DIRECTIONAL or LIGHT_POINT"),
-    ("vec", "real", 3, "directional: unit propagation direction; point: position"),
-    ("color", "real", 3, "directional: irradiance; point: intensity (per steradian)"),
+    ("type", "i4", 1, "LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT or LIGHT_SPHERE"),
+    ("vec", "real", 3, "directional: unit propagation direction; others: position"),
+    ("color", "real", 3, "directional: irradiance; point, spot: intensity per steradian (a "
+                         "spot's on its axis); sphere: radiance"),
+    ("axis", "real", 3, "spot: unit direction of the cone's axis"),
+    ("size", "real", 1, "directional: 1 - cos of the sun's half-angle (0: parallel light); "
+                        "spot: cos of the cone's half-angle; sphere: radius"),
+    ("inner", "real", 1, "spot: cos of the angle where the blend reaches full intensity"),
 )
 
 #: Samples (pixels x samples per pixel) per batch once the render's schedule has ramped up

@@ -161,14 +161,18 @@ def check_translatable(scene):
     """Raise PeerUnavailable for what the translation does not carry over: blackbody
     (temperature) emission, in any medium, and overlapping media whose phase functions
     differ while their albedos are not proportional (Cycles mixes the phase functions the
-    same way in every channel), and environment maps (not translated yet: the world
-    background is one colour)."""
+    same way in every channel), environment maps (not translated yet: the world
+    background is one colour), sun discs, spot and sphere lights (not translated yet)."""
     media = scene.spec.media
     for i, lt in enumerate(scene.spec.lights):
         if getattr(lt, "file", None) is not None:
             raise PeerUnavailable(f"lights[{i}] is an environment map, which the Cycles "
                                   "translation does not carry over yet (its world background "
                                   "is one colour); compare with Mitsuba 3")
+        if lt.type in ("spot", "sphere") or getattr(lt, "angle", 0.0) > 0.0:
+            what = "a sun disc" if lt.type == "directional" else f"a {lt.type} light"
+            raise PeerUnavailable(f"lights[{i}] is {what}, which the Cycles translation does "
+                                  "not carry over yet; compare with Mitsuba 3")
     if scene.spec.render.max_depth != 0:   # 0: no scattering (the albedo becomes 0)
         from .mitsuba import boxes_overlap
         for i in range(len(media)):

@@ -54,7 +54,14 @@ or by the README's cross-check):
   (the same file's radiance, resampled at Mitsuba's texel centres on a finer grid, since
   Mitsuba interpolates bilinearly: ENVMAP_WIDTH; the rotation as to_world);
   ``directional`` stays
-  ``directional`` (irradiance, direction of travel), ``point`` becomes ``point`` (intensity).
+  ``directional`` (irradiance, direction of travel), ``point`` becomes ``point`` (intensity),
+  ``spot`` becomes ``spot`` (intensity on the axis, ``cutoff_angle`` = ``beam_width`` =
+  angle, a look-at to_world along its direction: only blend = 0, since Mitsuba's falloff is
+  linear in angle), ``sphere`` a ``sphere`` shape with an ``area`` emitter of its radiance
+  and a black ``diffuse`` BSDF (opaque, reflecting nothing). Not translated: a sun disc
+  (``angle`` > 0; Mitsuba's directional light is parallel), a camera inside a sphere light
+  (Mitsuba's area emitter is one-sided), a sphere light with a transparent background
+  (``hide_emitters`` would hide it).
   The units agree: an empty scene shows the environment radiance in both.
 - **Phase.** Both use Henyey-Greenstein with g > 0 scattering forward.
 - **Path depth.** volmc's ``max_depth`` counts scattering events; Mitsuba's counts path
@@ -244,6 +251,23 @@ def check_translatable(scene):
             raise PeerUnavailable(f"the lens reaches across the {box} surface, and a "
                                   "Mitsuba 3 sensor has one medium for all its rays; move the "
                                   "camera or narrow camera.aperture")
+    for i, light in enumerate(scene.spec.lights):
+        if light.type == "directional" and light.angle > 0.0:
+            raise PeerUnavailable(f"Mitsuba 3's directional light is parallel, so it cannot "
+                                  f"render lights[{i}].angle > 0 (a sun disc)")
+        if light.type == "spot" and light.blend > 0.0:
+            raise PeerUnavailable(f"Mitsuba 3's spot falls off linearly in angle, not by "
+                                  f"volmc's smoothstep, so it cannot render lights[{i}].blend "
+                                  f"> 0; compare with blend = 0")
+        if light.type == "sphere":
+            if cam.type != "orthographic" and math.dist(cam.eye, light.position) <= \
+                    light.radius:
+                raise PeerUnavailable(f"the camera is inside lights[{i}] (a sphere), whose "
+                                      "inside Mitsuba 3's one-sided area emitter leaves dark")
+            if scene.spec.render.transparent_background:
+                raise PeerUnavailable(f"Mitsuba 3's hide_emitters would hide lights[{i}] (a "
+                                      "sphere) from the camera, which volmc shows as an object "
+                                      "in front of a transparent background")
     for i in range(len(media)):
         for j in range(i + 1, len(media)):
             if boxes_overlap(media[i], media[j]):
@@ -359,6 +383,22 @@ def scene_dict(scene, mi=None):
             d[f"light{i}"] = {"type": "directional", "direction": [float(x) for x in
                                                                    light.direction],
                               "irradiance": _rgb(light.irradiance)}
+        elif light.type == "spot":
+            pos = [float(x) for x in light.position]
+            ax = np.asarray(light.direction, float)
+            up = [0.0, 1.0, 0.0] if abs(ax[1]) < 0.9 else [1.0, 0.0, 0.0]
+            # blend 0 (checked above): the full intensity out to the cut-off, as volmc's
+            d[f"light{i}"] = {"type": "spot", "intensity": _rgb(light.intensity),
+                              "cutoff_angle": float(light.angle),
+                              "beam_width": float(light.angle),
+                              "to_world": T().look_at(origin=pos,
+                                                      target=(np.asarray(pos) + ax).tolist(),
+                                                      up=up)}
+        elif light.type == "sphere":
+            d[f"light{i}"] = {"type": "sphere", "center": [float(x) for x in light.position],
+                              "radius": float(light.radius),
+                              "bsdf": {"type": "diffuse", "reflectance": 0.0},
+                              "emitter": {"type": "area", "radiance": _rgb(light.radiance)}}
         else:
             d[f"light{i}"] = {"type": "point", "position": [float(x) for x in light.position],
                               "intensity": _rgb(light.intensity)}

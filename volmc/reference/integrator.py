@@ -55,7 +55,8 @@ import numpy as np
 from numba import njit
 
 from ..constants import (DENSITY_CONSTANT, ENV_SAMPLING_IMPORTANCE, EVENT_CAPPED,
-                         EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, RECORD_CAMERA,
+                         EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT,
+                         RECORD_CAMERA,
                          RECORD_SHADOW, RR_ALBEDO,
                          RR_MAX_SURVIVAL, SAMPLER_BOUNCES, SAMPLER_EQUIANGULAR,
                          SAMPLER_FIRST_BOUNCE, SAMPLER_FLIGHT, SAMPLER_INDEPENDENT,
@@ -69,13 +70,15 @@ from .environment import env_radiance, environment_pdf, sample_environment
 from .estimators import transmittance
 from .free_flight import free_flight
 from .guards import sample_ok
+from .lights import (is_area_light, nearest_sphere, sample_area_light, spot_falloff,
+                     sphere_light_pdf, sun_radiance)
 from .medium import (ZERO, MediumData, extinction, media_emit, medium_chroma, medium_extinction,
                      medium_pick, ray_box, record_segment, to_medium, to_medium_dir)
 from .phase import phase_eval, phase_sample
 from .tracking import mis_weights
 from .rng import RNG_STATE_SIZE, rng_drop_preset, rng_init, rng_next, rng_preset
 from .sampler import sampler_pair
-from .sampling import (dot, equiangular_pdf, mis_weight, sample_equiangular,
+from .sampling import (cone_pdf, dot, equiangular_pdf, mis_weight, sample_equiangular,
                        sample_uniform_sphere, uniform_sphere_pdf)
 from .vec import add3, div3, madd3, max3, mul3, scale3
 
@@ -329,19 +332,77 @@ def point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t):
 
 
 @njit(cache=True, inline="always")
-def light_ray(prm, m, ea, kind, c, o, d, t0, t1, t):
-    """The ray of next-event estimation towards a light of type ``kind`` at c (a
-    directional light's propagation direction, or a point light's position) from the vertex
-    p = o + t d of segment [t0, t1]. Returns (wl, dist, falloff): the unit direction, the
-    distance (inf for a directional light) and the falloff (1, or a point light's MIS
-    weight over the squared distance); falloff 0: this light sends nothing to p (it sits at
-    p, or equiangular sampling alone covers it)."""
-    if kind == LIGHT_DIRECTIONAL:
-        return (-c[0], -c[1], -c[2]), math.inf, 1.0
+def light_ray(prm, m, ea, lt, o, d, t0, t1, t):
+    """The ray of next-event estimation towards delta light lt (a parallel directional
+    light, a point or a spot) from the vertex p = o + t d of segment [t0, t1]. Returns (wl,
+    dist, falloff): the unit direction, the distance (inf for a directional light) and the
+    falloff (1, or a point light's MIS weight over the squared distance, times a spot's
+    spot_falloff); falloff 0: this light sends nothing to p (it sits at p, p is outside its
+    cone, or equiangular sampling alone covers it)."""
+    if lt.type == LIGHT_DIRECTIONAL:
+        return (-lt.vec[0], -lt.vec[1], -lt.vec[2]), math.inf, 1.0
+    c = (lt.vec[0], lt.vec[1], lt.vec[2])
     wl, dist = direction_to(madd3(o, d, t), c)
     if not dist > 0.0:
         return wl, dist, 0.0
-    return wl, dist, point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t) / (dist * dist)
+    f = point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t) / (dist * dist)
+    if lt.type == LIGHT_SPOT:
+        f *= spot_falloff(lt, wl)
+    return wl, dist, f
+
+
+@njit(cache=True, inline="always")
+def light_point(prm, i, j):
+    """(index, count) for path_u2 of the j-th of the N = render.light_samples directions
+    light i samples (i = n_lights: the environment) from the light pair: the environment's
+    N alone when no light samples a direction (the layout of scenes without area lights),
+    else N points per light, the environment's last."""
+    n = prm.light_samples
+    if prm.area_lights == 0:
+        return j, n
+    return i * n + j, (prm.n_lights + 1) * n
+
+
+@njit(cache=True, inline="always")
+def occluded(prm, lights, p, w, dist, target):
+    """True when a sphere light other than ``target`` (-1: none) blocks the ray from p along
+    w before distance dist (inf: the sky)."""
+    if prm.spheres == 0:
+        return False
+    t, i = nearest_sphere(prm, lights, p, w)
+    return i >= 0 and i != target and t < dist
+
+
+@njit(cache=True, inline="always")
+def escape_weight(prm, depth, pdf_phase, n_pdf_light):
+    """Weight of light a ray sees where light sampling could also have found it: 1 for a
+    camera ray (0 for the sky with render.transparent_background), the heuristic
+    render.mis of phase sampling's pdf against light sampling's N p for a scattered one."""
+    if depth > 0:
+        return mis_weight(prm.mis, pdf_phase, n_pdf_light)
+    return 0.0 if prm.transparent != 0 else 1.0
+
+
+@njit(cache=True)
+def escape_light(prm, lights, env, d, pdf_phase, depth):
+    """Radiance a ray that escapes along d sees in the sky: the environment and every sun
+    disc whose cone holds d, each weighted by escape_weight (``depth``: scattering events
+    before the ray, ``pdf_phase``: the density phase sampling chose d with)."""
+    n = prm.light_samples
+    L = (0.0, 0.0, 0.0)
+    if prm.has_env != 0:
+        L = scale3(env_light(prm, env, d), escape_weight(prm, depth, pdf_phase,
+                                                          n * env_light_pdf(prm, env, d)))
+    if prm.area_lights > 0:
+        for i in range(prm.n_lights):
+            lt = lights[i]
+            if lt.type != LIGHT_DIRECTIONAL or not lt.size > 0.0:
+                continue
+            pdf_l = cone_pdf(d, (-lt.vec[0], -lt.vec[1], -lt.vec[2]), lt.size)
+            if pdf_l > 0.0:
+                w = escape_weight(prm, depth, pdf_phase, n * pdf_l) * sun_radiance(lt)
+                L = add3(L, scale3((lt.color[0], lt.color[1], lt.color[2]), w))
+    return L
 
 
 @njit(cache=True)
@@ -378,32 +439,49 @@ def sample_direct(prm, lights, env, med, k, ea, o, d, t0, t1, t, pix, s, b, rng,
     direction the path arrived in); ``ea`` is equiangular_mode; (pix, s, b): pixel, sample and
     bounce of the segment, for render.sampler.
 
-    render.light_samples = N: every directional and point light gets N shadow rays, each
-    with its own transmittance estimate, averaged (splitting); the environment N directions
-    sampled uniformly over the sphere, each weighted by the heuristic render.mis against
-    phase sampling with the sample counts in it (w = N p_l / (N p_l + p_phase) for the
-    balance heuristic; the phase-sampled path that escapes gets the complement). A point
-    light's estimate is weighted against equiangular sampling (point_light_nee_weight). The
-    vertex scattered in medium k, whose phase function weighs the lights."""
+    render.light_samples = N: every delta light (parallel, point, spot) gets N shadow rays,
+    each with its own transmittance estimate, averaged (splitting); every area light (sun
+    disc, sphere; lights.py) and the environment N sampled directions, each weighted by the
+    heuristic render.mis against phase sampling with the sample counts in it
+    (w = N p_l / (N p_l + p_phase) for the balance heuristic; the phase-sampled path that
+    meets the light gets the complement). A point light's estimate is weighted against
+    equiangular sampling (point_light_nee_weight). A sphere light between p and a light
+    blocks the ray (occluded), before any transmittance is estimated. The vertex scattered in
+    medium k, whose phase function weighs the lights."""
     p = madd3(o, d, t)
     n = prm.light_samples
     inv_n = 1.0 / n
+    pair = bounce_pair(b, SAMPLER_LIGHT)
     L = (0.0, 0.0, 0.0)
     for i in range(prm.n_lights):
         lt = lights[i]
-        wl, dist, falloff = light_ray(prm, med[0].m, ea, lt.type,
-                                      (lt.vec[0], lt.vec[1], lt.vec[2]), o, d, t0, t1, t)
-        if not falloff > 0.0:
+        color = (lt.color[0], lt.color[1], lt.color[2])
+        if is_area_light(lt):
+            for j in range(n):
+                ja, count = light_point(prm, i, j)
+                ua, ub = path_u2(prm, pix, s, pair, ja, count, rng)
+                wl, dist, pdf_l, le = sample_area_light(lt, p, ua, ub)
+                if not pdf_l > 0.0 or occluded(prm, lights, p, wl, dist, i):
+                    continue
+                f = medium_phase_eval(med, k, dot(d, wl))
+                g = f * le * mis_weight(prm.mis, n * pdf_l, f) * inv_n / pdf_l
+                tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
+                L = add3(L, mul3(color, scale3(tr, g)))
+            continue
+        wl, dist, falloff = light_ray(prm, med[0].m, ea, lt, o, d, t0, t1, t)
+        if not falloff > 0.0 or occluded(prm, lights, p, wl, dist, -1):
             continue
         f = medium_phase_eval(med, k, dot(d, wl)) * falloff * inv_n
         for _ in range(n):
             tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
-            L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]), scale3(tr, f)))
+            L = add3(L, mul3(color, scale3(tr, f)))
     if prm.has_env != 0:
-        pair = bounce_pair(b, SAMPLER_LIGHT)
         for j in range(n):
-            ua, ub = path_u2(prm, pix, s, pair, j, n, rng)
+            ja, count = light_point(prm, prm.n_lights, j)
+            ua, ub = path_u2(prm, pix, s, pair, ja, count, rng)
             wl, pdf_l = sample_env_light(prm, env, ua, ub)
+            if occluded(prm, lights, p, wl, math.inf, -1):
+                continue
             f = medium_phase_eval(med, k, dot(d, wl))
             tr = shadow_transmittance(prm, med, p, wl, math.inf, 0, rng_s, counters)
             w = mis_weight(prm.mis, n * pdf_l, f) * inv_n
@@ -416,8 +494,8 @@ def sample_direct(prm, lights, env, med, k, ea, o, d, t0, t1, t, pix, s, b, rng,
 @njit(cache=True)
 def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng, rng_s,
                               counters):
-    """Light from every point light scattered once inside segment [t0, t1] of the ray
-    o + t d towards -d, per unit throughput at o (RGB), by equiangular sampling: one distance
+    """Light from every point and spot light scattered once inside segment [t0, t1] of the
+    ray o + t d towards -d, per unit throughput at o (RGB), by equiangular sampling: one distance
     t per light from the equiangular pdf (one uniform of the path stream each), and
 
         sigma_s(t) T(t0, t) phase f I T_light(t) / r(t)^2 / pdf(t),
@@ -430,7 +508,7 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
     L = (0.0, 0.0, 0.0)
     for i in range(prm.n_lights):
         lt = lights[i]
-        if lt.type != LIGHT_POINT:
+        if lt.type != LIGHT_POINT and lt.type != LIGHT_SPOT:
             continue
         u = path_u1(prm, pix, s, bounce_pair(b, SAMPLER_EQUIANGULAR), 0, i, prm.n_lights, rng)
         c = (lt.vec[0], lt.vec[1], lt.vec[2])
@@ -443,6 +521,9 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
         p = madd3(o, d, t)
         wl, dist = direction_to(p, c)
         if not dist > 0.0:
+            continue
+        spot = spot_falloff(lt, wl) if lt.type == LIGHT_SPOT else 1.0
+        if not spot > 0.0 or occluded(prm, lights, p, wl, dist, -1):
             continue
         if len(med) == 1:
             sig = scale3(medium_chroma(med), extinction(med, p, math.inf, counters))
@@ -462,7 +543,7 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
         if len(med) == 1:
             f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * w / (dist * dist * pdf)
         L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]),
-                         scale3(mul3(sig_s, mul3(t_cam, t_lt)), f)))
+                         scale3(mul3(sig_s, mul3(t_cam, t_lt)), f * spot)))
     return L
 
 
@@ -509,9 +590,16 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
         # No scattering can contribute: the pixel is the environment seen through the
         # medium, so estimate the transmittance instead of sampling a collision (exact for
         # a homogeneous medium, lower variance than a 0/1 free-flight outcome for grids).
-        T = shadow_transmittance(prm, med, o, d, math.inf, 1, rng_s, counters)
-        if prm.has_env != 0 and prm.transparent == 0:
-            L = mul3(env_light(prm, env, d), T)
+        t_hit, hit = math.inf, -1
+        if prm.spheres != 0:
+            t_hit, hit = nearest_sphere(prm, lights, o, d)
+        T = shadow_transmittance(prm, med, o, d, t_hit, 1, rng_s, counters)
+        if hit >= 0:   # an opaque sphere light: it covers the pixel
+            lt = lights[hit]
+            L = mul3((lt.color[0], lt.color[1], lt.color[2]), T)
+            return L[0], L[1], L[2], 1.0
+        if prm.has_env != 0 or prm.area_lights > 0:
+            L = mul3(escape_light(prm, lights, env, d, 0.0, 0), T)
         return L[0], L[1], L[2], coverage(T)
     hero = -1
     R = (1.0, 1.0, 1.0)   # hero MIS: each channel's decision probability over the hero's
@@ -529,7 +617,13 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
     k = ZERO   # the medium the path scattered in last
     alpha = 0.0
     while True:
-        o, t0, t1, _ = enter_media(med, o, d)
+        t_hit, hit, pdf_hit = math.inf, -1, 0.0   # the sphere light the ray meets first
+        if prm.spheres != 0:
+            t_hit, hit = nearest_sphere(prm, lights, o, d)
+            if hit >= 0:   # its pdf for MIS, from the vertex before the box moves it
+                pdf_hit = sphere_light_pdf(lights[hit], o, d, t_hit)
+        o, t0, t1, shift = enter_media(med, o, d)
+        t1 = min(t1, t_hit - shift)
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:
@@ -560,16 +654,17 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
         # heuristic's weights on top of the common factors.
         beta_w = mul3(beta, mis_weights(R)) if hero >= 0 else beta
         if depth == 0:
-            alpha = coverage(beta_w) if event == EVENT_ESCAPE else 1.0
+            alpha = coverage(beta_w) if event == EVENT_ESCAPE and hit < 0 else 1.0
         if event == EVENT_CAPPED:
             break
         if event == EVENT_ESCAPE:
-            if prm.has_env != 0:
-                # light sampling's n p for MIS
-                n_env = prm.light_samples * env_light_pdf(prm, env, d)
-                w = mis_weight(prm.mis, pdf_phase, n_env) if depth > 0 else \
-                    (0.0 if prm.transparent != 0 else 1.0)
-                L = add3(L, mul3(beta_w, scale3(env_light(prm, env, d), w)))
+            if hit >= 0:   # the sphere light ends the ray
+                lt = lights[hit]
+                w = 1.0 if depth == 0 else \
+                    mis_weight(prm.mis, pdf_phase, prm.light_samples * pdf_hit)
+                L = add3(L, mul3(beta_w, scale3((lt.color[0], lt.color[1], lt.color[2]), w)))
+            elif prm.has_env != 0 or prm.area_lights > 0:
+                L = add3(L, mul3(beta_w, escape_light(prm, lights, env, d, pdf_phase, depth)))
             break
         depth += 1
         if prm.max_depth >= 0 and depth > prm.max_depth:

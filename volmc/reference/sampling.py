@@ -139,6 +139,39 @@ def from_frame(n, cos_theta, sin_theta, phi):
 
 
 @njit(cache=True, inline="always")
+def sample_cone(u1, u2, axis, omc):
+    """Uniform direction in the cone about unit ``axis`` whose half-angle theta_max is
+    given as omc = 1 - cos theta_max in (0, 2] (apart from cos, so that a narrow cone -- the
+    sun's is 4e-5 -- keeps its digits): 1 - cos theta = u1 omc, phi = 2 pi u2 in the frame
+    of coordinate_system(axis). Returns (w, pdf), pdf 1 / (2 pi omc) per steradian."""
+    x = u1 * omc
+    sin_t = math.sqrt(max(0.0, x * (2.0 - x)))
+    return from_frame(axis, 1.0 - x, sin_t, TWO_PI * u2), 1.0 / (TWO_PI * omc)
+
+
+@njit(cache=True, inline="always")
+def cone_pdf(w, axis, omc):
+    """Density of ``sample_cone`` at unit w: 1 / (2 pi omc) inside the cone, else 0. The
+    test is 1 - cos theta = |w - axis|^2 / 2 <= omc, which keeps its digits near the axis
+    where 1 - dot(w, axis) would cancel."""
+    v = (w[0] - axis[0], w[1] - axis[1], w[2] - axis[2])
+    if 0.5 * dot(v, v) > omc:
+        return 0.0
+    return 1.0 / (TWO_PI * omc)
+
+
+@njit(cache=True, inline="always")
+def invert_cone(w, axis, omc):
+    """(u1, u2) that ``sample_cone(u1, u2, axis, omc)`` maps to unit w in the cone."""
+    v = (w[0] - axis[0], w[1] - axis[1], w[2] - axis[2])
+    s, t = coordinate_system(axis)
+    phi = math.atan2(dot(w, t), dot(w, s))
+    if phi < 0.0:
+        phi += TWO_PI
+    return 0.5 * dot(v, v) / omc, phi / TWO_PI
+
+
+@njit(cache=True, inline="always")
 def dot(a, b):
     """Dot product of two 3-tuples."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]

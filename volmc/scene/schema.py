@@ -23,7 +23,7 @@ RGB = tuple[float, float, float]
 
 CAMERA_TYPES = ("perspective", "orthographic", "panoramic")
 PHASE_TYPES = ("isotropic", "hg")
-LIGHT_TYPES = ("environment", "directional", "point")
+LIGHT_TYPES = ("environment", "directional", "point", "spot", "sphere")
 #: Procedural sources and the fields each returns, in order (``channel``; generators.py
 #: returns a tuple when there are several).
 GENERATORS = {"cloud": ("density",), "plume": ("density", "temperature")}
@@ -145,10 +145,36 @@ class EnvironmentLight:
 
 @dataclass(frozen=True)
 class DirectionalLight:
-    """Parallel light travelling along ``direction`` (unit) with ``irradiance``."""
+    """Light travelling along ``direction`` (unit) with ``irradiance`` on a surface facing
+    it: parallel (``angle`` 0), or a sun disc of full apex ``angle`` degrees whose radiance
+    is uniform over its cone (reference/lights.py)."""
     direction: Vec3
     irradiance: RGB
     type: str = "directional"
+    angle: float = 0.0
+
+
+@dataclass(frozen=True)
+class SpotLight:
+    """A point light at ``position`` shining along ``direction`` (unit): ``intensity`` on
+    the axis, falling off to 0 at ``angle`` degrees (the half-angle) by a smoothstep over
+    the outer ``blend`` fraction of the cone (reference/lights.py, spot_falloff)."""
+    position: Vec3
+    direction: Vec3
+    intensity: RGB
+    angle: float
+    blend: float = 0.0
+    type: str = "spot"
+
+
+@dataclass(frozen=True)
+class SphereLight:
+    """An opaque sphere of ``radius`` at ``position`` whose surface emits ``radiance``
+    uniformly on both sides (``power`` in the scene file: radiance = power / (4 pi^2 r^2))."""
+    position: Vec3
+    radius: float
+    radiance: RGB
+    type: str = "sphere"
 
 
 @dataclass(frozen=True)
@@ -159,7 +185,7 @@ class PointLight:
     type: str = "point"
 
 
-Light = Union[EnvironmentLight, DirectionalLight, PointLight]
+Light = Union[EnvironmentLight, DirectionalLight, PointLight, SpotLight, SphereLight]
 
 
 @dataclass(frozen=True)
@@ -234,8 +260,10 @@ FREE_FLIGHTS = ("delta", "decomposition")
 TRANSMITTANCE_ESTIMATORS = grid_estimators()
 LIGHT_KEYS = {
     "environment": ("type", "radiance", "file", "strength", "rotation"),
-    "directional": ("type", "direction", "irradiance"),
+    "directional": ("type", "direction", "irradiance", "angle"),
     "point": ("type", "position", "intensity"),
+    "spot": ("type", "position", "direction", "intensity", "angle", "blend"),
+    "sphere": ("type", "position", "radius", "radiance", "power"),
 }
 TOP_KEYS = ("camera", "medium", "media", "lights", "render")
 #: Most media in a scene (``[[media]]``), and so most media overlapping at one point: the
@@ -514,20 +542,63 @@ def _light(c, raw, i, file_dir):
     if ltype == "environment":
         return _environment(c, raw, p, file_dir)
     if ltype == "directional":
-        direction = c.vec3(c.required(raw, "direction", p), p + "direction", nonzero=True)
-        # Scale by a power of two first (exact) so that the squares neither underflow nor
-        # overflow: a tiny or huge nonzero direction still normalises to a unit vector. A
-        # vector that is already unit to rounding is kept, so that validating a written-out
-        # scene (serialize.to_dict) gives back the same direction.
-        e = math.frexp(max(abs(x) for x in direction))[1]
-        scaled = tuple(math.ldexp(x, -e) for x in direction)
-        n = math.sqrt(sum(x * x for x in scaled))
-        if abs(math.ldexp(n, e) - 1.0) > 4 * sys.float_info.epsilon:
-            direction = tuple(x / n for x in scaled)
-        return DirectionalLight(direction,
-                                c.rgb(c.required(raw, "irradiance", p), p + "irradiance"))
+        direction = _unit(c, raw, "direction", p)
+        irradiance = c.rgb(c.required(raw, "irradiance", p), p + "irradiance")
+        angle = c.number(raw.get("angle", 0.0), p + "angle", 0.0)
+        if not angle < 180.0:
+            c.fail(p + "angle", f"the sun's apex angle must be below 180 degrees, got "
+                                f"{_fmt(angle)}")
+        if angle > 0.0:
+            # Its radiance E / (pi sin^2 theta) reaches the kernels as a float32.
+            s = math.sin(math.radians(angle) / 2.0)
+            if not max(irradiance) / (math.pi * s * s) < FLOAT32_MAX:
+                c.fail(p + "angle", f"a sun of {_fmt(angle)} degrees is so small that its "
+                                    "radiance overflows float32; use angle = 0")
+        return DirectionalLight(direction, irradiance, angle=angle)
+    if ltype == "spot":
+        angle = c.number(c.required(raw, "angle", p), p + "angle", 0.0)
+        if not 0.0 < angle <= 180.0:
+            c.fail(p + "angle", f"the cone's half-angle must be in (0, 180] degrees, got "
+                                f"{_fmt(angle)}")
+        blend = c.number(raw.get("blend", 0.0), p + "blend", 0.0)
+        if blend > 1.0:
+            c.fail(p + "blend", f"must be in [0, 1], got {_fmt(blend)}")
+        return SpotLight(c.vec3(c.required(raw, "position", p), p + "position"),
+                         _unit(c, raw, "direction", p),
+                         c.rgb(c.required(raw, "intensity", p), p + "intensity"),
+                         angle, blend)
+    if ltype == "sphere":
+        position = c.vec3(c.required(raw, "position", p), p + "position")
+        radius = c.number(c.required(raw, "radius", p), p + "radius", 0.0)
+        if not radius > 0.0:
+            c.fail(p + "radius", "must be > 0 (a point lamp is type = \"point\")")
+        if ("radiance" in raw) == ("power" in raw):
+            c.fail(p + "radiance", "give exactly one of 'radiance' and 'power'")
+        if "power" in raw:
+            power = c.rgb(raw["power"], p + "power")
+            radiance = tuple(x / (4.0 * math.pi ** 2 * radius * radius) for x in power)
+            if not all(math.isfinite(x) for x in radiance) or max(radiance) > FLOAT32_MAX:
+                c.fail(p + "power", "the radiance power / (4 pi^2 radius^2) overflows float32")
+        else:
+            radiance = c.rgb(raw["radiance"], p + "radiance")
+        return SphereLight(position, radius, radiance)
     return PointLight(c.vec3(c.required(raw, "position", p), p + "position"),
                       c.rgb(c.required(raw, "intensity", p), p + "intensity"))
+
+
+def _unit(c, raw, key, p):
+    """The unit vector of the nonzero vector raw[key]."""
+    direction = c.vec3(c.required(raw, key, p), p + key, nonzero=True)
+    # Scale by a power of two first (exact) so that the squares neither underflow nor
+    # overflow: a tiny or huge nonzero direction still normalises to a unit vector. A
+    # vector that is already unit to rounding is kept, so that validating a written-out
+    # scene (serialize.to_dict) gives back the same direction.
+    e = math.frexp(max(abs(x) for x in direction))[1]
+    scaled = tuple(math.ldexp(x, -e) for x in direction)
+    n = math.sqrt(sum(x * x for x in scaled))
+    if abs(math.ldexp(n, e) - 1.0) > 4 * sys.float_info.epsilon:
+        direction = tuple(x / n for x in scaled)
+    return direction
 
 
 def _environment(c, raw, p, file_dir):

@@ -6,7 +6,8 @@ and renders store the fully resolved scene in their EXR metadata for reproducibi
 
 from .transform import axis_angle
 from .schema import (ArrayDensity, ConstantDensity, DirectionalLight, EnvironmentLight,
-                     FileDensity, GeneratedDensity, PointLight, SceneSpec)
+                     FileDensity, GeneratedDensity, PointLight, SceneSpec, SphereLight,
+                     SpotLight)
 
 
 def to_dict(spec: SceneSpec, array_as=None) -> dict:
@@ -25,7 +26,14 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
             lights.append(env)
         elif isinstance(lt, DirectionalLight):
             lights.append({"type": "directional", "direction": list(lt.direction),
-                           "irradiance": list(lt.irradiance)})
+                           "irradiance": list(lt.irradiance), "angle": lt.angle})
+        elif isinstance(lt, SpotLight):
+            lights.append({"type": "spot", "position": list(lt.position),
+                           "direction": list(lt.direction), "intensity": list(lt.intensity),
+                           "angle": lt.angle, "blend": lt.blend})
+        elif isinstance(lt, SphereLight):
+            lights.append({"type": "sphere", "position": list(lt.position),
+                           "radius": lt.radius, "radiance": list(lt.radiance)})
         elif isinstance(lt, PointLight):
             lights.append({"type": "point", "position": list(lt.position),
                            "intensity": list(lt.intensity)})
