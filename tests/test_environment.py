@@ -384,3 +384,17 @@ def test_a_loaded_scene_carries_its_map(tmp_path):
     again = pickle.loads(pickle.dumps(sc))
     assert np.array_equal(pack_scene(again).env.texels, texels)
     assert again.spec == sc.spec
+
+
+def test_bench_refuses_a_bad_scene_with_one_line(tmp_path, capsys):
+    """`python -m volmc.bench.envmap` on a scene whose map is missing: the one-line error
+    and exit status 2, as `volmc render` gives (volmc.bench.report_main)."""
+    from volmc.bench.envmap import main
+    scene = tmp_path / "s.toml"
+    scene.write_text('[camera]\n[medium]\ndensity = 1.0\nbounds = [[0, 0, 0], [1, 1, 1]]\n'
+                     '[[lights]]\ntype = "environment"\nfile = "missing.exr"\n')
+    with pytest.raises(SystemExit) as e:
+        main([str(scene)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "lights[0].file" in err[0] and "missing.exr" in err[0]

@@ -86,7 +86,7 @@ def print_report(report, log=print):
     for row in report["configs"]:
         log(f"  {row['config']} | {row['samples_per_second']:.0f} | "
             f"{row['variance_per_sample']:.4g} | {row['image_mean']:.4f} | "
-            f"{row['cost_vs_uniform']:.3f}")
+            f"{row['cost_vs_uniform']:.3g}")
 
 
 def main(argv=None):
