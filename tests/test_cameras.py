@@ -372,16 +372,13 @@ def test_focus_distance_defaults_to_the_target_and_round_trips():
 ])
 def test_bad_camera_file_one_line_exit_2(tmp_path, command, camera, key):
     """From a scene file: the one-line error names the file and the key, exit status 2."""
-    import os
     import subprocess
-    import sys
     path = tmp_path / "lens.toml"
     path.write_text(f"[camera]\n{camera}\n[medium]\nbounds = [[-1, -1, -1], [1, 1, 1]]\n"
                     "density = 1.0\n")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [os.path.dirname(os.path.dirname(__file__)), os.environ.get("PYTHONPATH", "")]))
-    r = subprocess.run([sys.executable, "-m", "volmc.cli", command, str(path)], cwd=tmp_path,
-                       env=env, capture_output=True, text=True, timeout=600)
+    from cli_subprocess import volmc_cli, volmc_env
+    r = subprocess.run(volmc_cli(command, str(path)), cwd=tmp_path, env=volmc_env(),
+                       capture_output=True, text=True, timeout=600)
     assert r.returncode == 2, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"volmc: error: {path}: {key}: "), r.stderr

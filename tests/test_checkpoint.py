@@ -4,10 +4,8 @@ uninterrupted one bit for bit, also after SIGKILL, and a checkpoint of another r
 refused with the one-line error and exit status 2."""
 
 import json
-import os
 import signal
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -19,15 +17,13 @@ from volmc.render import batch_schedule, render
 from volmc.resources import default_scene
 from volmc.scene import load_scene
 from volmc.scene.errors import SceneError
+from cli_subprocess import volmc_cli, volmc_env
 
 SMALL = ["medium.density.resolution=16", "camera.resolution=[12, 10]", "render.max_depth=4"]
 
 
 def _cli(args, cwd):
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(__file__)),
-                                         env.get("PYTHONPATH", "")])
-    return subprocess.Popen([sys.executable, "-m", "volmc.cli", *args], cwd=cwd, env=env,
+    return subprocess.Popen(volmc_cli(*args), cwd=cwd, env=volmc_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

@@ -1,9 +1,7 @@
 """OpenCL host side: struct layout, program cache, device choice, CLI commands."""
 
 import math
-import os
 import subprocess
-import sys
 
 import numpy as np
 import pyopencl as cl
@@ -14,6 +12,7 @@ from volmc.cl.device import compiler_error, select_device
 from volmc.cl.structs import c_struct, kernel_light_dtype, kernel_params_dtype
 from volmc.params import PARAM_FIELDS, medium_dtype
 from volmc.scene import SceneError
+from cli_subprocess import volmc_cli, volmc_env
 
 
 @pytest.mark.parametrize("name,dtype", [("Params", kernel_params_dtype()),
@@ -107,10 +106,7 @@ def test_default_device_skips_a_compiler_that_fails(monkeypatch):
 
 
 def _run(args):
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(__file__)),
-                                         env.get("PYTHONPATH", "")])
-    return subprocess.run([sys.executable, "-m", "volmc.cli", *args], env=env,
+    return subprocess.run(volmc_cli(*args), env=volmc_env(),
                           capture_output=True, text=True, timeout=600)
 
 

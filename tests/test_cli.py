@@ -1,9 +1,7 @@
 """The command line end to end: render, convert, errors, Ctrl-C."""
 
-import os
 import signal
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -12,6 +10,7 @@ import pytest
 from volmc.film import read_exr
 from volmc.scene.grids import read_vol
 from volmc.scene.serialize import dict_to_toml
+from cli_subprocess import volmc_cli, volmc_env
 
 TINY = {
     "camera": {"eye": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0], "fov": 40.0,
@@ -24,10 +23,7 @@ TINY = {
 
 
 def run(args, cwd, **kw):
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(__file__)),
-                                         env.get("PYTHONPATH", "")])
-    return subprocess.run([sys.executable, "-m", "volmc.cli", *args], cwd=cwd, env=env,
+    return subprocess.run(volmc_cli(*args), cwd=cwd, env=volmc_env(),
                           capture_output=True, text=True, timeout=600, **kw)
 
 
@@ -162,11 +158,8 @@ def test_ctrl_c_writes_partial_image(tmp_path):
     raw = dict(TINY, medium=dict(TINY["medium"], albedo=0.9, scale=3.0),
                render={"spp": 10_000_000, "max_depth": -1})
     (tmp_path / "long.toml").write_text(dict_to_toml(raw))
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(os.path.dirname(__file__)),
-                                         env.get("PYTHONPATH", "")])
-    p = subprocess.Popen([sys.executable, "-m", "volmc.cli", "render", "long.toml", "-o",
-                          "long.exr"], cwd=tmp_path, env=env, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(volmc_cli("render", "long.toml", "-o", "long.exr"), cwd=tmp_path,
+                         env=volmc_env(), stderr=subprocess.PIPE, text=True)
     seen = []
     deadline = time.time() + 300
     while time.time() < deadline:
