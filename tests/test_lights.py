@@ -411,3 +411,25 @@ def test_cli_refuses_a_bad_light_with_exit_status_2(tmp_path):
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
     assert "s.toml" in r.stderr and "lights[0].radius" in r.stderr
     assert not (tmp_path / "out.exr").exists()
+
+
+def test_inside_a_sphere_light_every_pixel_is_its_radiance(backend):
+    """A furnace: the camera and a scattering box (albedo 1) inside a sphere light of
+    radiance L. Every path ends on the sphere's inside, so every pixel is L in expectation
+    (z-tests against L), whatever the medium does: next-event estimation samples the sphere
+    by area from inside and phase-sampled rays find it, weighed by MIS."""
+    L = [0.5, 1.0, 1.5]
+    sc = scene_from_dict({
+        "camera": {"eye": [0.0, 0.3, 2.4], "target": [0, 0, 0], "fov": 60.0,
+                   "resolution": [10, 10]},
+        "medium": {"bounds": BOX, "density": 1.5, "albedo": 1.0,
+                   "phase": {"type": "hg", "g": 0.5}},
+        "lights": [{"type": "sphere", "position": [0.0, 0.0, 0.0], "radius": 3.0,
+                    "radiance": L}],
+        "render": {"spp": 256, "seed": 5, "max_depth": -1}})
+    r = render(sc, progress=False, backend=backend)
+    e = np.broadcast_to(np.asarray(L, float), (10, 10, 3))
+    assert r.film.variance_of_mean()[..., :3].max() > 0   # the box is seen and scatters
+    c = compare_images(r.film.mean()[..., :3], r.film.variance_of_mean()[..., :3], e,
+                       np.zeros_like(e))
+    assert c.passed, c.summary()
