@@ -633,8 +633,8 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
                                  at);
         }
         path->pdf_hit = select(path->pdf_hit, pdf_hit, m);
+        path->hit = select(path->hit, hit, m);
     }
-    path->hit = select(path->hit, hit, m);
     lvec3 o = enter_media(med, path->o, path->d, &t0, &t1, &shift);
     if (prm->spheres) t1 = fmin(t1, t_hit - shift);
     path->o = sel3(path->o, o, m);
@@ -701,10 +701,7 @@ static inline STAGE void flight_end(const Params *prm, global const Light *light
     lvec3 beta_w = weighted_beta(path);
     lmask escaped = m & (event == EVENT_ESCAPE);
     lmask first = m & (path->depth == 0);
-    path->alpha = select(path->alpha, select((lfloat)(1.0f), coverage(beta_w),
-                                             escaped & (path->hit < 0)),
-                         first);
-    if (prm->spheres) { /* a sphere light ends the ray */
+    if (prm->spheres) { /* a sphere light ends the ray: escaped are the rays to the sky */
         for (int i = 0; i < prm->n_lights; ++i) {
             lmask at = escaped & (path->hit == i);
             if (!ANY(at)) continue;
@@ -718,6 +715,7 @@ static inline STAGE void flight_end(const Params *prm, global const Light *light
         }
         escaped = escaped & (path->hit < 0);
     }
+    path->alpha = select(path->alpha, select((lfloat)(1.0f), coverage(beta_w), escaped), first);
     if ((prm->has_env || prm->area_lights > 0) && ANY(escaped))
         path->L = sel3(path->L, add3(path->L, mul3(beta_w, escape_light(prm, lights, env,
                                                                         path->d,
