@@ -185,12 +185,7 @@ static inline lfloat path_u1(const Params *prm, luint pix, luint s, lint pair, i
     return u;
 }
 
-/* How a path treats point lights (render.equiangular; twin constants in integrator.py):
- * next-event estimation only, equiangular sampling alone, or both combined by MIS. */
-#define EQUIANGULAR_OFF 0
-#define EQUIANGULAR_ALONE 1
-#define EQUIANGULAR_MIS 2
-
+/* EQUIANGULAR_OFF, _ALONE or _MIS (volmc/constants.py) for the scene. */
 static inline int equiangular_mode(const Params *prm, const MediumData *med) {
     if (!prm->equiangular) return EQUIANGULAR_OFF;
     const Medium *m = &med->m[0];

@@ -214,6 +214,11 @@ SAMPLER_BOUNCES = 16
 #: bounce's, so that adding it moved no other pair, and a pinhole draws nothing for it.
 SAMPLER_PAIR_LENS = SAMPLER_FIRST_BOUNCE + SAMPLER_BOUNCES * SAMPLER_PAIRS_PER_BOUNCE
 
+#: Most media in a scene (``[[media]]``), and so most media overlapping at one point: the
+#: kernels keep a majorant walk per medium (kernels/medium.h), unrolled at compile time; the
+#: Numba reference takes every scene of several media as MAX_MEDIA slots (medium.media_data).
+MAX_MEDIA = 8
+
 # --- Phase functions, cameras, lights ---------------------------------------------------------
 
 PHASE_ISOTROPIC = 0
@@ -234,6 +239,16 @@ LIGHT_POINT = 1
 LIGHT_SPOT = 2
 #: ... or an emitting, opaque sphere.
 LIGHT_SPHERE = 3
+
+#: How a path treats point and spot lights (render.equiangular; equiangular_mode in
+#: reference/integrator.py): next-event estimation only ...
+EQUIANGULAR_OFF = 0
+#: ... equiangular sampling alone (its pdf cannot be weighed against free flight's in a
+#: varying medium: free flight's density there involves the unknown transmittance) ...
+EQUIANGULAR_ALONE = 1
+#: ... or both, combined by MIS (homogeneous grey media, where free flight's density
+#: sigma e^{-sigma t} is known).
+EQUIANGULAR_MIS = 2
 
 # --- Russian roulette ----------------------------------------------------------------------
 

@@ -54,7 +54,8 @@ import math
 import numpy as np
 from numba import njit
 
-from ..constants import (DENSITY_CONSTANT, ENV_SAMPLING_IMPORTANCE, EVENT_CAPPED,
+from ..constants import (DENSITY_CONSTANT, ENV_SAMPLING_IMPORTANCE, EQUIANGULAR_ALONE,
+                         EQUIANGULAR_MIS, EQUIANGULAR_OFF, EVENT_CAPPED,
                          EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT,
                          RECORD_CAMERA,
                          RECORD_SHADOW, RR_ALBEDO,
@@ -263,16 +264,6 @@ def path_u1(prm, pix, s, pair, axis, j, count, rng):
         return rng_next(rng)
     a, b = path_pair_u24(prm, pix, s, pair, j, count)
     return float(b if axis == 1 else a) * UNIFORM_SCALE
-
-
-#: How a path treats point lights (render.equiangular): next-event estimation only ...
-EQUIANGULAR_OFF = 0
-#: ... equiangular sampling alone (its pdf cannot be weighed against free flight's in a
-#: varying medium: free flight's density there involves the unknown transmittance) ...
-EQUIANGULAR_ALONE = 1
-#: ... or both, combined by MIS (homogeneous grey media, where free flight's density
-#: sigma e^{-sigma t} is known).
-EQUIANGULAR_MIS = 2
 
 
 @njit(cache=True, inline="always")

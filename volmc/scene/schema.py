@@ -14,6 +14,7 @@ import sys
 from dataclasses import dataclass, field
 from typing import Optional, Union
 
+from ..constants import MAX_MEDIA
 from ..techniques import ESTIMATORS, chromatic_estimators, grid_estimators
 from .errors import SceneError
 from .transform import parse as parse_transform
@@ -266,9 +267,6 @@ LIGHT_KEYS = {
     "sphere": ("type", "position", "radius", "radiance", "power"),
 }
 TOP_KEYS = ("camera", "medium", "media", "lights", "render")
-#: Most media in a scene (``[[media]]``), and so most media overlapping at one point: the
-#: kernels keep a majorant walk per medium (kernels/media.h), unrolled at compile time.
-MAX_MEDIA = 8
 FILE_DENSITY_KEYS = ("file", "grid")
 GENERATOR_KEYS = ("generator", "resolution", "seed", "channel")
 
