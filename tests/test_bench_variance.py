@@ -26,7 +26,7 @@ STAND_IN = (
     variance.SWITCHES[0],
     Switch("stratified", {"transmittance": "track_length"}, variance.always),
     Switch("sobol", {"no_such_key": 1}, variance.always),
-    Switch("mis=power", {"mis": "power"}, variance.has_environment_light),
+    Switch("mis=power", {"mis": "power"}, variance.has_sampled_light),
 )
 
 
@@ -77,7 +77,7 @@ def test_configurations_plain_keys_and_skips():
     configs, skipped = variance.configurations(scene, variance.switch_labels())
     # Plain sets only the keys this Render has; the rest of its row is left out.
     assert configs[0] == (PLAIN, _plain(scene)) and configs[0][1]["mis"] == "balance"
-    assert "environment light" in skipped["mis=power"]   # no sky in this scene
+    assert "an environment" in skipped["mis=power"]   # no sky in this scene
     configs, skipped = variance.configurations(scene, ["stratified", "sobol"], STAND_IN)
     plain = _plain(scene)
     assert configs == [(PLAIN, plain),

@@ -47,15 +47,17 @@ def always(scene):
     return True
 
 
-def has_environment_light(scene):
-    """An environment light (the MIS heuristic weighs phase against light sampling only
-    for it: delta lights are never hit by a phase-sampled direction)."""
-    return any(lt.type == "environment" for lt in scene.lights)
+def has_sampled_light(scene):
+    """A light the MIS heuristic weighs phase against light sampling for: an environment, a
+    sun disc or a sphere (delta lights are never hit by a phase-sampled direction)."""
+    return any(lt.type in ("environment", "sphere") or
+               (lt.type == "directional" and lt.angle > 0.0) for lt in scene.lights)
 
 
 def has_point_light(scene):
-    """A point light (equiangular sampling picks distances along a ray towards one)."""
-    return any(lt.type == "point" for lt in scene.lights)
+    """A point or spot light (equiangular sampling picks distances along a ray towards
+    one)."""
+    return any(lt.type in ("point", "spot") for lt in scene.lights)
 
 
 def roulette_happens(scene):
@@ -73,7 +75,7 @@ SWITCHES = (
     Switch("stratified", {"sampler": "stratified"}, always),
     Switch("sobol", {"sampler": "sobol"}, always),
     Switch("light_samples=4", {"light_samples": 4}, always),
-    Switch("mis=power", {"mis": "power"}, has_environment_light),
+    Switch("mis=power", {"mis": "power"}, has_sampled_light),
     Switch("equiangular", {"equiangular": True}, has_point_light),
     Switch("rr=albedo", {"rr": "albedo"}, roulette_happens),
 )
