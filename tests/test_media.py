@@ -212,6 +212,51 @@ def test_emission_field_and_temperature_grid_kernel_matches_reference(tmp_path):
     assert np.mean(rel > 1e-3) < 0.05
 
 
+def test_temperature_remap_is_the_grid_in_kelvin(tmp_path):
+    """emission.remap = [v_min, v_max, T_min, T_max] on a flame-style grid packs exactly the
+    kelvin grid it maps to (clamped outside [v_min, v_max]), so it renders the same image,
+    sample for sample, as that kelvin grid given directly."""
+    from volmc.pack import pack_scene
+    rng = np.random.default_rng(4)
+    flame = rng.uniform(0.0, 1.3, (5, 6, 7))          # outside [0.1, 1] on both sides
+    np.save(tmp_path / "flame.npy", flame)
+    v = flame.astype(np.float32).astype(np.float64)
+    kelvin = 300.0 + np.clip((v - 0.1) / 0.9, 0.0, 1.0) * 1500.0
+    np.save(tmp_path / "kelvin.npy", kelvin.astype(np.float32))
+    def raw(temperature, **extra):
+        return _slab({"density": 0.8, "albedo": 0.3,
+                      "emission": {"temperature": {"file": str(tmp_path / temperature)},
+                                   "scale": 1e-4, **extra}},
+                     spp=16, lights=[{"type": "environment", "radiance": 0.1}])
+    a = scene_from_dict(raw("flame.npy", remap=[0.1, 1.0, 300.0, 1800.0]))
+    b = scene_from_dict(raw("kelvin.npy"))
+    pa, pb = pack_scene(a, np.float32), pack_scene(b, np.float32)
+    assert np.array_equal(pa.emis, pb.emis) and np.array_equal(pa.table, pb.table)
+    assert pa.emis.min() == 300.0 and pa.emis.max() == 1800.0
+    ra = render(a, progress=False, backend="opencl").film.sum
+    rb = render(b, progress=False, backend="opencl").film.sum
+    assert np.array_equal(ra, rb) and ra[..., :3].max() > 0
+    # A falling ramp, and the key written back by serialisation.
+    from volmc.scene import validate
+    from volmc.scene.serialize import to_dict
+    c = scene_from_dict(raw("flame.npy", remap=[0.0, 1.0, 1800.0, 300.0]))
+    assert np.allclose(pack_scene(c, np.float32).emis, 1800.0 - np.clip(v, 0.0, 1.0) * 1500.0,
+                       rtol=1e-7)
+    assert validate(to_dict(c.spec), c.spec.file) == c.spec
+
+
+@pytest.mark.parametrize("emission, words", [
+    ({"temperature": 1.0, "remap": [0.0, 1.0, 500.0]}, "expected [v_min"),
+    ({"temperature": 1.0, "remap": [1.0, 1.0, 500.0, 900.0]}, "v_min < v_max"),
+    ({"temperature": 1.0, "remap": [0.0, 1.0, -5.0, 900.0]}, "[0, inf]"),
+    ({"radiance": 1.0, "remap": [0.0, 1.0, 500.0, 900.0]}, "only 'temperature'"),
+])
+def test_bad_temperature_remap(emission, words):
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(_slab({"density": 1.0, "emission": emission}))
+    assert e.value.key == "medium.emission.remap" and words in str(e.value)
+
+
 def test_no_emission_compiles_none_of_it():
     from volmc.scene.features import features
     assert "EMISSION" not in features(load_scene(FURNACE))

@@ -312,10 +312,21 @@ def load_emission(spec: SceneSpec, vdb_density=None, cache=None, p="medium."):
     src, key = (e.field, p + "emission.field") if e.radiance is not None else \
         (e.temperature, p + "emission.temperature")
     if isinstance(src, ConstantDensity):
-        return np.full((1, 1, 1), src.value, np.float32)
+        return remap_temperature(np.full((1, 1, 1), src.value, np.float32), e.remap)
     raw, vg = _read_source(spec, src, key, vdb_density, cache)
     where = src.resolved if isinstance(src, FileDensity) else spec.file
-    return validate_grid(_dense(vg, where, key) if raw is None else raw, where, key)
+    return remap_temperature(validate_grid(_dense(vg, where, key) if raw is None else raw,
+                                           where, key), e.remap)
+
+
+def remap_temperature(grid, remap):
+    """The kelvin of a flame-style grid (schema.Emission.remap), voxel by voxel; the grid
+    itself without a remap. Computed in float64, stored as float32."""
+    if remap is None:
+        return grid
+    v0, v1, t0, t1 = remap
+    x = np.clip((grid.astype(np.float64) - v0) / (v1 - v0), 0.0, 1.0)
+    return np.ascontiguousarray(t0 + x * (t1 - t0), np.float32)
 
 
 def load_env_map(spec: SceneSpec):

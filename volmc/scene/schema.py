@@ -106,6 +106,10 @@ class Emission:
     field: Density = ConstantDensity(1.0)
     temperature: Optional[Density] = None
     scale: float = 1.0
+    # (v_min, v_max, T_min, T_max): the temperature grid holds a flame-style field whose
+    # values v map to T_min + clamp((v - v_min) / (v_max - v_min), 0, 1) (T_max - T_min)
+    # kelvin, voxel by voxel (loading.load_emission); None: it holds kelvin.
+    remap: Optional[tuple] = None
 
 
 @dataclass(frozen=True)
@@ -240,7 +244,7 @@ REQUIRED = object()
 CAMERA_KEYS = ("type", "eye", "target", "up", "fov", "size", "resolution", "aperture",
                "focus_distance")
 MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase", "emission", "transform")
-EMISSION_KEYS = ("radiance", "field", "temperature", "scale")
+EMISSION_KEYS = ("radiance", "field", "temperature", "scale", "remap")
 PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
                "majorant_resolution", "free_flight", "spectral", "grid_storage", "mis",
@@ -469,6 +473,8 @@ def _emission(c, raw, file_dir, p="medium.emission."):
         if "scale" in raw:
             c.fail(p + "scale", "only 'temperature' emission takes a scale; scale the "
                                 "radiance instead")
+        if "remap" in raw:
+            c.fail(p + "remap", "only 'temperature' emission takes a remap (to kelvin)")
         radiance = c.rgb(raw["radiance"], p + "radiance")
         field = _source(c, raw.get("field", 1.0), p + "field", file_dir)
         return Emission(radiance=radiance, field=field)
@@ -476,7 +482,20 @@ def _emission(c, raw, file_dir, p="medium.emission."):
         c.fail(p + "field", "only 'radiance' emission takes a field")
     temperature = _source(c, raw["temperature"], p + "temperature", file_dir, "temperature")
     scale = c.number(raw.get("scale", 1.0), p + "scale", 0.0)
-    return Emission(temperature=temperature, scale=scale)
+    remap = None
+    if "remap" in raw:
+        r = raw["remap"]
+        if not isinstance(r, (list, tuple)) or len(r) != 4:
+            c.fail(p + "remap", f"expected [v_min, v_max, T_min, T_max] (grid values to "
+                                f"kelvin), got {_show(r)}")
+        v0, v1 = (c.number(x, p + "remap") for x in r[:2])
+        t0, t1 = (c.number(x, p + "remap", 0.0) for x in r[2:])
+        if not v0 < v1:
+            c.fail(p + "remap", f"needs v_min < v_max, got {_fmt(v0)} and {_fmt(v1)}")
+        if not math.isfinite(1.0 / (v1 - v0)):
+            c.fail(p + "remap", "v_max - v_min is too small to divide by")
+        remap = (v0, v1, t0, t1)
+    return Emission(temperature=temperature, scale=scale, remap=remap)
 
 
 def _medium(c, raw, file_dir, p="medium."):

@@ -79,6 +79,8 @@ def _medium(m, array_as=None):
             medium["emission"] = {"radiance": list(e.radiance), "field": _source(e.field)}
         else:
             medium["emission"] = {"temperature": _source(e.temperature), "scale": e.scale}
+            if e.remap is not None:
+                medium["emission"]["remap"] = list(e.remap)
     return medium
 
 
