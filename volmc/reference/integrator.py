@@ -5,8 +5,8 @@ path:
 
 1. Camera ray through the pixel, jittered uniformly inside it (two uniforms), from a point
    of the lens when camera.aperture > 0 (two more; camera.py).
-2. With render.equiangular, before the flight: every point light's single scattering along
-   the segment by equiangular sampling (``sample_equiangular_lights``).
+2. With render.equiangular, before the flight: every point and spot light's single
+   scattering along the segment by equiangular sampling (``sample_equiangular_lights``).
    Free flight inside the medium box (free_flight.py): the one tracking loop over the
    medium's majorant segments -- analytic for a homogeneous medium, delta or decomposition
    tracking over the global majorant or the majorant grid (empty cells cost nothing).
@@ -15,11 +15,13 @@ path:
 3. At a real collision: the scattering event count rises; past ``max_depth`` the path
    ends. The throughput is multiplied by the albedo (sigma_s / sigma_t).
 4. Direct lighting (``sample_direct``): render.light_samples shadow rays to each
-   directional and point light (a point light's weighted against equiangular sampling when
-   that is on), and as many environment directions sampled uniformly over the sphere,
-   combined with phase sampling by the balance or power heuristic (``mis_weight``,
-   render.mis). Shadow-ray transmittance is the estimator render.transmittance chose
-   (estimators.py; exact on homogeneous segments), on its own random stream.
+   parallel, point and spot light (a point or spot light's weighted against equiangular
+   sampling when that is on), and as many directions sampled towards each sun disc and
+   sphere light (lights.py) and the environment, combined with phase sampling by the
+   balance or power heuristic (``mis_weight``, render.mis); a sphere light the flight's ray
+   meets ends it, seen with the complementary weight. Shadow-ray transmittance is the
+   estimator render.transmittance chose (estimators.py; exact on homogeneous segments), on
+   its own random stream.
    A medium that cannot scatter into the image (all albedos 0, or max_depth = 0) skips
    steps 2-6: the pixel is the environment times the transmittance along the camera ray.
 5. Russian roulette from ``rr_depth`` scattering events on: the path survives with
