@@ -243,7 +243,9 @@ def test_grid_name_selection():
 def test_missing_grid_lists_the_grids(tmp_path):
     for name in ("blobs.vdb", "blobs_zip.nvdb"):
         text = raises_scene_error(DATA / name, "no grid named 'smoke'", grid_name="smoke")
-        assert "'density', 'temperature', 'velocity'" in text
+        kind = "Vec3s" if name.endswith(".vdb") else "NanoVDB Vec3f"
+        assert (f"(the file has: 'density' (float), 'temperature' (float), 'velocity' "
+                f"({kind}, skipped))") in text, text
 
 
 def test_key_is_used_in_messages():
@@ -253,9 +255,12 @@ def test_key_is_used_in_messages():
 # ------------------------------------------------------------------ bad grids
 
 @pytest.mark.parametrize("name,grid,match", [
-    ("blobs.vdb", "velocity", "grid 'velocity' is a Tree_vec3s_5_4_3 grid, not a float grid"),
-    ("blobs_zip.nvdb", "velocity", "grid 'velocity' is a NanoVDB Vec3f grid, not a float"),
-    ("blobs_fp16.nvdb", "density", "grid 'density' is a NanoVDB Fp16 grid, not a float"),
+    ("blobs.vdb", "velocity", "grid 'velocity' is a vector grid (Vec3s: vector grid; volmc "
+                              "reads scalar grids); the file's float grids: 'density', "
+                              "'temperature'"),
+    ("blobs_zip.nvdb", "velocity", "grid 'velocity' is a vector grid (NanoVDB Vec3f: "),
+    ("blobs_fp16.nvdb", "density", "grid 'density' is not a float grid (NanoVDB Fp16: "
+                                   "quantized or non-float grid"),
     ("roottile.vdb", "density", f"active tiles cover more than {MAX_TILE_VOXELS} voxels"),
     ("roottile.nvdb", "density", f"active tiles cover more than {MAX_TILE_VOXELS} voxels"),
 ])

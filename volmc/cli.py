@@ -157,7 +157,9 @@ def build_parser():
     k.add_argument("-D", dest="defines", action="append", default=[],
                    metavar="SECTION.KEY=VALUE", help="override a scene key (repeatable)")
 
-    sub.add_parser("info", help="list OpenCL platforms and devices and the kernel cache")
+    inf = sub.add_parser("info", help="list OpenCL platforms and devices and the kernel "
+                                      "cache, or the grids of a .vdb / .nvdb file")
+    inf.add_argument("file", nargs="?", help="an OpenVDB or NanoVDB file: list its grids")
 
     pe = sub.add_parser("peer", help="render a scene with volmc and with a peer renderer "
                                      "(Mitsuba 3, Blender Cycles): agreement and speed "
@@ -736,6 +738,10 @@ def cmd_bench(args):
 
 
 def cmd_info(args):
+    if args.file is not None:
+        from .scene.vdb import describe_grid_file
+        print("\n".join(describe_grid_file(args.file)))
+        return 0
     from .cl.build import cache_dir
     from .cl.device import ENV_VAR, describe, list_devices, select_device
     plats = list_devices()

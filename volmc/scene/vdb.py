@@ -78,14 +78,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SceneError
+from .hostmem import require_host
 
 # Tiles expand into 8^3 blocks: refuse files whose active tiles would need more voxels
 # than this (2^28 voxels = 1 GiB of float32).
 MAX_TILE_VOXELS = 1 << 28
 
+# Peak host bytes per leaf read (its float32 values, its mask, the mask's [z][y][x] copy)
+# and per 8^3 block built (sorted float32 values, origin, the bbox pass's bool masks).
+BYTES_PER_LEAF = 512 * 4 + 2 * 512
+BYTES_PER_BLOCK = 512 * 4 + 12 + 2 * 512
+
 VDB_MAGIC = 0x56444220  # " BDV" as a little-endian int64
 VDB_MIN_VERSION = 222  # node-mask compression: the per-node metadata byte
-VDB_MAX_VERSION = 224  # multi-pass I/O (the newest layout)
+VDB_MAX_VERSION = 225  # 224: multi-pass I/O; 225 (OpenVDB 13) adds half-typed grids and
+#                        leaves the layout of float grids as it was
 VDB_FLOAT_TREE = "Tree_float_5_4_3"
 HALF_SUFFIX = "_HalfFloat"
 COMPRESS_ZIP, COMPRESS_ACTIVE_MASK, COMPRESS_BLOSC = 0x1, 0x2, 0x4
@@ -164,6 +171,49 @@ class VdbGrid:
 
 def read_vdb(path, grid_name="density", key="medium.density"):
     """Read float grid ``grid_name`` of an OpenVDB or NanoVDB file as a VdbGrid."""
+    return _with_reader(path, key, lambda r: r.read(grid_name))
+
+
+def list_grids(path, key="grid"):
+    """Every grid of an OpenVDB or NanoVDB file, in file order, as GridInfo records
+    (name, kind, whether volmc reads it, and why not). Reads only the headers."""
+    return _with_reader(path, key, lambda r: r.grids())
+
+
+@dataclass(frozen=True)
+class GridInfo:
+    """One grid of a file: ``name``; ``kind`` ("float", "half float", "double", "Vec3s",
+    "int32", ...); ``readable`` when read_vdb reads it; ``note`` says why not."""
+
+    name: str
+    kind: str
+    readable: bool
+    note: str = ""
+
+    def text(self):
+        tail = "" if self.readable else f" -- skipped: {self.note}"
+        return f"'{self.name}' ({self.kind}){tail}"
+
+
+def describe_grid_file(path, key="file"):
+    """The lines ``volmc info FILE.vdb`` prints: the file's format and grid count, then one
+    line per grid (GridInfo.text)."""
+    infos = list_grids(path, key)   # raises for anything that is not a readable file
+    with open(path, "rb") as f:
+        nano = struct.unpack("<Q", f.read(8))[0] in NANO_MAGICS
+    fmt = "NanoVDB" if nano else "OpenVDB"
+    n = sum(g.readable for g in infos)
+    return ([f"{path}: {fmt}, {len(infos)} grid{'s' * (len(infos) != 1)} ({n} read by volmc)"]
+            + [f"  {g.text()}" for g in infos])
+
+
+def _grid_list_text(infos):
+    """"'density' (half float), 'velocity' (Vec3s, skipped)" for error messages."""
+    return ", ".join(f"'{g.name}' ({g.kind}{'' if g.readable else ', skipped'})"
+                     for g in infos) or "none"
+
+
+def _with_reader(path, key, action):
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:
@@ -174,9 +224,9 @@ def read_vdb(path, grid_name="density", key="medium.density"):
                 # Slicing an mmap copies, so nothing keeps the mapping after the read.
                 head = mm[:8]
                 if len(head) == 8 and struct.unpack("<Q", head)[0] in NANO_MAGICS:
-                    return _NanoReader(mm, path, key).read(grid_name)
+                    return action(_NanoReader(mm, path, key))
                 if len(head) == 8 and struct.unpack("<q", head)[0] == VDB_MAGIC:
-                    return _VdbReader(mm, path, key).read(grid_name)
+                    return action(_VdbReader(mm, path, key))
                 raise SceneError(path, key, "not an OpenVDB or NanoVDB file (unknown magic "
                                             "number)")
     except SceneError:
@@ -303,6 +353,15 @@ class _Blocks:
                                  "blocks and refuses this much")
         self.tiles.append((tuple(int(v) for v in origin), size, float(value)))
 
+    def require_memory(self, n_leaves):
+        """Check with the host memory available (hostmem.require_host) before the blocks
+        are allocated: the leaves' values and masks as read, the sorted blocks (leaves and
+        expanded tiles) and the masks of the bbox pass."""
+        n_blocks = n_leaves + self.tile_voxels // 512
+        require_host(n_leaves * BYTES_PER_LEAF + n_blocks * BYTES_PER_BLOCK, self.cur.path,
+                     self.cur.key, f"reading grid '{self.grid}' ({n_leaves} leaves, "
+                                   f"{n_blocks} blocks)")
+
     def to_grid(self, leaf_origins, values, active, linear, translation, background):
         """The VdbGrid of these tiles and the leaves at ``leaf_origins`` (n index triples),
         whose ``values`` (float, (n, 512)) and ``active`` masks (bool, (n, 512)) come in the
@@ -367,19 +426,37 @@ def _bbox_of_active(origins, active, cur, grid):
 
 # ---------------------------------------------------------------------------- OpenVDB
 
+# OpenVDB tree value types (the X of Tree_X_5_4_3): (kind, bytes per value when volmc reads
+# the grid, else None, why a grid of that kind is skipped).
+_VDB_VALUES = {
+    "float": ("float", 4, ""), "double": ("double", 8, ""),
+    "vec3s": ("Vec3s", None, "vector grid; volmc reads scalar grids"),
+    "vec3d": ("Vec3d", None, "vector grid; volmc reads scalar grids"),
+    "vec3i": ("Vec3i", None, "vector grid; volmc reads scalar grids"),
+    "half": ("half", None, "OpenVDB 13 half-typed grid; volmc reads float and double grids"),
+    "int32": ("int32", None, "integer grid (Mantaflow's flags)"),
+    "int64": ("int64", None, "integer grid"), "bool": ("bool", None, "boolean grid"),
+    "mask": ("mask", None, "mask grid"),
+    "ptdataidx32": ("points", None, "point data"), "ptdataidx64": ("points", None, "point data"),
+    "ptidx32": ("point index", None, "point index"),
+    "ptidx64": ("point index", None, "point index"),
+}
+
+
 class _VdbReader:
     def __init__(self, buf, path, key):
         self.cur = _Cursor(buf, path, key, "OpenVDB file")
         self.path, self.key = path, key
 
-    def read(self, grid_name):
+    def _descriptors(self):
+        """[(name, type string, instance parent, grid offset)] of every grid, checking the
+        header and that each grid lies inside the file."""
         cur = self.cur
         cur.pos = 8
         version = cur.u32()
         if not VDB_MIN_VERSION <= version <= VDB_MAX_VERSION:
             raise cur.error(f"OpenVDB file format version {version} unsupported (volmc reads "
                             f"{VDB_MIN_VERSION}-{VDB_MAX_VERSION}: OpenVDB 3.0 and later)")
-        self.version = version
         cur.u32(), cur.u32()  # library major, minor
         if not cur.u8():
             raise cur.error("OpenVDB file without grid offsets (written as a stream) is "
@@ -397,29 +474,51 @@ class _VdbReader:
             gtype = cur.string()
             parent = cur.string()
             grid_pos, _, end_pos = cur.i64(), cur.i64(), cur.i64()
-            grids.append((unique.split("\x1e")[0], gtype, parent, grid_pos, end_pos))
+            name = unique.split("\x1e")[0]
             if not cur.pos <= end_pos <= len(cur.buf):
-                raise cur.error(f"truncated or corrupt OpenVDB file: grid '{grids[-1][0]}' "
+                raise cur.error(f"truncated or corrupt OpenVDB file: grid '{name}' "
                                 f"ends at offset {end_pos}, the file at {len(cur.buf)}")
+            if not cur.pos <= grid_pos <= end_pos:
+                raise cur.error(f"corrupt OpenVDB file: grid '{name}' at offset {grid_pos}")
+            grids.append((name, gtype, parent, grid_pos))
             cur.pos = end_pos
-        match = [g for g in grids if g[0] == grid_name]
-        if not match:
-            names = ", ".join(repr(g[0]) for g in grids) or "none"
-            raise cur.error(f"no grid named '{grid_name}' (the file has: {names})")
-        name, gtype, parent, grid_pos, end_pos = match[0]
+        return grids
+
+    @staticmethod
+    def _info(name, gtype, parent):
+        """(GridInfo, bytes per value or None, stored as halves)."""
         half = gtype.endswith(HALF_SUFFIX)
-        base_type = gtype[:-len(HALF_SUFFIX)] if half else gtype
-        if base_type != VDB_FLOAT_TREE:
-            raise cur.error(f"grid '{name}' is a {base_type} grid, not a float grid "
-                            f"({VDB_FLOAT_TREE})")
-        if parent:
-            raise cur.error(f"grid '{name}' is an instance of grid '{parent}' (shares its "
-                            "tree); instanced grids are unsupported")
-        if not 0 < grid_pos < len(cur.buf):
-            raise cur.error(f"corrupt OpenVDB file: grid '{name}' at offset {grid_pos}")
+        base = gtype[:-len(HALF_SUFFIX)] if half else gtype
+        value = base[len("Tree_"):-len("_5_4_3")] \
+            if base.startswith("Tree_") and base.endswith("_5_4_3") else None
+        kind, vsize, note = _VDB_VALUES.get(value, (base[:60], None, "unknown tree type"))
+        if vsize and half:
+            kind = "half float" if value == "float" else f"{kind} saved as half"
+        if vsize and parent:
+            vsize, note = None, f"instance of grid '{parent}' (shares its tree)"
+        return GridInfo(name, kind, vsize is not None, note), vsize, half
+
+    def grids(self):
+        return [self._info(n, t, p)[0] for n, t, p, _ in self._descriptors()]
+
+    def read(self, grid_name):
+        cur = self.cur
+        grids = self._descriptors()
+        match = [g for g in grids if g[0] == grid_name]
+        infos = [self._info(n, t, p)[0] for n, t, p, _ in grids]
+        if not match:
+            raise cur.error(f"no grid named '{grid_name}' (the file has: "
+                            f"{_grid_list_text(infos)})")
+        name, gtype, parent, grid_pos = match[0]
+        info, vsize, half = self._info(name, gtype, parent)
+        if not info.readable:
+            floats = ", ".join(f"'{g.name}'" for g in infos if g.readable) or "none"
+            what = "a vector grid" if "vector" in info.note else f"not a float grid"
+            raise cur.error(f"grid '{name}' is {what} ({info.kind}: {info.note}); the "
+                            f"file's float grids: {floats}")
         cur.pos = grid_pos
         self.cur.what = f"OpenVDB grid '{name}'"
-        return self._read_grid(name, half)
+        return self._read_grid(name, half, vsize)
 
     def _skip_metadata(self):
         cur = self.cur
@@ -431,7 +530,7 @@ class _VdbReader:
             cur.string()  # type
             cur.take(cur.u32())
 
-    def _read_grid(self, name, half):
+    def _read_grid(self, name, half, vsize):
         cur = self.cur
         comp = cur.u32()
         if comp & ~(COMPRESS_ZIP | COMPRESS_ACTIVE_MASK | COMPRESS_BLOSC):
@@ -439,7 +538,8 @@ class _VdbReader:
         if comp & COMPRESS_ZIP and comp & COMPRESS_BLOSC:
             raise cur.error(f"grid '{name}': unsupported compression flags {comp:#x} (zip "
                             "and blosc)")
-        self.comp, self.half = comp, half
+        self.comp, self.half, self.vsize = comp, half, vsize
+        self.vtype = "<f4" if vsize == 4 else "<f8"
         self._skip_metadata()
         linear, translation = self._read_transform(name)
 
@@ -447,15 +547,15 @@ class _VdbReader:
         # depth first, leaf value masks.
         if cur.i32() != 1:
             raise cur.error(f"grid '{name}': unsupported tree (buffer count is not 1)")
-        self.background = float(np.frombuffer(cur.take(4), "<f4")[0])
+        self.background = self._value()
         blocks = _Blocks(cur, name)
         n_tiles, n_children = cur.u32(), cur.u32()
-        if n_tiles > len(cur.buf) // 17 or n_children > len(cur.buf) // 12:
+        if n_tiles > len(cur.buf) // (13 + vsize) or n_children > len(cur.buf) // 12:
             raise cur.error(f"corrupt OpenVDB grid '{name}' (root counts {n_tiles}, "
                             f"{n_children})")
         for _ in range(n_tiles):
             x, y, z = cur.unpack("iii")
-            value = float(np.frombuffer(cur.take(4), "<f4")[0])
+            value = self._value()
             if cur.u8():
                 blocks.add_tile((x, y, z), 4096, value)
         uppers = []
@@ -466,6 +566,7 @@ class _VdbReader:
         uppers.sort(key=lambda u: u[0])
         leaf_origins = [o for _, lowers in uppers for leaves in lowers for o in leaves]
         n = len(leaf_origins)
+        blocks.require_memory(n)
         values = np.empty((n, 512), np.float32)
         active = np.empty((n, 512), bool)
         for i in range(n):
@@ -474,6 +575,11 @@ class _VdbReader:
             values[i] = self._read_values(512, mask)
         return blocks.to_grid(leaf_origins, values, active, linear, translation,
                               self.background)
+
+    def _value(self):
+        """One value at full width (a background, tile or inactive value: OpenVDB writes
+        these unhalved even in a half-float grid)."""
+        return float(np.frombuffer(self.cur.take(self.vsize), self.vtype)[0])
 
     def _read_transform(self, name):
         cur = self.cur
@@ -533,16 +639,16 @@ class _VdbReader:
         inactive0 = bg if meta == 0 else -bg
         inactive1 = bg
         if meta in (2, 4, 5):
-            inactive0 = float(np.frombuffer(cur.take(4), "<f4")[0])
+            inactive0 = self._value()
             if meta == 5:
-                inactive1 = float(np.frombuffer(cur.take(4), "<f4")[0])
+                inactive1 = self._value()
         select = _bits(cur.take(count // 8)) if meta in (3, 4, 5) else None
         stored = count
         if self.comp & COMPRESS_ACTIVE_MASK and meta != 6:
             stored = int(value_on.sum())
-        itemsize = 2 if self.half else 4
+        itemsize = 2 if self.half else self.vsize
         data = self._read_data(stored * itemsize)
-        vals = np.frombuffer(data, "<f2" if self.half else "<f4").astype(np.float32)
+        vals = np.frombuffer(data, "<f2" if self.half else self.vtype).astype(np.float32)
         if stored == count:
             return vals
         out = np.where(select, np.float32(inactive1), np.float32(inactive0)) \
@@ -576,11 +682,12 @@ class _NanoReader:
     def __init__(self, buf, path, key):
         self.cur = _Cursor(buf, path, key, "NanoVDB file")
 
-    def read(self, grid_name):
+    def _segments(self):
+        """[(name, grid type, grid size, bytes in the file, codec, offset)] of every grid.
+        Walks every segment (header, grid metadata, grid data), so a truncated file is an
+        error whichever grid is read."""
         cur = self.cur
-        found, names = None, []
-        # Walk every segment (header, grid metadata, grid data), also past the grid
-        # sought, so a truncated file is an error whichever grid is read.
+        grids = []
         while cur.pos < len(cur.buf):
             magic, version, count, codec = cur.unpack("QIHH")
             if magic not in NANO_MAGICS:
@@ -597,23 +704,46 @@ class _NanoReader:
                 metas.append((name, m))
             for name, m in metas:
                 grid_size, file_size, gtype = m[0], m[1], m[4]
-                names.append(name)
-                if name == grid_name and found is None:
-                    found = (name, gtype, grid_size, file_size, codec, cur.pos)
+                grids.append((name, gtype, grid_size, file_size, codec, cur.pos))
                 cur.take(file_size)  # skip (bounds-checked)
+        return grids
+
+    @staticmethod
+    def _info(name, gtype):
+        if gtype == NANO_FLOAT:
+            return GridInfo(name, "float", True)
+        tname = NANO_TYPES[gtype] if gtype < len(NANO_TYPES) else f"type {gtype}"
+        why = ("vector grid; volmc reads scalar grids" if tname.startswith("Vec")
+               else "quantized or non-float grid; volmc reads NanoVDB Float grids")
+        return GridInfo(name, f"NanoVDB {tname}", False, why)
+
+    def grids(self):
+        return [self._info(g[0], g[1]) for g in self._segments()]
+
+    def read(self, grid_name):
+        cur = self.cur
+        grids = self._segments()
+        infos = [self._info(g[0], g[1]) for g in grids]
+        found = next((g for g in grids if g[0] == grid_name), None)
         if found is None:
-            listed = ", ".join(repr(n) for n in names) or "none"
-            raise cur.error(f"no grid named '{grid_name}' (the file has: {listed})")
+            raise cur.error(f"no grid named '{grid_name}' (the file has: "
+                            f"{_grid_list_text(infos)})")
         name, gtype, grid_size, file_size, codec, pos = found
-        if gtype != NANO_FLOAT:
-            tname = NANO_TYPES[gtype] if gtype < len(NANO_TYPES) else f"type {gtype}"
-            raise cur.error(f"grid '{name}' is a NanoVDB {tname} grid, not a float grid "
-                            "(Float)")
+        info = self._info(name, gtype)
+        if not info.readable:
+            floats = ", ".join(f"'{g.name}'" for g in infos if g.readable) or "none"
+            what = "a vector grid" if "vector" in info.note else "not a float grid"
+            raise cur.error(f"grid '{name}' is {what} ({info.kind}: {info.note}); the "
+                            f"file's float grids: {floats}")
         if codec not in NANO_CODECS:
             raise cur.error(f"grid '{name}': unsupported NanoVDB codec {codec}")
         cur.pos = pos
         cur.what = f"NanoVDB grid '{name}'"
         end = pos + file_size
+        # A compressed grid declares its own size: check it before inflating (a small
+        # zip stream can declare, and inflate to, a thousand times its bytes).
+        require_host(2 * grid_size, cur.path, cur.key, f"reading NanoVDB grid '{name}' "
+                                                       f"({grid_size} bytes)")
         if codec == 0:
             if file_size != grid_size:
                 raise cur.error(f"corrupt {cur.what} (size {file_size}, expected {grid_size})")
@@ -678,6 +808,10 @@ class _NanoGrid:
             raise cur.error(f"corrupt {cur.what} (leaf array outside the grid)")
         blocks = _Blocks(cur, name)
         leaf_index, leaf_origin = [], []
+        # Child offsets are free to point at one node many times: count the nodes reached
+        # against the tree's own counts, so a corrupt table cannot make the walk (or its
+        # lists) grow past the grid's size.
+        self.budget = {5: n_upper, 4: n_lower}
         for t in range(table_size):
             tile = root + self.ROOT_TILES + t * self.TILE_SIZE
             key, child, state = self.at(tile, "QqI")
@@ -693,6 +827,7 @@ class _NanoGrid:
         idx = np.array(leaf_index, np.int64)
         if len(idx) != len(np.unique(idx)):
             raise cur.error(f"corrupt {cur.what} (a leaf is referenced twice)")
+        blocks.require_memory(len(idx))
         leaves = np.ndarray((n_leaf, 536), "<f4", self.buf, self.leaf_base,
                             (self.LEAF_SIZE, 4)) if n_leaf else np.zeros((0, 536), "<f4")
         vals = leaves[idx, self.LEAF_VALUES // 4:self.LEAF_VALUES // 4 + 512]
@@ -711,6 +846,10 @@ class _NanoGrid:
                                          self.LOWER_TABLE)
         if node < 0 or node + size > len(self.buf):
             raise cur.error(f"corrupt {cur.what} (node offset {node} outside the grid)")
+        self.budget[log2] -= 1
+        if self.budget[log2] < 0:
+            raise cur.error(f"corrupt {cur.what} (more {'upper' if log2 == 5 else 'lower'} "
+                            "nodes reached than the tree holds)")
         count = 1 << 3 * log2
         value_on = _bits(self.buf[node + vmask:node + vmask + count // 8])
         child = _bits(self.buf[node + cmask:node + cmask + count // 8])
@@ -733,5 +872,7 @@ class _NanoGrid:
         k = rel // self.LEAF_SIZE
         if np.any(rel % self.LEAF_SIZE) or np.any(k < 0) or np.any(k >= self.n_leaf):
             raise cur.error(f"corrupt {cur.what} (leaf offset outside the leaf array)")
+        if len(leaf_index) + len(k) > self.n_leaf:
+            raise cur.error(f"corrupt {cur.what} (more leaves reached than the tree holds)")
         leaf_index.extend(k.tolist())
         leaf_origin.extend(coords[kids].tolist())
