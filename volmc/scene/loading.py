@@ -379,25 +379,42 @@ def _complete_one(spec, cache, p="medium."):
     return Scene(spec, grid, load_emission(spec, vg, cache, p))
 
 
-def load_scene(path, overrides=()):
+def load_scene(path, overrides=(), frame=None):
     """Read, override, validate and load a scene file. Raises SceneError on bad input.
-    ``overrides``: ``-D`` strings or a mapping of dotted keys (``apply_overrides``)."""
+    ``overrides``: ``-D`` strings or a mapping of dotted keys (``apply_overrides``).
+    ``frame``: the number put into grid file patterns (frames.py); None if there are none."""
     path = str(path)
-    raw = read_toml(path)
-    apply_overrides(raw, _listed(overrides), path)
-    spec = validate(raw, path)
-    return _complete(spec)
+    return scene_from_raw(read_raw(path, overrides), path, frame=frame)
 
 
-def scene_from_dict(raw, file="<dict>", base_dir=".", overrides=()):
-    """Build a Scene from an in-memory dictionary (relative paths resolve against base_dir).
-    A grid source (``medium.density``, an emission field) may be a numpy array [z, y, x],
-    validated as a grid file is; arrays are not copied until validated."""
+def read_raw(path, overrides=()):
+    """The scene file's TOML as a dict, with the overrides applied (not validated)."""
+    return apply_overrides(read_toml(path), _listed(overrides), path)
+
+
+def scene_from_raw(raw, file, file_dir=None, frame=None):
+    """The Scene of a raw scene dict: frame patterns substituted, validated, grids loaded.
+    ``raw`` itself is not changed."""
+    from .frames import substitute
+    raw = substitute(raw, frame, file, file_dir)
+    return _complete(validate(raw, file, file_dir))
+
+
+def raw_from_dict(raw, file="<dict>", overrides=()):
+    """A copy of a scene dict built in Python, with the overrides applied (not validated);
+    numpy grids are shared, not copied."""
     import copy
     memo = {id(a): a for a in _arrays(raw)}   # deepcopy the tables, not the grids
-    raw = apply_overrides(copy.deepcopy(raw, memo), _listed(overrides), file)
-    spec = validate(raw, file, file_dir=os.path.abspath(base_dir))
-    return _complete(spec)
+    return apply_overrides(copy.deepcopy(raw, memo), _listed(overrides), file)
+
+
+def scene_from_dict(raw, file="<dict>", base_dir=".", overrides=(), frame=None):
+    """Build a Scene from an in-memory dictionary (relative paths resolve against base_dir).
+    A grid source (``medium.density``, an emission field) may be a numpy array [z, y, x],
+    validated as a grid file is; arrays are not copied until validated. ``frame`` as for
+    ``load_scene``."""
+    return scene_from_raw(raw_from_dict(raw, file, overrides), file, os.path.abspath(base_dir),
+                          frame)
 
 
 def _listed(overrides):
