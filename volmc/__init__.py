@@ -15,6 +15,9 @@ The Python API (volmc/api.py; the README's "Python API" section)::
   client=None, checkpoint=None, checkpoint_every=60.0, resume=None)``: a ``RenderedImage``
   with ``image``, ``variance``, ``counters``, ``seconds``, ``save(path)``; ``client`` renders
   on a Dask cluster, ``checkpoint``/``resume`` as on the command line.
+* ``render_frames(scene, frames, output=None, ...)``: a scene whose grid files name the frame
+  (``{frame:04d}``), rendered once per frame; with ``output`` written as
+  ``<stem>.0001.exr``, ... and complete frames skipped.
 * ``estimate_transmittance(scene_or_medium, origins, directions, t_max, estimator="auto",
   n=64, backend="opencl", seed=0)``: a ``TransmittanceResult`` per ray.
 * ``VolmcError``: raised for any bad input, with the CLI's one-line message.
@@ -31,10 +34,10 @@ import sys
 import types
 
 from .api import (RenderedImage, TransmittanceResult, estimate_transmittance, load_scene,
-                  render, scene_from_dict)
+                  render, render_frames, scene_from_dict)
 
-__all__ = ["load_scene", "scene_from_dict", "render", "estimate_transmittance", "VolmcError",
-           "VolmcWarning", "RenderedImage", "TransmittanceResult"]
+__all__ = ["load_scene", "scene_from_dict", "render", "render_frames", "estimate_transmittance",
+           "VolmcError", "VolmcWarning", "RenderedImage", "TransmittanceResult"]
 
 
 def __getattr__(name):

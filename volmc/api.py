@@ -13,12 +13,13 @@ Heavy modules (Numba, pyopencl, matplotlib) are imported inside the functions, s
 ``import volmc`` stays light.
 """
 
+import contextlib
 import os
 from dataclasses import dataclass, field
 
 # VolmcError and VolmcWarning are exported by volmc/__init__.py, on first use (they live in
 # volmc/scene/errors.py, and importing the scene package at once would import Numba).
-__all__ = ["load_scene", "scene_from_dict", "render", "estimate_transmittance",
+__all__ = ["load_scene", "scene_from_dict", "render", "render_frames", "estimate_transmittance",
            "RenderedImage", "TransmittanceResult"]
 
 
@@ -59,7 +60,7 @@ def _overrides(overrides):
     return list(overrides)
 
 
-def load_scene(path=None, overrides=None):
+def load_scene(path=None, overrides=None, frame=None):
     """Load a scene file (TOML, docs/scene_format.md) and return a ``volmc.scene.Scene``.
 
     path: the ``.toml`` file; None loads the bundled default scene (the procedural cloud,
@@ -72,15 +73,21 @@ def load_scene(path=None, overrides=None):
 
     The Scene is immutable: ``scene.camera``, ``scene.medium``, ``scene.lights`` and
     ``scene.render`` are the validated dataclasses of volmc/scene/schema.py, ``scene.grid``
-    the float32 density grid [z, y, x] (None when homogeneous). Raises VolmcError.
+    the float32 density grid [z, y, x] (None when homogeneous). frame: the number put into
+    grid file patterns such as ``file = "cache/density_{frame:04d}.vdb"`` (a scene with a
+    pattern needs one; ``render_frames`` renders a sequence). Raises VolmcError.
     """
     from .resources import default_scene
     from .scene import load_scene as _load
     return _load(str(default_scene()) if path is None else os.fspath(path),
-                 _overrides(overrides))
+                 _overrides(overrides), _frame(frame, "volmc.load_scene()"))
 
 
-def scene_from_dict(scene, base_dir=".", overrides=None, name="<dict>"):
+def _frame(frame, where):
+    return None if frame is None else _integer(frame, where, "frame", 0, 10**9 - 1)
+
+
+def scene_from_dict(scene, base_dir=".", overrides=None, name="<dict>", frame=None):
     """Build a scene in Python and return a ``volmc.scene.Scene``.
 
     scene: a dict with the structure of the TOML file (``{"camera": {...}, "medium": {...},
@@ -92,17 +99,23 @@ def scene_from_dict(scene, base_dir=".", overrides=None, name="<dict>"):
     [z, y, x] (x fastest, voxel centres as for grid files), checked like a grid file: 3-D,
     non-empty, real, finite and non-negative. The scene keeps a float32 copy.
     base_dir: the directory relative grid-file paths are resolved against.
-    overrides: as for ``load_scene``. name: the "file" errors name. Raises VolmcError.
+    overrides, frame: as for ``load_scene``. name: the "file" errors name. Raises VolmcError.
     """
     from .scene import scene_from_dict as _from_dict
+    return _from_dict(_scene_dict(scene, name), file=name, base_dir=base_dir,
+                      overrides=_overrides(overrides),
+                      frame=_frame(frame, "volmc.scene_from_dict()"))
+
+
+def _scene_dict(scene, name):
+    """A dict or SceneSpec as the plain dict the validator takes."""
     from .scene.schema import SceneSpec
     if isinstance(scene, SceneSpec):
         from .scene.serialize import to_dict
         scene = to_dict(scene)
     if not isinstance(scene, dict):
         raise _error(name, "", f"expected a dict or a SceneSpec, got {type(scene).__name__}")
-    return _from_dict(_plain(scene), file=name, base_dir=base_dir,
-                      overrides=_overrides(overrides))
+    return _plain(scene)
 
 
 def _as_scene(scene, where):
@@ -202,11 +215,7 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     from .render import render as _render
     where = "volmc.render()"
     scene = _as_scene(scene, where)
-    keys = {}
-    if spp is not None:
-        keys["spp"] = _integer(spp, where, "spp", 1, 2**32 - 1)
-    if seed is not None:
-        keys["seed"] = _integer(seed, where, "seed", 0, 2**64 - 1)
+    keys = _render_keys(spp, seed, where)
     if keys:
         scene = scene.with_render(**keys)
     name = _backend_name(backend, device, where)
@@ -215,6 +224,29 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     resume = _path(resume, where, "resume", writable=checkpoint is None)
     checkpoint = _path(checkpoint, where, "checkpoint", writable=True) or resume
     every = _seconds(checkpoint_every, where, "checkpoint_every")
+    with _client(client, where) as client:
+        # By name: the driver checks the memory the scene needs before it builds the backend.
+        result = _render(scene, backend=name, device=device, progress=bool(progress),
+                         client=client, checkpoint=checkpoint, checkpoint_every=every,
+                         resume=resume, lanes=lanes)
+    _warn_guards(result)
+    return RenderedImage(result, scene)
+
+
+def _render_keys(spp, seed, where):
+    """{"spp": .., "seed": ..} of the ones given, checked."""
+    keys = {}
+    if spp is not None:
+        keys["spp"] = _integer(spp, where, "spp", 1, 2**32 - 1)
+    if seed is not None:
+        keys["seed"] = _integer(seed, where, "seed", 0, 2**64 - 1)
+    return keys
+
+
+@contextlib.contextmanager
+def _client(client, where):
+    """The Dask client of a ``client`` argument: None, a Client as given, or one opened on a
+    scheduler address and closed on leaving."""
     own = isinstance(client, str)
     if own and not client.strip():
         raise _error(where, "client", "expected a scheduler address such as "
@@ -226,19 +258,103 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
         raise _error(where, "client", f"expected a distributed.Client or a scheduler address, "
                                       f"got {type(client).__name__}")
     try:
-        # By name: the driver checks the memory the scene needs before it builds the backend.
-        result = _render(scene, backend=name, device=device, progress=bool(progress),
-                         client=client, checkpoint=checkpoint, checkpoint_every=every,
-                         resume=resume, lanes=lanes)
+        yield client
     finally:
         if own:
             client.close()
-    if result.guard_warnings():
-        import warnings
-        from .scene.errors import VolmcWarning
-        for text in result.guard_warnings():
-            warnings.warn(text, VolmcWarning, stacklevel=2)
-    return RenderedImage(result, scene)
+
+
+def _warn_guards(result, prefix=""):
+    """A VolmcWarning per guard that fired (the line ``volmc render`` prints)."""
+    import warnings
+    from .scene.errors import VolmcWarning
+    for text in result.guard_warnings():
+        # stacklevel 3: the caller of the API function
+        warnings.warn(prefix + text, VolmcWarning, stacklevel=3)
+
+
+def render_frames(scene, frames, output=None, spp=None, seed=None, backend="opencl",
+                  device=None, progress=True, client=None, lanes=None, overrides=None,
+                  base_dir=".", png=False, variance=False, exposure=0.0, tonemap="filmic"):
+    """Render a frame sequence: the scene once per frame, its grid file patterns (``file =
+    "cache/fluid_data_{frame:04d}.vdb"``) filled with the frame number.
+
+    scene: a scene file path, or a scene dict (relative paths against ``base_dir``); not a
+    loaded Scene, whose grids are one frame's. overrides: as for ``load_scene``.
+    frames: frame numbers (``range(1, 49)``, a list, one int) or the ``--frames`` text
+    ("1-48", "1-48:2", "7"). spp, seed, backend, device, lanes, progress, client: as for
+    ``render``; each frame is the image ``render`` gives for the scene of that frame
+    (``load_scene(..., frame=f)``), bit for bit, here or on the cluster.
+
+    output: None renders in memory and returns {frame: RenderedImage}. An EXR path
+    ("out/fire.exr") writes frame f to "out/fire.0001.exr" (4 digits), as
+    ``volmc render --frames`` does, and returns {frame: EXR path}; frames whose EXR is
+    complete (finished, not partial, of this scene, frame and backend) are skipped, so a
+    call that was stopped or killed goes on where it was. png: also write "out/fire.0001.png"
+    (``exposure``, ``tonemap`` as for ``RenderedImage.save``); variance: also
+    "out/fire.0001.var.exr". Every frame's grid files are checked before the first frame
+    renders: a missing one raises VolmcError naming the file and key and listing the frames
+    on disk. An interrupt stops after the current frame, which is returned (and written)
+    with ``partial`` True. A guard that fired issues a ``volmc.VolmcWarning`` naming the
+    frame. Raises VolmcError.
+    """
+    from .frames import FrameSequence, render_sequence
+    from .render import render as _render
+    from .scene import Scene
+    from .scene.loading import apply_overrides, raw_from_dict, read_raw
+    where = "volmc.render_frames()"
+    if isinstance(scene, Scene):
+        raise _error(where, "scene", "a loaded Scene holds one frame's grids: pass the scene "
+                                     "file or dict")
+    if isinstance(scene, (str, os.PathLike)):
+        file, file_dir = os.fspath(scene), None
+        raw = read_raw(file, _overrides(overrides))
+    else:
+        file, file_dir = "<dict>", os.path.abspath(base_dir)
+        raw = raw_from_dict(_scene_dict(scene, file), file, _overrides(overrides))
+    keys = _render_keys(spp, seed, where)
+    apply_overrides(raw, {f"render.{k}": v for k, v in keys.items()}, file)
+    frames = _frame_list(frames, where)
+    name = _backend_name(backend, device, where)
+    lanes = _lanes(lanes, name, where)
+    output = _path(output, where, "output", writable=True)
+    if output is not None and not output.lower().endswith(".exr"):
+        raise _error(where, "output", f"expected a path ending in .exr, got {output!r}")
+    if (png or variance) and output is None:
+        raise _error(where, "png" if png else "variance", "needs an output path")
+    png = os.path.splitext(output)[0] + ".png" if png else None
+    seq = FrameSequence(raw, file, file_dir, frames, "frames")
+    plan = seq.plan(output, name)
+
+    with _client(client, where) as client:
+        def render_one(frame_scene, label):
+            result = _render(frame_scene, backend=name, device=device,
+                             progress=bool(progress), client=client, lanes=lanes, label=label)
+            return RenderedImage(result, frame_scene)
+        out = {}
+        for done in render_sequence(seq, plan, render_one, png, variance, exposure, tonemap):
+            out[done.frame] = done.exr if output else done.image
+            if done.image is not None:
+                _warn_guards(done.image.result, f"frame {done.frame}: ")
+    return out
+
+
+def _frame_list(frames, where):
+    """The frames argument as a list of distinct frame numbers."""
+    from .frames import check_count, parse_frames
+    if isinstance(frames, str):
+        return list(parse_frames(frames, where, "frames"))
+    if not isinstance(frames, bool) and isinstance(frames, int):
+        frames = [frames]
+    try:
+        frames = list(frames)
+    except TypeError:
+        raise _error(where, "frames", f"expected frame numbers or a text such as '1-48', got "
+                                      f"{type(frames).__name__}") from None
+    out = [_integer(f, where, "frames", 0, 10**9 - 1) for f in frames]
+    if len(set(out)) != len(out):
+        raise _error(where, "frames", "a frame is named twice")
+    return list(check_count(out, where, "frames"))
 
 
 class RenderedImage:

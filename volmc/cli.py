@@ -146,6 +146,10 @@ def build_parser():
                    help="continue the render saved in checkpoint FILE to the requested spp "
                         "(it must be of the same scene, seed, sampler and backend); "
                         "checkpoints go on to FILE unless --checkpoint says otherwise")
+    r.add_argument("--frames", metavar="FIRST-LAST[:STEP]",
+                   help="render a frame sequence: the scene once per frame, its grid file "
+                        "patterns ({frame:04d}) filled in, to <name>.0001.exr, ...; frames "
+                        "whose EXR is complete are skipped (e.g. 1-48, 1-48:2, 7)")
 
     k = sub.add_parser("check", help="render a scene with two backends and compare the images "
                                      "(per-pixel z-test)")
@@ -342,41 +346,16 @@ def _announce_start():
 def cmd_render(args):
     from .film import write_exr, write_png
     from .render import render
-    from .resources import default_scene
     from .scene import load_scene
     from .scene.serialize import to_toml
 
-    use_default = args.scene is None
-    scene_path = str(default_scene()) if use_default else args.scene
-    stem = os.path.splitext(os.path.basename(scene_path))[0]
-    out = args.output or f"{stem}.exr"
-    png = args.png
-    if png is None and use_default:
-        png = ""
-    if png == "":
-        png = os.path.splitext(out)[0] + ".png"
-    if not out.lower().endswith(".exr"):   # the render is float: an EXR, a PNG beside it
-        raise SceneError("command line", "-o", f"expected a path ending in .exr, got {out!r} "
-                                               "(--png writes a PNG preview as well)")
-    _check_writable(out, "-o")
-    if png:
-        if not png.lower().endswith(".png"):   # the image writer picks the format by suffix
-            raise SceneError("command line", "--png", f"expected a path ending in .png, got "
-                                                      f"{png!r}")
-        _check_writable(png, "--png")
-
-    defines = list(args.defines)
-    if args.spp is not None:
-        defines.append(f"render.spp={args.spp}")
-    if args.seed is not None:
-        defines.append(f"render.seed={args.seed}")
+    scene_path, out, png = _render_paths(args)
+    defines = _render_defines(args)
+    if args.frames is not None:
+        return cmd_render_frames(args, scene_path, out, png, defines)
     scene = load_scene(scene_path, defines)
 
-    if args.backend == "opencl":
-        from .cl.device import select_device
-        from .cl.lanes import resolve_lanes
-        select_device(args.device)   # a bad --device fails before anything is printed
-        resolve_lanes(args.lanes, args.device)   # and so does a bad $VOLMC_LANES
+    _check_render_device(args)
     from .memory import check_memory
     check_memory(scene, args.backend, args.device)   # a render that cannot fit fails now
     if not args.quiet:
@@ -386,10 +365,7 @@ def cmd_render(args):
     checkpoint = args.checkpoint or args.resume
     if checkpoint:
         _check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
-    from .visibility import medium_in_view
-    if not medium_in_view(scene):
-        print(f"volmc: warning: {scene_path}: medium: no camera ray reaches the medium box; "
-              "the image shows only the background", file=sys.stderr)
+    _warn_out_of_view(scene, scene_path)
     with _dask_session(args) as client:
         # By name: the driver reads a --resume checkpoint (and refuses a wrong one) before
         # it builds and compiles the backend.
@@ -408,19 +384,142 @@ def cmd_render(args):
                   alpha=res.alpha if scene.render.transparent_background else None)
 
     if not args.quiet:
-        w, h = scene.camera.resolution
         state = "interrupted, partial image" if res.partial else "done"
-        print(f"volmc: {state}: {out}{' + ' + png if png else ''} ({w}x{h}, {res.film.spp} spp, "
-              f"{res.backend}, {res.seconds:.2f} s)", file=sys.stderr)
+        print(f"volmc: {state}: {_summary(out, png, res, scene)}", file=sys.stderr)
+    _report(args, res)
+    return EXIT_INTERRUPTED if res.partial else 0
+
+
+def _render_paths(args):
+    """(scene path, EXR path, PNG path or None) of ``volmc render``, the outputs checked."""
+    from .resources import default_scene
+    use_default = args.scene is None
+    scene_path = str(default_scene()) if use_default else args.scene
+    stem = os.path.splitext(os.path.basename(scene_path))[0]
+    out = args.output or f"{stem}.exr"
+    png = args.png
+    if png is None and use_default:
+        png = ""
+    if png == "":
+        png = os.path.splitext(out)[0] + ".png"
+    if not out.lower().endswith(".exr"):   # the render is float: an EXR, a PNG beside it
+        raise SceneError("command line", "-o", f"expected a path ending in .exr, got {out!r} "
+                                               "(--png writes a PNG preview as well)")
+    _check_writable(out, "-o")
+    if png:
+        if not png.lower().endswith(".png"):   # the image writer picks the format by suffix
+            raise SceneError("command line", "--png", f"expected a path ending in .png, got "
+                                                      f"{png!r}")
+        _check_writable(png, "--png")
+    return scene_path, out, png
+
+
+def _render_defines(args):
+    """The -D overrides of ``volmc render`` with --spp and --seed appended."""
+    defines = list(args.defines)
+    if args.spp is not None:
+        defines.append(f"render.spp={args.spp}")
+    if args.seed is not None:
+        defines.append(f"render.seed={args.seed}")
+    return defines
+
+
+def _check_render_device(args):
+    if args.backend == "opencl":
+        from .cl.device import select_device
+        from .cl.lanes import resolve_lanes
+        select_device(args.device)   # a bad --device fails before anything is printed
+        resolve_lanes(args.lanes, args.device)   # and so does a bad $VOLMC_LANES
+
+
+def _warn_out_of_view(scene, scene_path, prefix=""):
+    from .visibility import medium_in_view
+    if not medium_in_view(scene):
+        print(f"volmc: warning: {scene_path}: {prefix}medium: no camera ray reaches the medium "
+              "box; the image shows only the background", file=sys.stderr)
+
+
+def _summary(out, png, res, scene):
+    """"out.exr + out.png (WxH, N spp, backend, T s)" of a finished render."""
+    w, h = scene.camera.resolution
+    return (f"{out}{' + ' + png if png else ''} ({w}x{h}, {res.film.spp} spp, {res.backend}, "
+            f"{res.seconds:.2f} s)")
+
+
+def _report(args, res, prefix=""):
+    """--stats, and the guard warnings (``prefix``: "frame 7: " in a sequence)."""
     if args.stats:
+        if prefix:
+            print(prefix.rstrip(": ") + ":")
         for k, v in res.stats().items():
             print(f"  {k:24s} {v:.6g}" if isinstance(v, float) else f"  {k:24s} {v}")
     # Guard "reported counters" (robustness case 10, 19, 20): a render that cut paths, dropped
     # samples or met extinction above its majorant says so even without --stats or with
     # --quiet (the counts are also in the EXR metadata): never a silent bias.
     for text in res.guard_warnings():
-        print(f"volmc: warning: {text}", file=sys.stderr)
-    return EXIT_INTERRUPTED if res.partial else 0
+        print(f"volmc: warning: {prefix}{text}", file=sys.stderr)
+
+
+def cmd_render_frames(args, scene_path, out, png, defines):
+    """``volmc render --frames``: frames.render_sequence with the command line's output,
+    progress and errors."""
+    from .api import RenderedImage
+    from .frames import FrameSequence, frame_path, parse_frames, render_sequence
+    from .render import render
+    from .scene.frames import describe
+    from .scene.loading import read_raw
+    frames = parse_frames(args.frames)
+    for flag in ("checkpoint", "resume"):
+        if getattr(args, flag):
+            raise SceneError("command line", f"--{flag}", "a frame sequence resumes by "
+                             "skipping its complete frames; --checkpoint and --resume are "
+                             "for a single render")
+    _check_render_device(args)
+    seq = FrameSequence(read_raw(scene_path, defines), scene_path, None, frames)
+    plan = seq.plan(out, args.backend)
+    if not args.quiet:
+        n_done = sum(p.complete for p in plan)
+        print(f"volmc: rendering {scene_path}, {describe(seq.frames)} ({len(plan)} frames, "
+              f"{n_done} complete; backend {args.backend})", file=sys.stderr, flush=True)
+    started = []
+
+    def on_start():
+        if not started:
+            started.append(True)
+            _announce_start()
+
+    def render_one(scene, label):
+        _warn_out_of_view(scene, scene_path, label + ": ")
+        res = render(scene, backend=args.backend, progress=False if args.quiet else None,
+                     on_start=None if args.quiet else on_start, client=client,
+                     device=args.device, lanes=args.lanes, label=label)
+        return RenderedImage(res, scene)
+
+    t = time.perf_counter()
+    done = skipped = 0
+    with _dask_session(args) as client:
+        for fr in render_sequence(seq, plan, render_one, png, args.variance, args.exposure,
+                                  args.tonemap):
+            head = f"frame {fr.index}/{fr.count} ({fr.frame})"
+            if fr.image is None:
+                skipped += 1
+                if not args.quiet:
+                    print(f"volmc: {head}: {fr.exr} is complete, skipped", file=sys.stderr)
+                continue
+            done += 1
+            res = fr.image.result
+            if not args.quiet:
+                state = "interrupted, partial image" if res.partial else "done"
+                written = _summary(fr.exr, png and frame_path(png, fr.frame), res,
+                                   fr.image.scene)
+                print(f"volmc: {head}: {state}: {written}", file=sys.stderr, flush=True)
+            _report(args, res, f"frame {fr.frame}: ")
+            if res.partial:
+                return EXIT_INTERRUPTED
+    if not args.quiet:
+        print(f"volmc: done: {len(seq.frames)} frames, {done} rendered, {skipped} complete "
+              f"already ({time.perf_counter() - t:.2f} s)", file=sys.stderr)
+    return 0
 
 
 def cmd_check(args):

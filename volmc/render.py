@@ -169,7 +169,7 @@ class _StopFlag:
 
 def render(scene, backend="opencl", spp=None, progress=None, on_start=None, checkpoint=None,
            checkpoint_every=60.0, resume=None, client=None, device=None,
-           chunk_samples=CHUNK_SAMPLES, band_rows=None, lanes=None):
+           chunk_samples=CHUNK_SAMPLES, band_rows=None, lanes=None, label=None):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
@@ -185,7 +185,8 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     act between chunks. band_rows: rows of pixels per launch of a backend made here (None:
     volmc.memory.band_rows). lanes: OpenCL's paths per work-item (None:
     volmc.cl.lanes.resolve_lanes here, also for a cluster, whose workers render with it); it
-    is part of a checkpoint's identity.
+    is part of a checkpoint's identity. label: the progress bar's title (a frame sequence's
+    "frame 3/48").
 
     Before any work, ``volmc.memory.check_memory`` raises SceneError (naming the key, the
     memory needed and the memory there is) when the render would not fit; given a backend
@@ -226,7 +227,7 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     if progress is None:
         progress = sys.stderr.isatty()
     bar = tqdm(total=spp, initial=min(film.spp, spp), unit="spp", disable=not progress,
-               leave=False, file=sys.stderr)
+               leave=False, file=sys.stderr, desc=label)
 
     def counters():
         totals = runner.counter_totals()

@@ -1,0 +1,205 @@
+"""Frame sequences: ``volmc render --frames 1-48[:step]`` and ``volmc.render_frames``.
+
+A scene whose grid files name the frame (``file = "cache/fluid_data_{frame:04d}.vdb"``;
+scene/frames.py substitutes it) renders once per frame, each frame exactly as a single
+render of that frame's scene: the same image bit for bit, here or on a Dask cluster (each
+frame's chunks are the cluster's tasks, render.py and distributed.py). Frame f goes to
+``<stem>.<f:04d>.exr`` beside the output path, with the PNG and variance images named
+alike.
+
+The EXR is written last and atomically (a temporary file, then a rename), and it records
+the frame and an identity of what it is a render of (the scene as loaded, overrides
+included, the frame and the backend). A frame whose EXR exists, is not partial (the
+``partial`` flag an interrupted render writes, as for a single render) and has this
+identity is complete and is skipped, so a killed run resumes at the first frame it had
+not finished.
+"""
+
+import hashlib
+import json
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+
+from .scene.errors import SceneError
+
+#: Frames one request may name; a typo such as 1-100000000 fails at once instead of
+#: building a plan of that size.
+MAX_FRAMES = 1_000_000
+
+_SPEC = re.compile(r"(\d{1,9})(?:-(\d{1,9}))?(?::(\d{1,9}))?")
+
+
+def parse_frames(text, file="command line", key="--frames"):
+    """The frames of ``FIRST-LAST[:STEP]`` (LAST included) or of one number ``N``, as a
+    range. Anything else is a SceneError(file, key)."""
+    m = _SPEC.fullmatch(text.strip()) if isinstance(text, str) else None
+    if m is None:
+        raise SceneError(file, key, f"expected FIRST-LAST[:STEP] or a frame number, e.g. "
+                                    f"1-48 or 1-48:2 or 7, got {text!r}")
+    first = int(m.group(1))
+    last = first if m.group(2) is None else int(m.group(2))
+    step = 1 if m.group(3) is None else int(m.group(3))
+    if last < first:
+        raise SceneError(file, key, f"{text!r}: the last frame ({last}) is before the first "
+                                    f"({first})")
+    if step < 1:
+        raise SceneError(file, key, f"{text!r}: the step must be at least 1, got {step}")
+    return check_count(range(first, last + 1, step), file, key)
+
+
+def check_count(frames, file, key):
+    if len(frames) > MAX_FRAMES:
+        raise SceneError(file, key, f"{len(frames)} frames; at most {MAX_FRAMES} in one run")
+    return frames
+
+
+def frame_path(path, frame):
+    """``out/fire.exr`` -> ``out/fire.0007.exr`` (4 digits, more when the number needs)."""
+    stem, ext = os.path.splitext(path)
+    return f"{stem}.{frame:04d}{ext}"
+
+
+def _canonical(value):
+    """What json.dumps cannot write itself: a numpy grid of a scene built in Python (by its
+    bytes), numpy numbers, and anything else TOML may hold (dates) by its text."""
+    import numpy as np
+    if isinstance(value, np.ndarray):
+        a = np.ascontiguousarray(value)
+        h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
+        h.update(memoryview(a).cast("B"))
+        return {"array": h.hexdigest()}
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
+
+
+def identity(raw, frame, backend):
+    """The hex SHA-256 of a frame's render: the raw scene (file patterns unformatted,
+    overrides, spp and seed in), the frame number and the backend name. The lane width and
+    the device are left out: they change an image's rounding, not what it is a render of."""
+    text = json.dumps([raw, frame, backend], sort_keys=True, default=_canonical)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def is_complete(exr, ident):
+    """True if ``exr`` holds a finished (not partial) render with identity ``ident``."""
+    from .film import META_PREFIX
+    if not os.path.isfile(exr):
+        return False
+    try:
+        import OpenEXR
+        with OpenEXR.File(str(exr), header_only=True) as f:
+            # Read inside: the header is emptied when the file closes.
+            header = f.header()
+            return header.get(META_PREFIX + "partial") == 0 and \
+                header.get(META_PREFIX + "frame_identity") == ident
+    except Exception:   # noqa: BLE001 -- unreadable for any reason: not complete, render it
+        return False
+
+
+def write_exr_atomic(path, image, meta):
+    """film.write_exr to a temporary file in the same directory, then renamed over
+    ``path``: a run killed while writing leaves no EXR that looks complete."""
+    from .film import write_exr
+    d = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".volmc-frame-", suffix=".exr", dir=d)
+    os.close(fd)
+    try:
+        write_exr(tmp, image, meta)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class FrameSequence:
+    """A raw scene (a scene file's TOML or a scene dict, overrides applied) whose grid files
+    name the frame, and the frames to render of it."""
+
+    def __init__(self, raw, file, file_dir, frames, key="--frames"):
+        from .scene.frames import patterns
+        self.raw, self.file, self.file_dir = raw, file, file_dir
+        self.frames = list(frames)
+        if not self.frames:
+            raise SceneError(file, key, "no frames to render")
+        if not patterns(raw):
+            raise SceneError(file, key, "no grid file of the scene names the frame (write "
+                                        "e.g. file = \"cache/density_{frame:04d}.vdb\"), so "
+                                        "every frame would be the same image")
+
+    def plan(self, output, backend):
+        """[FramePlan] of each frame: its EXR (None without ``output``), its identity and
+        whether that EXR is complete. A frame to render whose grid file is missing raises
+        SceneError (naming the scene file and key, listing the frames on disk): before
+        anything renders, so a run does not end halfway, and only for those frames, since
+        the files of complete frames may be gone."""
+        from .scene.frames import substitute
+        out = []
+        for f in self.frames:
+            ident = self.identity(f, backend)
+            exr = frame_path(output, f) if output else None
+            complete = bool(exr) and is_complete(exr, ident)
+            if not complete:
+                substitute(self.raw, f, self.file, self.file_dir)
+            out.append(FramePlan(f, ident, exr, complete))
+        return out
+
+    def scene(self, frame):
+        """The Scene of ``frame`` (its grids loaded)."""
+        from .scene.loading import scene_from_raw
+        return scene_from_raw(self.raw, self.file, self.file_dir, frame)
+
+    def identity(self, frame, backend):
+        return identity(self.raw, frame, backend)
+
+
+@dataclass
+class FramePlan:
+    frame: int
+    identity: str
+    exr: object
+    complete: bool
+
+
+@dataclass
+class FrameDone:
+    """One frame of a sequence: its number, its position among the frames asked for
+    (``index`` of ``count``, from 1), its EXR path (None when nothing is written) and the
+    api.RenderedImage (None when the frame was skipped as complete)."""
+    frame: int
+    index: int
+    count: int
+    exr: object
+    image: object
+
+
+def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.0,
+                    tonemap="filmic"):
+    """Render the frames of FrameSequence ``seq`` by its ``plan`` (``seq.plan``) in order
+    and yield a FrameDone for each. Frame f is written to its EXR (a PNG to
+    ``frame_path(png, f)`` when ``png`` is a path, the variance beside the EXR) when the
+    plan has one, and skipped when that EXR is complete. ``render_one`` (scene, label)
+    renders a scene into an api.RenderedImage. The sequence stops after an interrupted
+    (partial) frame, which is written marked partial."""
+    from .film import write_exr
+    n = len(plan)
+    for i, p in enumerate(plan, 1):
+        f, ident, exr = p.frame, p.identity, p.exr
+        if p.complete:
+            yield FrameDone(f, i, n, exr, None)
+            continue
+        img = render_one(seq.scene(f), f"frame {i}/{n}")
+        if exr:
+            img.result.extra.update(frame=f, frame_identity=ident)
+            meta = img.metadata()
+            if png:
+                img.save(frame_path(png, f), exposure, tonemap)
+            if variance:
+                write_exr(os.path.splitext(exr)[0] + ".var.exr", img.variance, meta)
+            write_exr_atomic(exr, img.result.film.rgba(), meta)
+        yield FrameDone(f, i, n, exr, img)
+        if img.partial:
+            return
