@@ -8,8 +8,9 @@ frame's chunks are the cluster's tasks, render.py and distributed.py). Frame f g
 alike.
 
 The EXR is written last and atomically (a temporary file, then a rename), and it records
-the frame and an identity of what it is a render of (the scene as loaded, overrides
-included, the frame and the backend). A frame whose EXR exists, is not partial (the
+the frame and an identity of what it is a render of (the scene's raw TOML or dict,
+overrides included, the frame and the backend; not the grid files' bytes, which would
+have to be read for every frame only to skip it). A frame whose EXR exists, is not partial (the
 ``partial`` flag an interrupted render writes, as for a single render) and has this
 identity is complete and is skipped, so a killed run resumes at the first frame it had
 not finished.
