@@ -24,7 +24,6 @@ import math
 import os
 import re
 import shutil
-import signal
 import struct
 import subprocess
 import sys
@@ -38,6 +37,7 @@ import pytest
 from hypothesis import HealthCheck, assume, event, example, given, settings
 from hypothesis import strategies as st
 
+from volmc.bench.fuzz import time_limit
 from volmc.cli import main as cli_main
 from volmc.pack import pack_scene
 from volmc.scene.bricks import BrickGrid
@@ -64,23 +64,6 @@ def _warm_up():
     """Compile the cloud generator once, outside the timed examples."""
     from volmc.scene.generators import cloud
     cloud(2)
-
-
-class Hang(BaseException):
-    """An example ran past EXAMPLE_LIMIT_S (BaseException: no ``except Exception`` eats it)."""
-
-
-@contextlib.contextmanager
-def time_limit(seconds=EXAMPLE_LIMIT_S):
-    def on_alarm(signum, frame):
-        raise Hang(f"input took more than {seconds} s")
-    old = signal.signal(signal.SIGALRM, on_alarm)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
 
 
 # ---------------------------------------------------------------------------------------
@@ -572,7 +555,7 @@ def check_scene_case(case):
             if m:
                 for f_ in re.findall(r'"((?:[^"\\]|\\.)*)"', m.group(1)) + [m.group(1).strip()]:
                     files.add(os.path.abspath(os.path.join(d, f_)))
-        with time_limit():
+        with time_limit(EXAMPLE_LIMIT_S):
             try:
                 scene = load_scene(path, defines)
             except SceneError as e:
@@ -784,7 +767,7 @@ def check_grid_file(spec):
         path = os.path.join(d, name)
         with open(path, "wb") as f:
             f.write(data)
-        with time_limit():
+        with time_limit(EXAMPLE_LIMIT_S):
             try:
                 g = load_grid(path, "medium.density")
             except SceneError as e:
@@ -884,7 +867,7 @@ def test_corrupt_toml_sweep(text):
         path = os.path.join(d, "scene.toml")
         with open(path, "wb") as f:
             f.write(text)
-        with time_limit():
+        with time_limit(EXAMPLE_LIMIT_S):
             try:
                 scene = load_scene(path)
             except SceneError as e:

@@ -10,16 +10,23 @@ same map.
 
 import contextlib
 import os
+import struct
 import sys
 import tempfile
 
 import numpy as np
 
 from .errors import SceneError
+from .hostmem import require_host
 
 #: Files this large are refused before they are read (a lat-long map of 32768 x 16384 RGB
 #: float32 texels is 6 GiB).
 MAX_TEXELS = 1 << 29
+
+EXR_MAGIC = 0x01312F76
+#: Bytes of an EXR's headers read before OpenEXR is trusted with the file.
+EXR_HEADER_BYTES = 1 << 20
+EXR_PIXEL_BYTES = {0: 4, 1: 2, 2: 4}   # uint, half, float
 
 _cache = {}
 
@@ -90,8 +97,65 @@ def _output_to(sink):
             os.close(old)
 
 
+def _exr_needs(path, key):
+    """(texels, bytes per texel of all channels) of the largest part of an EXR, from its
+    headers: OpenEXR's bindings allocate every channel of the data window as the header
+    declares it, so a damaged dataWindow would have them ask for terabytes."""
+    def bad(why):
+        return SceneError(path, key, f"not a readable OpenEXR file: damaged header ({why})")
+
+    with open(path, "rb") as f:
+        data = f.read(EXR_HEADER_BYTES)
+    if len(data) < 8 or struct.unpack_from("<I", data)[0] != EXR_MAGIC:
+        raise bad("no OpenEXR magic number")
+    flags = struct.unpack_from("<I", data, 4)[0]
+    pos, parts, part = 8, [], {}
+    while True:
+        end = data.find(b"\0", pos)
+        if end < 0:
+            raise bad("the headers do not end")
+        name = data[pos:end]
+        pos = end + 1
+        if not name:                       # the end of a header
+            parts.append(part)
+            if not flags & 0x1000 or data[pos:pos + 1] == b"\0":   # single part, or last
+                break
+            part = {}
+            continue
+        end = data.find(b"\0", pos)
+        if end < 0 or end + 5 > len(data):
+            raise bad("an attribute runs past the headers")
+        type_name = data[pos:end]
+        size = struct.unpack_from("<i", data, end + 1)[0]
+        pos = end + 5
+        if size < 0 or pos + size > len(data):
+            raise bad(f"attribute {name[:40]!r} of {size} bytes")
+        value = data[pos:pos + size]
+        pos += size
+        if name == b"dataWindow" and type_name == b"box2i" and size == 16:
+            x0, y0, x1, y1 = struct.unpack("<4i", value)
+            part["texels"] = max(x1 - x0 + 1, 0) * max(y1 - y0 + 1, 0)
+        elif name == b"channels" and type_name == b"chlist":
+            nbytes, at = 0, 0
+            while at < len(value) and value[at:at + 1] != b"\0":
+                e = value.find(b"\0", at)
+                if e < 0 or e + 17 > len(value):
+                    raise bad("channel list")
+                nbytes += EXR_PIXEL_BYTES.get(struct.unpack_from("<i", value, e + 1)[0], 4)
+                at = e + 17
+            part["bytes"] = nbytes
+    return max(((p.get("texels", 0), p.get("bytes", 0)) for p in parts),
+               key=lambda tb: tb[0] * max(tb[1], 1))
+
+
 def _read_exr(path, key):
     import OpenEXR
+    texels, nbytes = _exr_needs(path, key)
+    if texels > MAX_TEXELS:
+        raise SceneError(path, key, f"{texels} texels; at most {MAX_TEXELS} are read")
+    # The channels as OpenEXR holds them, their float32 planes and the stacked map.
+    require_host(texels * (nbytes + 4 * 3 * 2), path, key,
+                 f"reading a map of {texels} texels")
     with tempfile.TemporaryFile() as log:
         try:
             with _output_to(log), OpenEXR.File(str(path), separate_channels=True) as f:

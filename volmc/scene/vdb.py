@@ -89,6 +89,10 @@ MAX_TILE_VOXELS = 1 << 28
 BYTES_PER_LEAF = 512 * 4 + 2 * 512
 BYTES_PER_BLOCK = 512 * 4 + 12 + 2 * 512
 
+# Transforms are refused beyond this many world units: volmc's bounds, voxel sizes and the
+# device's float32 arithmetic stay finite below it.
+MAX_WORLD = 1e30
+
 VDB_MAGIC = 0x56444220  # " BDV" as a little-endian int64
 VDB_MIN_VERSION = 222  # node-mask compression: the per-node metadata byte
 VDB_MAX_VERSION = 225  # 224: multi-pass I/O; 225 (OpenVDB 13) adds half-typed grids and
@@ -327,6 +331,8 @@ def _check_transform(m, t, cur, grid):
     if not np.all(np.isfinite(m)) or not np.all(np.isfinite(t)):
         raise cur.error(f"grid '{grid}': transform holds NaN or infinite values")
     scale = float(np.max(np.abs(m)))
+    if scale > MAX_WORLD or float(np.max(np.abs(t))) > MAX_WORLD:
+        raise cur.error(f"grid '{grid}': transform values beyond {MAX_WORLD:g} world units")
     m[np.abs(m) <= 1e-9 * scale] = 0.0
     full = np.eye(4)
     full[:3, :3] = m
@@ -513,7 +519,7 @@ class _VdbReader:
         info, vsize, half = self._info(name, gtype, parent)
         if not info.readable:
             floats = ", ".join(f"'{g.name}'" for g in infos if g.readable) or "none"
-            what = "a vector grid" if "vector" in info.note else f"not a float grid"
+            what = "a vector grid" if "vector" in info.note else "not a float grid"
             raise cur.error(f"grid '{name}' is {what} ({info.kind}: {info.note}); the "
                             f"file's float grids: {floats}")
         cur.pos = grid_pos
@@ -579,7 +585,18 @@ class _VdbReader:
     def _value(self):
         """One value at full width (a background, tile or inactive value: OpenVDB writes
         these unhalved even in a half-float grid)."""
-        return float(np.frombuffer(self.cur.take(self.vsize), self.vtype)[0])
+        return float(self._float32(np.frombuffer(self.cur.take(self.vsize), self.vtype))[0])
+
+    def _float32(self, vals):
+        """``vals`` as float32; a double beyond float32's range is an error, not an inf."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = vals.astype(np.float32)
+        if vals.dtype.itemsize == 8:
+            lost = np.isinf(out) & np.isfinite(vals)
+            if lost.any():
+                raise self.cur.error(f"grid value {float(vals[lost][0]):g} overflows float32 "
+                                     "(volmc holds grids as float32)")
+        return out
 
     def _read_transform(self, name):
         cur = self.cur
@@ -648,7 +665,7 @@ class _VdbReader:
             stored = int(value_on.sum())
         itemsize = 2 if self.half else self.vsize
         data = self._read_data(stored * itemsize)
-        vals = np.frombuffer(data, "<f2" if self.half else self.vtype).astype(np.float32)
+        vals = self._float32(np.frombuffer(data, "<f2" if self.half else self.vtype))
         if stored == count:
             return vals
         out = np.where(select, np.float32(inactive1), np.float32(inactive0)) \
