@@ -137,3 +137,29 @@ def test_volmc_info_refuses_a_bad_file_with_one_line(tmp_path):
     assert out.stderr.startswith(f"volmc: error: {bad}: file: corrupt OpenVDB file: grid "
                                  "count 23")
     assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
+
+
+def test_a_mantaflow_frame_loads_as_a_fire_scene():
+    """The documented use: density from a frame, emission from its flame grid through a
+    temperature remap; the box is the density's, and the kelvin grid is the flame placed on
+    the density's voxels by index, remapped."""
+    from volmc.scene import scene_from_dict
+    f = str(FIRE / FRAMES[-1])
+    s = scene_from_dict({
+        "camera": {"eye": [0.8, 0.8, 6], "target": [0.8, 0.8, 1], "fov": 40,
+                   "resolution": [8, 8]},
+        "medium": {"density": {"file": f}, "scale": 20.0, "albedo": 0.8,
+                   "emission": {"temperature": {"file": f, "grid": "flame"},
+                                "remap": [0.0, 1.0, 0.0, 1800.0]}},
+        "lights": [{"type": "environment", "radiance": [0.1, 0.1, 0.1]}],
+        "render": {"spp": 4}})
+    dens = read_vdb(f)
+    np.testing.assert_allclose(s.medium.bounds, dens.world_bounds(), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(s.grid), dens.to_dense())
+    flame = read_vdb(f, "flame")
+    on_density = np.zeros(dens.shape, np.float32)
+    (x0, y0, z0), (x1, y1, z1) = (np.subtract(c, dens.bbox[0]) for c in flame.bbox)
+    on_density[z0:z1 + 1, y0:y1 + 1, x0:x1 + 1] = flame.to_dense()
+    np.testing.assert_allclose(s.emission_grid, np.clip(on_density, 0, 1) * 1800.0,
+                               rtol=1e-6, atol=1e-3)
+    assert s.emission_grid.max() > 1000.0
