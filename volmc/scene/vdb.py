@@ -6,9 +6,19 @@ API
     Reads the float grid named ``grid_name``; the file kind is told by its first bytes,
     not by its suffix. Every failure is a ``SceneError(path, key, message)`` with a
     one-line message (file not found, not an OpenVDB/NanoVDB file, truncated or corrupt
-    data, no grid of that name -- the message lists the grids the file has --, a grid
-    that is not a float grid, a transform volmc cannot represent, unsupported
-    compression or format version, a grid with no active voxels).
+    data, no grid of that name -- the message lists the grids the file has, with their
+    kinds --, a grid that is not a float grid -- a vector grid is named as one --, a
+    transform volmc cannot represent, unsupported compression or format version, a grid
+    with no active voxels, more host memory than there is).
+
+``list_grids(path, key="grid") -> [GridInfo]``
+    Every grid of the file in file order, from the headers only: ``name``, ``kind``
+    ("float", "half float", "double", "double saved as half", "Vec3s", "int32", "NanoVDB
+    Fp16", ...), ``readable`` (read_vdb reads it) and ``note`` (why not: a vector grid, an
+    integer grid, points, an instance). ``describe_grid_file(path)`` gives the lines
+    ``volmc info FILE.vdb`` prints. Simulation caches hold many grids (Blender's Mantaflow:
+    density, flame, temperature, fuel, ... with Vec3s velocity and int32 flags;
+    docs/scene_format.md lists them).
 
 ``VdbGrid`` (a frozen dataclass):
     name            the grid's name.
@@ -46,7 +56,9 @@ API
 Reading builds no dense array: the blocks are the file's leaf nodes, plus one block per
 8^3 piece of each ACTIVE tile of an internal or root node (a tile stands for a constant
 8^3, 128^3 or 4096^3 region); tiles whose blocks would hold more than ``MAX_TILE_VOXELS``
-voxels are rejected. Inactive tiles are read as the background.
+voxels are rejected. Inactive tiles are read as the background. The blocks' bytes are
+checked against the host memory available (hostmem.require_host) before they are
+allocated, and a compressed NanoVDB grid's declared size before it is inflated.
 
 Transforms: any affine map (OpenVDB's UniformScaleMap, UniformScaleTranslateMap, ScaleMap,
 ScaleTranslateMap, TranslationMap, AffineMap and UnitaryMap; NanoVDB's matrix), including
@@ -55,18 +67,23 @@ rotation, shear and mirroring; the medium then carries it as its transform
 
 Formats read (facts from OpenVDB's and NanoVDB's headers; no code of theirs):
 
-* OpenVDB file format versions 222-224 (OpenVDB 3.0 and later), trees
-  ``Tree_float_5_4_3``, values stored as float or as half float
-  (``saveFloatAsHalf``), compression none, active-mask, zip and blosc (blosc needs the
-  ``blosc`` package). Grid instances (a grid sharing another's tree) are rejected.
+* OpenVDB file format versions 222-225 (OpenVDB 3.0 to 13; 225 only adds half-typed
+  grids), trees ``Tree_float_5_4_3`` and ``Tree_double_5_4_3`` (held as float32; a
+  double beyond float32's range is an error), values stored at full width or as half
+  floats (``saveFloatAsHalf``, the ``_HalfFloat`` type suffix), compression none,
+  active-mask, zip and blosc (blosc needs the ``blosc`` package, a dependency). Grid
+  instances (a grid sharing another's tree) and every other tree type are listed, not
+  read.
 * NanoVDB files of major version 32 with codec none, zip or blosc, grids of type Float.
   Quantized (Fp4/Fp8/Fp16/FpN), Half and other value types are rejected.
 
 All multi-byte values are little-endian (both formats are written in host order, and
 volmc does not read big-endian files). The structure of the file is checked (sizes,
-offsets, counts, compressed streams), so truncation and most corruption are errors;
-damaged voxel values are not (no checksums are verified). Tested against files written
-by OpenVDB 10.0 and NanoVDB 32.4 (tests/data/vdb).
+offsets, counts, compressed streams, the nodes a NanoVDB tree reaches against its own
+counts), so truncation and most corruption are errors; damaged voxel values are not (no
+checksums are verified). Every loop is bounded by the file's bytes or the tree's counts;
+tests/test_fuzz_readers.py fuzzes the reader. Tested against files written by OpenVDB
+10.0 and 12.0 and NanoVDB 32.4 (tests/data/vdb, tests/data/fire).
 """
 
 import mmap
