@@ -107,7 +107,7 @@ static inline spec tracked_transmittance(TRANSMITTANCE_ARGS, int technique) {
     spec T;
     lvec3 E;
     track(med, o, d, t0, t1, technique, technique == TRACK_LENGTH || technique == TRACK_AUTO,
-          v3s(1.0f), (lint)(-1), rng, counters, max_steps, active, &t, &T, &E);
+          v3s(1.0f), (lint)(-1), emis_plain(), rng, counters, max_steps, active, &t, &T, &E);
     return T;
 }
 

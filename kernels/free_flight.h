@@ -10,10 +10,10 @@
  * (>= 0) beta is the path's decision-probability ratios and w their update (see
  * tracking.py). */
 static inline lint free_flight(const MediumData *med, lvec3 o, lvec3 d, lfloat t0, lfloat t1,
-                               int use_control, lvec3 beta, lint hero, Rng *rng,
+                               int use_control, lvec3 beta, lint hero, EmisMis emis, Rng *rng,
                                lulong *counters, int max_steps, lmask active, lfloat *t_out,
                                spec *w_out, lvec3 *E_out) {
-    return track(med, o, d, t0, t1, TRACK_FREE_FLIGHT, use_control, beta, hero, rng, counters,
+    return track(med, o, d, t0, t1, TRACK_FREE_FLIGHT, use_control, beta, hero, emis, rng, counters,
                  max_steps, active, t_out, w_out, E_out);
 }
 

@@ -27,6 +27,7 @@
 #include "camera.h"
 #include "environment.h"
 #include "lights.h"
+#include "emitters.h"
 
 /* Guard "entry re-basing" (robustness case 10, 11, 13): clips ray o + t d to the box and, when the
  * box is entered from outside (t_enter > 0), moves the origin to the entry point, snapped onto
@@ -196,8 +197,8 @@ static inline int equiangular_mode(const Params *prm, const MediumData *med) {
 }
 
 /* Returns the unit direction from p to c, writes the distance (0 when p = c). */
-static inline lvec3 direction_to(lvec3 p, float3 c, lfloat *dist) {
-    lvec3 v = sub3(v3u(c), p);
+static inline lvec3 direction_to(lvec3 p, lvec3 c, lfloat *dist) {
+    lvec3 v = sub3(c, p);
     *dist = sqrt(dot3(v, v));
     return sel3(v, div3(v, *dist), *dist > 0.0f);
 }
@@ -247,7 +248,7 @@ static inline lvec3 light_ray(const Params *prm, const Medium *m, int ea,
         *falloff = (lfloat)(1.0f);
         return v3u(-c);
     }
-    lvec3 wl = direction_to(madd3(o, d, t), c, dist);
+    lvec3 wl = direction_to(madd3(o, d, t), v3u(c), dist);
     lfloat f = point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t) / (*dist * *dist);
     if (lt->type == LIGHT_SPOT) f = f * spot_falloff(lt, wl);
     *falloff = select((lfloat)(0.0f), f, *dist > 0.0f);
@@ -367,7 +368,7 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
         ok = ok & (pdf > 0.0f);
         lvec3 p = madd3(o, d, t);
         lfloat dist;
-        lvec3 wl = direction_to(p, c, &dist);
+        lvec3 wl = direction_to(p, v3u(c), &dist);
         ok = ok & (dist > 0.0f);
         lfloat spot = lights[i].type == LIGHT_SPOT ? spot_falloff(&lights[i], wl)
                                                    : (lfloat)(1.0f);
@@ -663,8 +664,19 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
                                       (luint)(0u), 1u).x,
                    preset);
     lmask heroic = FEATURE_CHROMATIC ? path->hero >= 0 : (lmask)(0);
+    EmisMis emis = emis_plain();
+    if (FEATURE_EMISSION && prm->emission_sampling != EMISSION_SAMPLING_COLLISION) {
+        /* A flight from a scattering vertex: its emission is weighed against emission
+         * sampling there (none with "light"); a camera ray's is not. */
+        lfloat pdf = prm->emission_sampling == EMISSION_SAMPLING_MIS ? path->pdf_phase
+                                                                     : (lfloat)(0.0f);
+        emis.pdf = select((lfloat)(-1.0f), pdf, path->depth > 0);
+        emis.shift = shift;
+        emis.n = (float)prm->light_samples;
+        emis.heuristic = prm->mis;
+    }
     walk_begin(wk, med, o, d, t0, t1, (lint)(TRACK_FREE_FLIGHT), lanes_if(prm->decomposition),
-               sel3(path->beta, path->R, heroic), path->hero, inside);
+               sel3(path->beta, path->R, heroic), path->hero, emis, inside);
 }
 
 /* The lanes of m have ended their free flight: its weight and emission, then escape,
@@ -736,6 +748,65 @@ static inline STAGE void flight_end(const Params *prm, global const Light *light
     path->sample = select(path->sample, (lint)(0), go);
     path->state = select(path->state, select((lint)(PATH_DONE), (lint)(PATH_NEE), go), m);
 }
+
+#if FEATURE_EMISSION
+/* The majorant free flight along o + t d (unit d) uses at distance dist, in the active
+ * lanes: that of the segment there, 0 where none covers it (twin in integrator.py). */
+static inline lfloat majorant_at(const MediumData *med, lvec3 o, lvec3 d, lfloat dist,
+                                 lmask active) {
+    lfloat t0, t1, shift;
+    lvec3 oo = enter_media(med, o, d, &t0, &t1, &shift);
+    t1 = fmin(t1, dist - shift);
+    lmask go = active & (t1 > t0);
+    lfloat span = t1 - t0;
+    lfloat s = (lfloat)(0.0f);
+    MajorantIter it;
+    majorant_iter_init(&it, med, madd3(oo, d, t0), d, (lfloat)(0.0f), span, go);
+    while (ANY(go)) {
+        Segment seg;
+        lmask ok = majorant_next(&it, med, &seg, go);
+        lmask there = ok & (seg.t_max >= span);
+        s = select(s, seg.sigma_maj, there);
+        go = go & ok & !there;
+    }
+    return s;
+}
+
+/* One emission-sampling shadow ray per lane of `active` from vertex p (the path arrived
+ * along d and scatters in medium k): the ray of sample_emitters in integrator.py, without
+ * its transmittance. Writes the direction, the distance and the contribution per unit
+ * throughput (f sigma_a Le w_L / (N pdf dist^2), RGB); returns the lanes with a ray (the
+ * others' sample carries nothing: no density, the vertex itself, or no emission there). */
+static inline lmask emitter_ray(const Params *prm, const MediumData *med, lvec3 p, lvec3 d,
+                                lint k, Rng *rng, lulong *counters, lvec3 *w, lfloat *dist,
+                                lvec3 *contrib, lmask active) {
+    lfloat u0 = rng_next(rng, active);
+    lfloat u1 = rng_next(rng, active);
+    lfloat u2 = rng_next(rng, active);
+    lfloat u3 = rng_next(rng, active);
+    lfloat u4 = rng_next(rng, active);
+    lfloat pdf;
+    lvec3 y = sample_emitter(med, u0, u1, u2, u3, u4, &pdf, active);
+    lmask ok = active & (pdf > 0.0f);
+    *w = direction_to(p, y, dist);
+    ok = ok & (*dist > 0.0f);
+#if MEDIA_COUNT == 1
+    lfloat mu = extinction(med, y, (lfloat)(NO_LIMIT), counters, ok);
+#else
+    lfloat mu = (lfloat)(0.0f);
+#endif
+    lvec3 src = emission_term(med, y, mu, (lfloat)(1.0f), v3s(1.0f), counters, ok);
+    ok = ok & (max3(src) > 0.0f);
+    lfloat f = medium_phase_eval(med, k, dot3(d, *w));
+    lfloat mis = (lfloat)(1.0f);
+    if (prm->emission_sampling == EMISSION_SAMPLING_MIS)
+        mis = mis_weight(prm->mis, (float)prm->light_samples * pdf,
+                         f * majorant_at(med, p, *w, *dist, ok) / (*dist * *dist));
+    lfloat g = f * mis / ((float)prm->light_samples * pdf * *dist * *dist);
+    *contrib = sel3(*contrib, scale3(src, g), ok);
+    return ok;
+}
+#endif
 
 /* Adds a shadow ray's contribution (its transmittance times contrib) and moves to the next
  * sample of the light. */
@@ -821,6 +892,25 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
             dist = select(dist, (lfloat)(NO_LIMIT), take);
             ray = ray | take;
         }
+        /* The sky's slot done (or none): the emitters' slot, n_lights + 1. */
+        lmask sky_done = sky & (lanes_if(!prm->has_env) | (path->sample >= n));
+        path->light = path->light + (sky_done & 1);
+        path->sample = select(path->sample, (lint)(0), sky_done);
+#if FEATURE_EMISSION
+        lmask glow = choosing & !ray & (path->light == prm->n_lights + 1);
+        if (prm->emission_sampling != EMISSION_SAMPLING_COLLISION && ANY(glow)) {
+            lmask take = glow & (path->sample < n);
+            lvec3 w;
+            lfloat di;
+            lmask lit = emitter_ray(prm, med, p, path->d, path->medium, rng, counters, &w, &di,
+                                    &path->contrib, take);
+            path->contrib = sel3(path->contrib, mul3(path->beta_w, path->contrib), take);
+            dark = dark | (take & !lit);
+            wl = sel3(wl, w, take);
+            dist = select(dist, di, take);
+            ray = ray | take;
+        }
+#endif
         /* A sample without a direction, or whose ray a sphere light blocks: no ray, and no
          * transmittance estimated (sample_direct's `continue`). */
         lmask blocked = ray & (dark | occluded(prm, lights, p, wl, dist, target));
@@ -828,8 +918,11 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
         ray = ray & !blocked;
         /* Lanes past the last light: next-event estimation is over. */
         lmask over = choosing & !ray &
-                     ((path->light >= prm->n_lights + (prm->has_env ? 1 : 0)) |
-                      (sky & (path->sample >= n)));
+                     ((path->light > prm->n_lights + 1) |
+                      ((path->light == prm->n_lights + 1) &
+                       (lanes_if(!FEATURE_EMISSION ||
+                                 prm->emission_sampling == EMISSION_SAMPLING_COLLISION) |
+                        (path->sample >= n))));
         path->state = select(path->state, (lint)(PATH_BOUNCE), over);
         choosing = choosing & !over;
         if (!ANY(ray)) continue;
@@ -845,7 +938,7 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
 #ifdef SHADOW_TECHNIQUE
         rng_swap(rng, rng_s, go); /* the walk loop draws from `rng` */
         walk_begin(wk, med, o, wl, t0, t1, (lint)(SHADOW_TECHNIQUE), lanes_if(SHADOW_CONTROL),
-                   v3s(1.0f), (lint)(-1), go);
+                   v3s(1.0f), (lint)(-1), emis_plain(), go);
         path->state = select(path->state, (lint)(PATH_SHADOW), go);
         choosing = choosing & !go;
 #else

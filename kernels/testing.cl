@@ -289,8 +289,8 @@ kernel void t_track(int technique, int use_control, global const Medium *media,
     lfloat t;
     spec T;
     lvec3 E;
-    lint ev = track(&med, o, d, t0, t1, technique, use_control, v3s(1.0f), (lint)(-1), &rng, cnt,
-                    max_steps, on, &t, &T, &E);
+    lint ev = track(&med, o, d, t0, t1, technique, use_control, v3s(1.0f), (lint)(-1),
+                    emis_plain(), &rng, cnt, max_steps, on, &t, &T, &E);
     lint idx = r * n_per_ray + j;
     store_float(out_t, idx, 1, 0,
                 select(select((lfloat)(-1.0f), (lfloat)(-2.0f), ev == EVENT_CAPPED), t,

@@ -20,6 +20,7 @@
 #include "rng.h"
 #include "sampling.h"
 #include "medium.h"
+#include "emitters.h"
 
 /* Guard "transmittance roulette": returns the lanes of `active` whose walk goes on (T is 0 in
  * those that end). */
@@ -77,6 +78,34 @@ static inline lvec3 emission_term(const MediumData *med, lvec3 p, lfloat mu, lfl
 #endif
 }
 
+/* How a free flight weighs its emission against emission sampling (the reference's `emis`
+ * tuple, tracking.py emission_weight): pdf < 0 in a lane: weight 1; else the density its
+ * direction was sampled with (0: emission sampling alone), the vertex `shift` before the
+ * walk's origin (walk_begin: from the ray's, as given); n emitter samples per vertex;
+ * heuristic render.mis. */
+typedef struct {
+    lfloat pdf, shift;
+    float n;
+    int heuristic;
+} EmisMis;
+
+static inline EmisMis emis_plain(void) {
+    EmisMis e = {(lfloat)(-1.0f), (lfloat)(0.0f), 0.0f, 0};
+    return e;
+}
+
+/* The MIS weight of a tentative collision's emission at p (twin in tracking.py, which
+ * derives it), in the active lanes (1 in the others): s_maj the majorant there, dist the
+ * distance from the vertex. */
+static inline lfloat emission_weight(const EmisMis *emis, const MediumData *med, lvec3 p,
+                                     lfloat s_maj, lfloat dist, lmask active) {
+    lmask weigh = active & (emis->pdf >= 0.0f);
+    if (!ANY(weigh)) return (lfloat)(1.0f);
+    lfloat pl = emis->n * emitter_pdf(med, p, weigh);
+    lfloat pu = emis->pdf * s_maj / (dist * dist);
+    return select((lfloat)(1.0f), mis_weight(emis->heuristic, pu, pl), weigh & (pl > 0.0f));
+}
+
 /* Hero MIS: balance-heuristic weights R / mean(R) (twin in tracking.py). */
 static inline lvec3 mis_weights(lvec3 R) {
     lfloat s = (R.x + R.y + R.z) / 3.0f;
@@ -115,6 +144,7 @@ typedef struct {
     lmask use_control; /* free flight and track length: the segment's minorant as control */
     lvec3 beta;       /* free flight: the path's throughput (hero: its ratios) */
     lint hero;        /* free flight: the hero channel, or -1 */
+    EmisMis emis;     /* free flight: its emission's weight against emission sampling */
     MajorantIter it;  /* the majorant segments */
     /* The current segment, the technique for it, and the walk's place in it */
     lfloat tb, s_maj, control, rate, inv_rate;
@@ -142,7 +172,7 @@ typedef struct {
  * decides where it covers the majorant). */
 static inline void walk_begin(Walk *wk, const MediumData *med, lvec3 o, lvec3 d, lfloat t0,
                               lfloat t1, lint tech, lmask use_control, lvec3 beta, lint hero,
-                              lmask active) {
+                              EmisMis emis, lmask active) {
     wk->o = sel3(wk->o, madd3(o, d, t0), active);
     wk->d = sel3(wk->d, d, active);
     wk->t0 = select(wk->t0, t0, active);
@@ -151,6 +181,13 @@ static inline void walk_begin(Walk *wk, const MediumData *med, lvec3 o, lvec3 d,
     wk->use_control = select(wk->use_control, use_control, active);
     wk->beta = sel3(wk->beta, beta, active);
     wk->hero = select(wk->hero, hero, active);
+    wk->emis.pdf = select(wk->emis.pdf, emis.pdf, active);
+    wk->emis.shift = select(wk->emis.shift, emis.shift + t0, active); /* from the walk's origin */
+    if (emis.n > 0.0f) { /* the same for every weighed walk of a launch; a plain walk (a
+                          * shadow ray beside the lanes' flights) must not clear them */
+        wk->emis.n = emis.n;
+        wk->emis.heuristic = emis.heuristic;
+    }
     majorant_iter_init(&wk->it, med, wk->o, d, (lfloat)(0.0f), t1 - t0, active);
     wk->in_seg = wk->in_seg & !active;
     wk->budget = select(wk->budget, (lfloat)(-1.0f), active);
@@ -287,13 +324,15 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
                        select((lfloat)(0.0f), (lfloat)(1.0f), wk->hero == 1),
                        select((lfloat)(0.0f), (lfloat)(1.0f), wk->hero == 2));
         lvec3 W = sel3(sel3(T, mul3(T, wk->beta), ff), hot, heroic);
-        if (emissive)
+        if (emissive) {
+            lfloat we = emission_weight(&wk->emis, med, p, s_maj, wk->emis.shift + t, fly & ff);
             wk->E = sel3(wk->E,
                          add3(wk->E, emission_term(med, p, mu, s_maj,
-                                                   sel3(T, mis_weights(mul3(T, wk->beta)),
-                                                        heroic),
+                                                   scale3(sel3(T, mis_weights(mul3(T, wk->beta)),
+                                                               heroic), we),
                                                    counters, fly & ff)),
                          fly & ff);
+        }
         lvec3 f;
         lmask real = fly & spectral_choice(W, k, mu, s_maj, rng_next(rng, fly), &f);
         /* Track length's estimate is 0 at a real collision (auto flies only as it). */
@@ -325,7 +364,8 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
             mu = select(select((lfloat)(-1.0f), s_maj, sure), mu, look);
             lmask again = glow & (mu < 0.0f);
             mu = select(mu, extinction(med, p, s_maj, counters, again), again);
-            wk->E = sel3(wk->E, add3(wk->E, emission_term(med, p, mu, s_maj, v3s(1.0f), counters,
+            lfloat we = emission_weight(&wk->emis, med, p, s_maj, wk->emis.shift + t, glow);
+            wk->E = sel3(wk->E, add3(wk->E, emission_term(med, p, mu, s_maj, v3s(we), counters,
                                                          glow)),
                          glow);
         }
@@ -392,13 +432,13 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
  * (tracking.py). Always inlined: a call site with a constant technique keeps only its code. */
 static inline __attribute__((always_inline)) lint track(
     const MediumData *med, lvec3 o, lvec3 d, lfloat t0, lfloat t1, int technique,
-    int use_control, lvec3 beta, lint hero, Rng *rng, lulong *counters, int max_steps,
-    lmask active, lfloat *t_out, spec *T_out, lvec3 *E_out) {
+    int use_control, lvec3 beta, lint hero, EmisMis emis, Rng *rng, lulong *counters,
+    int max_steps, lmask active, lfloat *t_out, spec *T_out, lvec3 *E_out) {
     Walk wk;
     wk.live = (lmask)(0);
     wk.in_seg = (lmask)(0);
     walk_begin(&wk, med, o, d, t0, t1, (lint)(technique), lanes_if(use_control), beta, hero,
-               active);
+               emis, active);
     while (ANY(wk.live)) walk_step(&wk, med, TRACK_BIT(technique), rng, counters, max_steps);
     *t_out = wk.t_end;
     *T_out = wk.T;

@@ -108,7 +108,7 @@ SPOT_EDGE = 5e-5
 
 #: Scenes and overrides that between them take every feature of the kernels: grid and octree
 #: majorants, decomposition tracking, the samplers, several light samples, every shadow
-#: estimator family, the three spectral modes, emission, equiangular sampling, bricks, the
+#: estimator family, the three spectral modes, emission (and its sampling), equiangular sampling, bricks, the
 #: thin lens and the panoramic camera, sun discs, spot and sphere lights.
 CONFIGS = [
     ("cloud", None, {}),
@@ -125,6 +125,11 @@ CONFIGS = [
     ("spectral tracking", "gallery/sunset.toml", {"render.spectral": "tracking"}),
     ("one channel", "gallery/sunset.toml", {"render.spectral": "channel"}),
     ("emission, auto", "gallery/plume.toml", {}),
+    ("emission sampling, mis", "gallery/plume.toml", {"render.emission_sampling": "mis"}),
+    ("emission sampling alone, three media", "tests/media.toml",
+     {"render.emission_sampling": "light"}),
+    ("emission sampling alone, glow", "tests/glow.toml", {}),
+    ("emission sampling, mis, glow", "tests/glow.toml", {"render.emission_sampling": "mis"}),
     ("equiangular", "gallery/fog.toml", {}),
     ("bricks", "gallery/scan.toml", {}),
     ("absorber (transmittance only)", "tests/absorber.toml", {}),
@@ -137,6 +142,13 @@ CONFIGS = [
     ("sun disc, sobol, 2 light samples", None,
      {"lights.1.angle": 6.0, "render.sampler": "sobol", "render.light_samples": 2}),
 ]
+
+
+#: The share of samples bit for bit equal at W = 16 and W = 1 where it is below 90 %: each of
+#: the glow's samples takes a dozen exact transmittances through homogeneous boxes (exp), and
+#: the vector exp is 1 ulp off the scalar one for about 1 % of arguments (measured 82-84 %
+#: bit for bit; every value still within the relative bound).
+BITWISE = {"emission sampling alone, glow": 0.75, "emission sampling, mis, glow": 0.75}
 
 
 def _samples(scene, lanes, spp, jobs_per_item=None):
@@ -167,7 +179,7 @@ def test_every_width_traces_the_same_paths(name, path, overrides, bound):
         np.testing.assert_array_equal(c[keep], c1[keep])
         rel = np.abs(out - base) / np.maximum(np.abs(base), 1e-30)
         assert rel.max() <= bound, (w, rel.max())
-        assert np.all(out == base, axis=1).mean() > 0.9
+        assert np.all(out == base, axis=1).mean() > BITWISE.get(name, 0.9)
         # Occupancy: the lanes active per iteration of the walk loop, at most all of them.
         assert 0 < c[C_LANE_ACTIVE] <= w * c[C_LANE_ROUNDS]
 

@@ -34,7 +34,12 @@ C_ONLY = {"vec3", "vec3g", "dda_cell_index", "lerp_ab",
           # walks, so a lane whose walk ends goes on to its next one, or to a new path,
           # while the others walk; rng_swap lends a shadow ray's stream to the walk loop.
           "path_start", "flight_begin", "flight_end", "nee_next", "shadow_add", "shadow_end",
-          "path_bounce", "path_write", "weighted_beta", "rng_swap"}
+          "path_bounce", "path_write", "weighted_beta", "rng_swap",
+          # Emission sampling: the reference's sample_emitters loops over a vertex's samples
+          # and estimates each ray's transmittance in place; nee_next takes one ray per pass
+          # (emitter_ray: the loop's body before the transmittance). emis_plain is the
+          # reference's EMIS_PLAIN tuple.
+          "emitter_ray", "emis_plain"}
 
 
 #: Twins whose arguments differ, and why: C passes a grid's shape beside its pointer; Numba

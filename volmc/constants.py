@@ -118,6 +118,17 @@ EMISSION_TEMPERATURE = 2
 #: (tests/test_media.py).
 BLACKBODY_TABLE_SIZE = 4096
 
+#: How emission reaches a scattering vertex (render.emission_sampling; volmc/emitters.py):
+#: only where a flight's tentative collisions land (the collision estimator) ...
+EMISSION_SAMPLING_COLLISION = 0
+#: ... by next-event estimation towards points sampled in the emitting media, flights after a
+#: scattering vertex gathering none ...
+EMISSION_SAMPLING_LIGHT = 1
+#: ... or both, weighed by render.mis (docs/emission_sampling.md).
+EMISSION_SAMPLING_MIS = 2
+#: Cells per axis at most of an emitting medium's sampling distribution.
+EMITTER_MAX_CELLS = 64
+
 # --- Tracking (volmc/reference/tracking.py) ----------------------------------------------------
 
 #: What the one tracking loop does at a tentative collision: free flight (a real collision

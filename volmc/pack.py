@@ -9,7 +9,8 @@ import numpy as np
 from .constants import (CAMERA_ORTHOGRAPHIC, CAMERA_PANORAMIC, CAMERA_PERSPECTIVE,
                         DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_GRID, EMISSION_NONE,
                         ENV_SAMPLING_IMPORTANCE, ENV_SAMPLING_UNIFORM,
-                        EMISSION_RADIANCE, EMISSION_TEMPERATURE, LIGHT_DIRECTIONAL, LIGHT_POINT,
+                        EMISSION_RADIANCE, EMISSION_SAMPLING_LIGHT, EMISSION_SAMPLING_MIS,
+                        EMISSION_TEMPERATURE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                         LIGHT_SPHERE, LIGHT_SPOT,
                         MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
                         MIS_BALANCE, MIS_POWER, PHASE_HG, PHASE_ISOTROPIC, RR_ALBEDO,
@@ -240,8 +241,10 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     params[0] = p
     from .scene.bricks import density_storage
     parts = []
+    storage = []
     for part in scene.media_scenes:
         stored = density_storage(part)
+        storage.append(stored)
         if rnd.majorant == "octree":
             maj, mnr, nodes, depth = pack_octree(part, real, stored)
         else:
@@ -252,6 +255,16 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
         medium[0]["octree_depth"] = depth
         emis, table = pack_emission(part, medium, real)
         parts.append(MediumArrays(medium, grid, maj, mnr, emis, table, bricks, pool, nodes))
+    if rnd.emission_sampling != "collision" and any(a.medium[0]["emission_kind"]
+                                                    != EMISSION_NONE for a in parts):
+        from .emitters import attach_emitters
+        tables, total = attach_emitters([a.medium[0] for a in parts], storage,
+                                        [a.emis for a in parts], [a.table for a in parts], real)
+        parts = [a._replace(table=t) for a, t in zip(parts, tables)]
+        if total > 0.0:
+            params[0]["emission_sampling"] = (EMISSION_SAMPLING_LIGHT
+                                              if rnd.emission_sampling == "light"
+                                              else EMISSION_SAMPLING_MIS)
     # One medium: its record array itself, so that editing pk.medium edits what renders.
     media = parts[0].medium if len(parts) == 1 else np.concatenate([a.medium for a in parts])
     first = parts[0]

@@ -47,6 +47,8 @@ PARAM_FIELDS = (
     ("env_rot", "real", 9, "scene direction to the map's frame, 3x3 row-major"),
     ("env_sampling", "i4", 1, "ENV_SAMPLING_IMPORTANCE or ENV_SAMPLING_UNIFORM: how "
                               "next-event estimation draws environment directions"),
+    ("emission_sampling", "i4", 1, "EMISSION_SAMPLING_*: collision estimator, emitter sampling "
+                                   "or both by MIS (collision when no medium emits)"),
     ("n_lights", "i4", 1, "number of lights in the light array (every type but environment)"),
     ("area_lights", "i4", 1, "lights that sample a direction (suns with an angle, spheres): "
                              "with any, every light has its own points of the light pair"),
@@ -83,6 +85,13 @@ MEDIUM_FIELDS = (
     ("emission_rgb", "real", 3, "radiance (EMISSION_RADIANCE) or scale (TEMPERATURE), RGB"),
     ("emission_dims", "i4", 3, "voxels (nx, ny, nz) of the emission field grid"),
     ("table_scale", "real", 1, "EMISSION_TEMPERATURE: blackbody table entries per kelvin"),
+    ("emitter_row", "u4", 1, "emission sampling: the first row of its distribution's cells in "
+                             "the table (after the blackbody rows; volmc/emitters.py)"),
+    ("emitter_res", "i4", 3, "emission sampling: cells (cx, cy, cz) over the box; 0: none"),
+    ("emitter_prob", "real", 1, "emission sampling: probability of picking this medium"),
+    ("emitter_density", "real", 1, "emission sampling: a cell's density per scene volume over "
+                                   "its probability (this medium's, times the cell's)"),
+    ("emitter_to_scene", "real", 12, "emission sampling: medium space to the scene frame, 3x4"),
     ("albedo", "real", 3, "single-scattering albedo per channel"),
     ("phase_kind", "i4", 1, "PHASE_ISOTROPIC or PHASE_HG"),
     ("g", "real", 1, "Henyey-Greenstein asymmetry"),

@@ -8,7 +8,8 @@ needs one is skipped with a note: the table can name switches before the rendere
 
 Per scene: one plain OpenCL reference at ``reference_spp`` with an independent seed (its
 noise subtracted, volmc.peers.compare.rmse_to_reference; with equiangular sampling when the
-scene has a point light, which is unbiased and far quieter there). Then, for each repetition r and
+scene has a point light and emission sampling by MIS when a medium emits, which are unbiased
+and far quieter there). Then, for each repetition r and
 each spp level N, every configuration renders samples [0, N) of the scene with render.spp =
 N and seed = scene seed + 1 + r: quasi-Monte Carlo samplers need each render to start at
 index 0 and stratification needs render.spp to be the render's total, so independence
@@ -60,6 +61,11 @@ def has_point_light(scene):
     return any(lt.type in ("point", "spot") for lt in scene.lights)
 
 
+def emits(scene):
+    """A medium that emits (emission sampling looks for its light)."""
+    return any(m.emission is not None for m in scene.media)
+
+
 def roulette_happens(scene):
     """Paths longer than render.rr_depth (max_depth < 0 or > rr_depth), where Russian
     roulette starts."""
@@ -71,13 +77,16 @@ def roulette_happens(scene):
 #: whose keys the scene's Render lacks is skipped, so rows may name keys still to come.
 SWITCHES = (
     Switch(PLAIN, {"sampler": "independent", "light_samples": 1, "mis": "balance",
-                   "equiangular": False, "rr": "throughput"}, always),
+                   "equiangular": False, "rr": "throughput", "emission_sampling": "collision"},
+           always),
     Switch("stratified", {"sampler": "stratified"}, always),
     Switch("sobol", {"sampler": "sobol"}, always),
     Switch("light_samples=4", {"light_samples": 4}, always),
     Switch("mis=power", {"mis": "power"}, has_sampled_light),
     Switch("equiangular", {"equiangular": True}, has_point_light),
     Switch("rr=albedo", {"rr": "albedo"}, roulette_happens),
+    Switch("emission=light", {"emission_sampling": "light"}, emits),
+    Switch("emission=mis", {"emission_sampling": "mis"}, emits),
 )
 
 #: (legend name, switch label) of the curves in the sampler figure.
@@ -148,6 +157,10 @@ def _measure(scene, configs, spp_levels, reference_spp, repeats, backend, device
         # The same image with far less noise near point lights, where plain next-event
         # estimation has unbounded variance: a quieter reference, same expectation.
         keys["equiangular"] = True
+    if "emission_sampling" in keys and emits(scene):
+        # Where a small hot flame lights its smoke, the collision estimator finds its light
+        # too rarely for a reference (a pixel's few hits carry it all); MIS does not.
+        keys["emission_sampling"] = "mis"
     ref = scene.with_render(**keys)
     ref_mean, ref_var = reference_image(ref, reference_spp, device, log)
     base = scene.render.seed

@@ -49,7 +49,7 @@ from .medium import (MediumData, new_iter, comb_count, majorant_iter_init,
 from .debiasing import jackknife_segment, telescoping_segment
 from .power_series import power_series_segment, unbiased_raymarch_segment
 from .rng import rng_new, rng_next
-from .tracking import ONE3, track, transmittance_roulette
+from .tracking import EMIS_PLAIN, ONE3, track, transmittance_roulette
 from .vec import exp_neg3, madd3, max3, mul3
 
 
@@ -146,8 +146,8 @@ def tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, technique
     each segment's minorant as control (decomposition tracking): the same 0/1 decisions as
     delta tracking for the same random numbers, without the lookups the control decides."""
     return track(med, o, d, t0, t1, technique,
-                 technique == TRACK_LENGTH or technique == TRACK_AUTO, ONE3, -1, rng, counters,
-                 max_steps)[2]
+                 technique == TRACK_LENGTH or technique == TRACK_AUTO, ONE3, -1, EMIS_PLAIN,
+                 rng, counters, max_steps)[2]
 
 
 @njit(cache=True)

@@ -22,6 +22,10 @@ path:
    meets ends it, seen with the complementary weight. Shadow-ray transmittance is the
    estimator render.transmittance chose (estimators.py; exact on homogeneous segments), on
    its own random stream.
+   With render.emission_sampling "light" or "mis": as many points drawn in the emitting
+   media (``sample_emitters``; emitters.py), each a shadow ray; the flights after a
+   scattering vertex weigh the emission they gather with the complement
+   (tracking.emission_weight).
    A medium that cannot scatter into the image (all albedos 0, or max_depth = 0) skips
    steps 2-6: the pixel is the environment times the transmittance along the camera ray.
 5. Russian roulette from ``rr_depth`` scattering events on: the path survives with
@@ -56,7 +60,8 @@ import math
 import numpy as np
 from numba import njit
 
-from ..constants import (DENSITY_CONSTANT, ENV_SAMPLING_IMPORTANCE, EQUIANGULAR_ALONE,
+from ..constants import (DENSITY_CONSTANT, EMISSION_SAMPLING_COLLISION, EMISSION_SAMPLING_MIS,
+                         ENV_SAMPLING_IMPORTANCE, EQUIANGULAR_ALONE,
                          EQUIANGULAR_MIS, EQUIANGULAR_OFF, EVENT_CAPPED,
                          EVENT_ESCAPE, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT,
                          RECORD_CAMERA,
@@ -75,10 +80,12 @@ from .free_flight import free_flight
 from .guards import sample_ok
 from .lights import (is_area_light, nearest_sphere, sample_area_light, spot_falloff,
                      sphere_light_pdf, sun_radiance)
-from .medium import (ZERO, MediumData, extinction, media_emit, medium_chroma, medium_extinction,
-                     medium_pick, ray_box, record_segment, to_medium, to_medium_dir)
+from .medium import (ZERO, MediumData, extinction, majorant_iter_init, majorant_next, media_emit,
+                     medium_chroma, medium_extinction, medium_pick, new_iter, ray_box,
+                     record_segment, to_medium, to_medium_dir)
 from .phase import phase_eval, phase_sample
-from .tracking import mis_weights
+from .emitters import sample_emitter
+from .tracking import EMIS_PLAIN, emission_term, mis_weights
 from .rng import RNG_STATE_SIZE, rng_drop_preset, rng_init, rng_next, rng_preset
 from .sampler import sampler_pair
 from .sampling import (cone_pdf, dot, equiangular_pdf, mis_weight, sample_equiangular,
@@ -481,6 +488,66 @@ def sample_direct(prm, lights, env, med, k, ea, o, d, t0, t1, t, pix, s, b, rng,
             # (pdf 0: a pole of the map, a set of measure zero; the ray carries nothing)
             g = f * w / pdf_l if pdf_l > 0.0 else 0.0
             L = add3(L, mul3(env_light(prm, env, wl), scale3(tr, g)))
+    if prm.emission_sampling != EMISSION_SAMPLING_COLLISION:
+        L = add3(L, sample_emitters(prm, lights, med, k, p, d, rng, counters, rng_s))
+    return L
+
+
+@njit(cache=True)
+def majorant_at(med, o, d, dist):
+    """The majorant free flight along o + t d (unit d) uses at distance dist: that of the
+    segment there, 0 where no segment covers it (tracking.emission_weight)."""
+    o, t0, t1, shift = enter_media(med, o, d)
+    t1 = min(t1, dist - shift)
+    if not t1 > t0:
+        return 0.0
+    span = t1 - t0
+    it = new_iter(med)
+    majorant_iter_init(it, med, madd3(o, d, t0), d, 0.0, span)
+    while True:
+        ok, _, tb, s_maj, _ = majorant_next(it, med)
+        if not ok:
+            return 0.0
+        if tb >= span:
+            return s_maj
+
+
+@njit(cache=True)
+def sample_emitters(prm, lights, med, k, p, d, rng, counters, rng_s):
+    """Emission sampling (render.emission_sampling "light" or "mis"; emitters.py) at the
+    vertex p, where the path arrived along d and scatters in medium k: light_samples points
+    y drawn in the emitting media (five uniforms each from the path stream), each adding
+
+        f(d . w) T(p, y) sigma_a(y) Le(y) w_L / (N pdf(y) |y - p|^2),
+
+    per unit throughput (RGB), T estimated as every shadow ray's. w_L is 1 with "light",
+    else the heuristic render.mis of N pdf(y) against f sigma_maj(y) / |y - p|^2
+    (tracking.emission_weight, which weighs the flights with the complement). sigma_a Le sums every medium's; a sphere light between p and y
+    blocks it; a point with no emission draws no shadow ray."""
+    n = prm.light_samples
+    L = (0.0, 0.0, 0.0)
+    for _ in range(n):
+        u0 = rng_next(rng)
+        u1 = rng_next(rng)
+        u2 = rng_next(rng)
+        u3 = rng_next(rng)
+        u4 = rng_next(rng)
+        y, pdf = sample_emitter(med, u0, u1, u2, u3, u4)
+        if not pdf > 0.0:
+            continue
+        wl, dist = direction_to(p, y)
+        if not dist > 0.0:
+            continue
+        mu = extinction(med, y, math.inf, counters) if len(med) == 1 else 0.0
+        src = emission_term(med, y, mu, 1.0, (1.0, 1.0, 1.0), counters)
+        if not max3(src) > 0.0 or occluded(prm, lights, p, wl, dist, -1):
+            continue
+        f = medium_phase_eval(med, k, dot(d, wl))
+        w = 1.0
+        if prm.emission_sampling == EMISSION_SAMPLING_MIS:
+            w = mis_weight(prm.mis, n * pdf, f * majorant_at(med, p, wl, dist) / (dist * dist))
+        tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
+        L = add3(L, mul3(src, scale3(tr, f * w / (n * pdf * dist * dist))))
     return L
 
 
@@ -629,15 +696,19 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
             pair = bounce_pair(depth, SAMPLER_FLIGHT)
             if prm.sampler != SAMPLER_INDEPENDENT and pair >= 0:
                 rng_preset(rng, path_pair_u24(prm, pix, s, pair, 0, 1)[0])
+            emis = EMIS_PLAIN
+            if prm.emission_sampling != EMISSION_SAMPLING_COLLISION and depth > 0:
+                emis = (pdf_phase if prm.emission_sampling == EMISSION_SAMPLING_MIS else 0.0,
+                        shift, float(prm.light_samples), float(prm.mis))
             if hero >= 0:
                 event, t, w, E = free_flight(med, o, d, t0, t1, prm.decomposition != 0, R,
-                                             hero, rng, counters, prm.max_steps)
+                                             hero, emis, rng, counters, prm.max_steps)
                 L = add3(L, mul3(beta, E))
                 R = mul3(R, w)
                 R = scale3(R, 1.0 / max3(R)) if max3(R) > 0.0 else R   # ratios only
             else:
                 event, t, w, E = free_flight(med, o, d, t0, t1, prm.decomposition != 0, beta,
-                                             -1, rng, counters, prm.max_steps)
+                                             -1, emis, rng, counters, prm.max_steps)
                 # Channels the path no longer carries stay 0, whatever their weight grew to
                 # (one channel per path: 0 x inf would be NaN).
                 L = add3(L, mul3(beta, keep_carried(beta, E)))

@@ -102,7 +102,8 @@ from .medium import (MediumData, emitted_radiance, extinction, majorant_iter_ini
                      majorant_next, media_emit, medium_chroma, medium_extinction, new_iter,
                      no_field_arrays)
 from .rng import rng_new, rng_next
-from .sampling import sample_exponential
+from .emitters import emitter_pdf
+from .sampling import mis_weight, sample_exponential
 from .vec import add3, exp_neg3, madd3, max3, mul3, one_minus3, scale3
 
 ZERO3 = (0.0, 0.0, 0.0)
@@ -162,6 +163,38 @@ def emission_term(med, p, mu, s_maj, W, counters):
     return out
 
 
+#: ``track``'s ``emis`` for a walk whose emission is not weighed against emission sampling.
+EMIS_PLAIN = (-1.0, 0.0, 0.0, 0.0)
+
+
+@njit(cache=True, inline="always")
+def emission_weight(emis, med, p, s_maj, dist):
+    """MIS weight of the emission a free flight gathers at a tentative collision p against
+    emission sampling (render.emission_sampling; integrator.py ``sample_emitters``).
+    emis = (pdf_dir, shift, n, heuristic): pdf_dir < 0 for 1 (the collision estimator
+    alone: a camera ray, or render.emission_sampling = "collision"), else the density per
+    steradian the flight's direction was sampled with (0 with "light": the weight is then 0
+    wherever emission sampling reaches); shift how far the walk's origin lies from the
+    vertex; n the emitter samples per vertex; heuristic render.mis. dist: p's distance from
+    the vertex, s_maj the majorant there.
+
+    The heuristic compares pdf_dir sigma_maj(p) / dist^2 with n times emission sampling's
+    density at p (docs/emission_sampling.md): in the null-scattering path space (Miller et
+    al. 2019) a tentative collision at p has the density pdf_dir sigma_maj(p) T_maj / dist^2
+    times the probabilities of the null events before it, and emission sampling with a
+    delta-tracking shadow ray (track length) reaches the same path with density pdf(p) T_maj
+    times the same null probabilities: they cancel, so the weight depends on p alone, and
+    both strategies compute it without the transmittance. Any weight that is a function of
+    the vertex and p and sums to 1 over the strategies keeps the sum unbiased, whatever
+    estimator the shadow rays use. Where emission sampling has no density the weight is 1."""
+    if emis[0] < 0.0:
+        return 1.0
+    pl = emis[2] * emitter_pdf(med, p)
+    if not pl > 0.0:
+        return 1.0
+    return mis_weight(int(emis[3]), emis[0] * s_maj / (dist * dist), pl)
+
+
 @njit(cache=True, inline="always")
 def spectral_choice(W, k, mu, s_maj, u):
     """Spectral tracking's choice at a tentative collision (Kutz et al. 2017, the
@@ -214,14 +247,17 @@ def auto_segment_technique(s_maj, s_min, L):
 
 
 @njit(cache=True)
-def track(med, o, d, t0, t1, technique, use_control, beta, hero, rng, counters, max_steps):
+def track(med, o, d, t0, t1, technique, use_control, beta, hero, emis, rng, counters,
+          max_steps):
     """Walk ray o + t d over [t0, t1] through ``med`` with ``technique`` (TRACK_*).
     Returns (event, t, T, E) (module docstring). Spectral free flight: with ``hero`` < 0,
     ``beta`` (RGB) is the path throughput the choices are weighed by (spectral tracking);
     with ``hero`` = c, channel c's delta tracking decides and ``beta`` holds the path's
-    decision-probability ratios so far (hero MIS, below)."""
+    decision-probability ratios so far (hero MIS, below). ``emis``: how free flight weighs
+    its emission against emission sampling (``emission_weight``; EMIS_PLAIN: not)."""
     spectral = med[0].m.spectral != SPECTRAL_GREY
     emissive = technique == TRACK_FREE_FLIGHT and media_emit(med)
+    weigh = emissive and emis[0] >= 0.0
     k = medium_chroma(med)
     o = madd3(o, d, t0)
     it = new_iter(med)
@@ -286,12 +322,14 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, rng, counters, 
                     W = (1.0 if hero == 0 else 0.0, 1.0 if hero == 1 else 0.0,
                          1.0 if hero == 2 else 0.0)
                     if emissive:
-                        E = add3(E, emission_term(med, p, mu, s_maj, mis_weights(mul3(T, beta)),
-                                                     counters))
+                        E = add3(E, emission_term(med, p, mu, s_maj, scale3(
+                            mis_weights(mul3(T, beta)), weight_at(weigh, emis, med, p, s_maj, t0 + t)),
+                            counters))
                 else:
                     W = mul3(T, beta) if technique == TRACK_FREE_FLIGHT else T
                     if emissive:
-                        E = add3(E, emission_term(med, p, mu, s_maj, T, counters))
+                        E = add3(E, emission_term(med, p, mu, s_maj, scale3(
+                            T, weight_at(weigh, emis, med, p, s_maj, t0 + t)), counters))
                 real, f = spectral_choice(W, k, mu, s_maj, rng_next(rng))
                 if real:
                     if tech == TRACK_LENGTH:
@@ -316,7 +354,8 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, rng, counters, 
                 if emissive:
                     if mu < 0.0:
                         mu = extinction(med, p, s_maj, counters)
-                    E = add3(E, emission_term(med, p, mu, s_maj, ONE3, counters))
+                    w_e = weight_at(weigh, emis, med, p, s_maj, t0 + t)
+                    E = add3(E, emission_term(med, p, mu, s_maj, (w_e, w_e, w_e), counters))
                 if real:
                     return EVENT_SCATTER, t0 + t, ONE3 if technique == TRACK_FREE_FLIGHT \
                         else ZERO3, E
@@ -346,6 +385,15 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, rng, counters, 
             T = mul3(T, acc)
 
 
+@njit(cache=True, inline="always")
+def weight_at(weigh, emis, med, p, s_maj, t):
+    """``emission_weight`` at distance t of a walk from o (1 when not weighing); the vertex
+    lies emis[1] before o."""
+    if not weigh:
+        return 1.0
+    return emission_weight(emis, med, p, s_maj, emis[1] + t)
+
+
 @njit(cache=True, parallel=True)
 def track_batch(technique, use_control, media, grid, maj, mnr, rays, n_per_ray, seed,
                 max_steps):
@@ -366,7 +414,8 @@ def track_batch(technique, use_control, media, grid, maj, mnr, rays, n_per_ray, 
         med = (MediumData(media[r], grid, maj, mnr, emis, table, bricks, pool, nodes, rec),)
         ev, t, T, _ = track(med, (rays[r, 0], rays[r, 1], rays[r, 2]),
                             (rays[r, 3], rays[r, 4], rays[r, 5]), rays[r, 6], rays[r, 7],
-                            technique, use_control, ONE3, -1, rng, counters, max_steps)
+                            technique, use_control, ONE3, -1, EMIS_PLAIN, rng, counters,
+                            max_steps)
         t_out[i] = t if ev == EVENT_SCATTER else (-2.0 if ev == EVENT_CAPPED else -1.0)
         T_out[i, 0] = T[0]
         T_out[i, 1] = T[1]

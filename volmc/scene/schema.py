@@ -215,6 +215,7 @@ class Render:
     transparent_background: bool = False
     env_sampling: str = "importance"
     env_compensation: bool = False
+    emission_sampling: str = "collision"
 
 
 @dataclass(frozen=True)
@@ -249,7 +250,9 @@ PHASE_KEYS = ("type", "g")
 RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
                "majorant_resolution", "free_flight", "spectral", "grid_storage", "mis",
                "sampler", "light_samples", "equiangular", "rr", "transparent_background",
-               "env_sampling", "env_compensation")
+               "env_sampling", "env_compensation", "emission_sampling")
+#: How emission reaches a scattering vertex (render.emission_sampling; docs/emission.md).
+EMISSION_SAMPLINGS = ("collision", "light", "mis")
 ENV_SAMPLINGS = ("importance", "uniform")
 MIS_HEURISTICS = ("balance", "power")
 SAMPLERS = ("independent", "stratified", "sobol")
@@ -684,6 +687,8 @@ def _render(c, raw):
                               ENV_SAMPLINGS),
         env_compensation=c.boolean(raw.get("env_compensation", d.env_compensation),
                                    p + "env_compensation"),
+        emission_sampling=c.choice(raw.get("emission_sampling", d.emission_sampling),
+                                   p + "emission_sampling", EMISSION_SAMPLINGS),
     )
 
 

@@ -55,7 +55,8 @@ def to_dict(spec: SceneSpec, array_as=None) -> dict:
                    "sampler": r.sampler, "light_samples": r.light_samples,
                    "equiangular": r.equiangular, "rr": r.rr,
                    "transparent_background": r.transparent_background,
-                   "env_sampling": r.env_sampling, "env_compensation": r.env_compensation},
+                   "env_sampling": r.env_sampling, "env_compensation": r.env_compensation,
+                   "emission_sampling": r.emission_sampling},
     }
 
 
