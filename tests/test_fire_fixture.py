@@ -13,9 +13,19 @@ import numpy as np
 import pytest
 
 from volmc.scene.errors import SceneError
+from volmc.resources import scenes_dir
 from volmc.scene.vdb import VDB_MAX_VERSION, list_grids, read_vdb
 
 FIRE = Path(__file__).resolve().parent / "data" / "fire"
+#: The Mantaflow cache ships with the scenes (the gallery fire renders it); the rest stays here.
+CACHE = scenes_dir() / "data" / "fire"
+
+
+def fixture(rel):
+    """The path of fixture ``rel`` (as truth.npz names it)."""
+    return (CACHE if rel.startswith("cache_fluid/") else FIRE) / rel
+
+
 TRUTH = np.load(FIRE / "truth.npz")
 FRAMES = [f"cache_fluid/data/fluid_data_{i:04d}.vdb" for i in range(1, 5)]
 FILES = FRAMES + ["houdini_pyro.vdb", "embergen.vdb", "double.vdb"]
@@ -31,13 +41,13 @@ def test_truth_covers_every_grid_of_every_file():
     the comparison below leaves no grid out."""
     for rel in FILES:
         recorded = {k.split(":")[1] for k in TRUTH.files if k.startswith(rel + ":")}
-        assert recorded == {g.name for g in list_grids(FIRE / rel)}, rel
+        assert recorded == {g.name for g in list_grids(fixture(rel))}, rel
     assert len(FLOAT_GRIDS) == 4 * 20 + 3 + 2 + 2
 
 
 @pytest.mark.parametrize("rel,name", FLOAT_GRIDS, ids=[f"{r}:{n}" for r, n in FLOAT_GRIDS])
 def test_every_float_grid_reads_as_openvdb_reads_it(rel, name):
-    g = read_vdb(FIRE / rel, name, key="medium.density")
+    g = read_vdb(fixture(rel), name, key="medium.density")
     key = f"{rel}:{name}"
     assert g.name == name
     assert g.bbox == tuple(map(tuple, TRUTH[key + ":bbox"].tolist()))
@@ -51,18 +61,18 @@ def test_mantaflow_frames_are_half_floats_with_mantaflows_names():
     """Every float grid of a Mantaflow frame is stored as halves (the values are exactly
     float16 values), and the grids come in Mantaflow's order with its types."""
     for rel in FRAMES:
-        infos = list_grids(FIRE / rel)
+        infos = list_grids(fixture(rel))
         assert [g.name for g in infos] == MANTAFLOW
         kinds = {g.name: g.kind for g in infos}
         assert kinds["velocity"] == kinds["velocity_previous"] == "Vec3s"
         assert kinds["flags"] == "int32"
         assert {kinds[n] for n in MANTAFLOW if n not in ("velocity", "velocity_previous",
                                                          "flags")} == {"half float"}
-        d = read_vdb(FIRE / rel, "flame").to_dense()
+        d = read_vdb(fixture(rel), "flame").to_dense()
         assert d.max() > 0.5
         np.testing.assert_array_equal(d, d.astype(np.float16).astype(np.float32))
     # A rising plume: the smoke's top climbs frame by frame.
-    tops = [read_vdb(FIRE / rel).bbox[1][2] for rel in FRAMES]
+    tops = [read_vdb(fixture(rel)).bbox[1][2] for rel in FRAMES]
     assert tops == sorted(tops) and tops[-1] > tops[0] + 6, tops
 
 
@@ -73,7 +83,7 @@ def test_listing_notes_why_grids_are_skipped():
     assert "vector grid" in infos["vel"].note
     assert infos["vel"].text() == ("'vel' (Vec3s) -- skipped: vector grid; volmc reads "
                                    "scalar grids")
-    flags = next(g for g in list_grids(FIRE / FRAMES[0]) if g.name == "flags")
+    flags = next(g for g in list_grids(fixture(FRAMES[0])) if g.name == "flags")
     assert not flags.readable and "integer grid" in flags.note
     assert [g.kind for g in list_grids(FIRE / "embergen.vdb")] == ["half float"] * 2
     assert [g.kind for g in list_grids(FIRE / "double.vdb")] == ["double",
@@ -84,9 +94,9 @@ def test_listing_notes_why_grids_are_skipped():
                                       ("houdini_pyro.vdb", "vel")])
 def test_a_vector_grid_named_as_a_density_is_a_one_line_error(rel, name):
     with pytest.raises(SceneError) as e:
-        read_vdb(FIRE / rel, name, key="medium.density")
+        read_vdb(fixture(rel), name, key="medium.density")
     text = str(e.value)
-    assert text.startswith(f"{FIRE / rel}: medium.density: grid '{name}' is a vector grid "
+    assert text.startswith(f"{fixture(rel)}: medium.density: grid '{name}' is a vector grid "
                            "(Vec3s")
     assert "\n" not in text
     floats = text.split("the file's float grids: ")[1].split(", ")
@@ -104,12 +114,12 @@ def test_a_missing_grid_lists_the_grids_with_their_types():
 def test_file_format_225_reads_as_224(tmp_path):
     """OpenVDB 13 writes file version 225 (it adds half-typed grids; float grids are laid
     out as before): a frame stamped 225 reads the same, 226 is refused."""
-    data = bytearray((FIRE / FRAMES[1]).read_bytes())
+    data = bytearray((fixture(FRAMES[1])).read_bytes())
     assert struct.unpack_from("<I", data, 8)[0] == 224
     p = tmp_path / "v225.vdb"
     struct.pack_into("<I", data, 8, 225)
     p.write_bytes(data)
-    a, b = read_vdb(FIRE / FRAMES[1], "temperature"), read_vdb(p, "temperature")
+    a, b = read_vdb(fixture(FRAMES[1]), "temperature"), read_vdb(p, "temperature")
     np.testing.assert_array_equal(a.values, b.values)
     assert VDB_MAX_VERSION == 225
     struct.pack_into("<I", data, 8, 226)
@@ -119,18 +129,18 @@ def test_file_format_225_reads_as_224(tmp_path):
 
 
 def test_volmc_info_lists_the_grids_of_a_file():
-    out = subprocess.run([sys.executable, "-m", "volmc.cli", "info", str(FIRE / FRAMES[0])],
+    out = subprocess.run([sys.executable, "-m", "volmc.cli", "info", str(fixture(FRAMES[0]))],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     lines = out.stdout.splitlines()
-    assert lines[0] == f"{FIRE / FRAMES[0]}: OpenVDB, 23 grids (20 read by volmc)"
+    assert lines[0] == f"{fixture(FRAMES[0])}: OpenVDB, 23 grids (20 read by volmc)"
     assert "  'velocity' (Vec3s) -- skipped: vector grid; volmc reads scalar grids" in lines
     assert "  'flame' (half float)" in lines
 
 
 def test_volmc_info_refuses_a_bad_file_with_one_line(tmp_path):
     bad = tmp_path / "cut.vdb"
-    bad.write_bytes((FIRE / FRAMES[0]).read_bytes()[:300])
+    bad.write_bytes((fixture(FRAMES[0])).read_bytes()[:300])
     out = subprocess.run([sys.executable, "-m", "volmc.cli", "info", str(bad)],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and out.stdout == ""
@@ -144,7 +154,7 @@ def test_a_mantaflow_frame_loads_as_a_fire_scene():
     temperature remap; the box is the density's, and the kelvin grid is the flame placed on
     the density's voxels by index, remapped."""
     from volmc.scene import scene_from_dict
-    f = str(FIRE / FRAMES[-1])
+    f = str(fixture(FRAMES[-1]))
     s = scene_from_dict({
         "camera": {"eye": [0.8, 0.8, 6], "target": [0.8, 0.8, 1], "fov": 40,
                    "resolution": [8, 8]},

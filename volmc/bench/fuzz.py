@@ -40,6 +40,8 @@ CASE_SECONDS = 10.0
 MEMORY_LIMIT = 64 << 20
 
 DATA = Path(__file__).resolve().parents[2] / "tests" / "data"
+#: The Mantaflow fire cache, which ships with the scenes (scenes/data/fire).
+CACHE = Path(__file__).resolve().parents[2] / "scenes" / "data"
 VDB_FIXTURES = ["fire/cache_fluid/data/fluid_data_0002.vdb", "fire/houdini_pyro.vdb",
                 "fire/embergen.vdb", "fire/double.vdb", "vdb/quirks.vdb", "vdb/quirks_zip.vdb",
                 "vdb/quirks_mask.vdb", "vdb/half_zip.vdb", "vdb/blobs_zip.vdb",
@@ -112,7 +114,7 @@ def load_fixtures(tmp):
     from ..scene.vdb import list_grids
     out = []
     for rel in VDB_FIXTURES:
-        path = DATA / rel
+        path = (CACHE if rel.startswith("fire/cache_fluid/") else DATA) / rel
         data = path.read_bytes()
         if rel.endswith(".gz"):   # committed gzipped: an uncompressed NanoVDB file is large
             data = gzip.decompress(data)

@@ -52,6 +52,8 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 OUT = HERE
+#: The Mantaflow cache goes with the scenes (the gallery fire renders it).
+CACHE_OUT = os.path.join(HERE, "..", "..", "..", "scenes", "data", "fire")
 RES = (16, 16, 24)            # x, y, z (z up)
 DOMAIN = 2.4                  # longest side, metres: voxel size DOMAIN / 24 = 0.1
 CLIP = 1e-6                   # Blender's default OpenVDB clip value
@@ -321,12 +323,12 @@ def record_truth(vdb, path, rel, truth):
 def main():
     vdb = openvdb_module()
     frames = simulate()
-    data = os.path.join(OUT, "cache_fluid", "data")
+    data = os.path.join(CACHE_OUT, "cache_fluid", "data")
     os.makedirs(data, exist_ok=True)
     truth = {}
     for i, fields in enumerate(frames, start=1):
         rel = f"cache_fluid/data/fluid_data_{i:04d}.vdb"
-        path = os.path.join(OUT, rel)
+        path = os.path.join(CACHE_OUT, rel)
         vdb.write(path, grids=mantaflow_grids(vdb, fields))
         fix_vec3i(path)
         record_truth(vdb, path, rel, truth)
