@@ -829,6 +829,9 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
     const int n = prm->light_samples;
     const float inv_n = 1.0f / (float)n;
     lvec3 p = madd3(path->o, path->d, path->t);
+    /* Emission sampling's slot after the sky's (the lights' order of sample_direct). */
+    const int glow_slot = FEATURE_EMISSION &&
+                          prm->emission_sampling != EMISSION_SAMPLING_COLLISION;
     lmask choosing = m;
     while (ANY(choosing)) {
         /* The ray each choosing lane takes now (if it has one). */
@@ -892,13 +895,14 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
             dist = select(dist, (lfloat)(NO_LIMIT), take);
             ray = ray | take;
         }
-        /* The sky's slot done (or none): the emitters' slot, n_lights + 1. */
-        lmask sky_done = sky & (lanes_if(!prm->has_env) | (path->sample >= n));
-        path->light = path->light + (sky_done & 1);
-        path->sample = select(path->sample, (lint)(0), sky_done);
 #if FEATURE_EMISSION
+        if (glow_slot) { /* the sky's slot done (or none): the emitters', n_lights + 1 */
+            lmask sky_done = sky & (lanes_if(!prm->has_env) | (path->sample >= n));
+            path->light = path->light + (sky_done & 1);
+            path->sample = select(path->sample, (lint)(0), sky_done);
+        }
         lmask glow = choosing & !ray & (path->light == prm->n_lights + 1);
-        if (prm->emission_sampling != EMISSION_SAMPLING_COLLISION && ANY(glow)) {
+        if (glow_slot && ANY(glow)) {
             lmask take = glow & (path->sample < n);
             lvec3 w;
             lfloat di;
@@ -917,12 +921,12 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
         path->sample = path->sample + (blocked & 1);
         ray = ray & !blocked;
         /* Lanes past the last light: next-event estimation is over. */
-        lmask over = choosing & !ray &
-                     ((path->light > prm->n_lights + 1) |
-                      ((path->light == prm->n_lights + 1) &
-                       (lanes_if(!FEATURE_EMISSION ||
-                                 prm->emission_sampling == EMISSION_SAMPLING_COLLISION) |
-                        (path->sample >= n))));
+        lmask over = glow_slot ? choosing & !ray &
+                                     ((path->light > prm->n_lights + 1) |
+                                      ((path->light == prm->n_lights + 1) & (path->sample >= n)))
+                               : choosing & !ray &
+                                     ((path->light >= prm->n_lights + (prm->has_env ? 1 : 0)) |
+                                      (sky & (path->sample >= n)));
         path->state = select(path->state, (lint)(PATH_BOUNCE), over);
         choosing = choosing & !over;
         if (!ANY(ray)) continue;

@@ -181,12 +181,14 @@ static inline void walk_begin(Walk *wk, const MediumData *med, lvec3 o, lvec3 d,
     wk->use_control = select(wk->use_control, use_control, active);
     wk->beta = sel3(wk->beta, beta, active);
     wk->hero = select(wk->hero, hero, active);
-    wk->emis.pdf = select(wk->emis.pdf, emis.pdf, active);
-    wk->emis.shift = select(wk->emis.shift, emis.shift + t0, active); /* from the walk's origin */
-    if (emis.n > 0.0f) { /* the same for every weighed walk of a launch; a plain walk (a
-                          * shadow ray beside the lanes' flights) must not clear them */
-        wk->emis.n = emis.n;
-        wk->emis.heuristic = emis.heuristic;
+    if (FEATURE_EMISSION) { /* (a build without emission carries none of it) */
+        wk->emis.pdf = select(wk->emis.pdf, emis.pdf, active);
+        wk->emis.shift = select(wk->emis.shift, emis.shift + t0, active); /* from the origin */
+        if (emis.n > 0.0f) { /* the same for every weighed walk of a launch; a plain walk (a
+                              * shadow ray beside the lanes' flights) must not clear them */
+            wk->emis.n = emis.n;
+            wk->emis.heuristic = emis.heuristic;
+        }
     }
     majorant_iter_init(&wk->it, med, wk->o, d, (lfloat)(0.0f), t1 - t0, active);
     wk->in_seg = wk->in_seg & !active;
