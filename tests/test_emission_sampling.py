@@ -28,13 +28,14 @@ GLOW = {"bounds": [[0.4, -0.8, -0.8], [1.0, 0.8, 0.8]], "density": 2.0, "albedo"
         "emission": {"radiance": [4.0, 2.0, 1.0]}}
 
 
-def _scene(media, mode, spp=256, seed=0, res=8, max_depth=6, camera=None, lights=()):
+def _scene(media, mode, spp=256, seed=0, res=8, max_depth=6, camera=None, lights=(),
+           render_keys=None):
     cam = {"type": "orthographic", "eye": [-0.35, 0.0, 3.0], "target": [-0.35, 0.0, 0.0],
            "size": 1.8, "resolution": [res, res]}
     return scene_from_dict({"camera": dict(cam, **(camera or {})), "media": media,
                             "lights": list(lights),
                             "render": {"spp": spp, "seed": seed, "max_depth": max_depth,
-                                       "emission_sampling": mode}})
+                                       "emission_sampling": mode, **(render_keys or {})}})
 
 
 def _assert_alike(a, b):
@@ -178,19 +179,26 @@ def test_modes_agree_with_the_collision_estimator(mode):
     _assert_alike(a, b)
 
 
-def test_one_emitting_grid_medium_grey_and_rgb():
+@pytest.mark.parametrize("extra,spectral", [
+    ({}, None), ({"albedo": [0.6, 0.5, 0.4]}, None), ({"scale": [4.0, 3.0, 2.0]}, "hero"),
+    ({"scale": [4.0, 3.0, 2.0]}, "tracking"), ({"scale": [4.0, 3.0, 2.0]}, "channel")],
+    ids=["grey", "rgb albedo", "hero", "spectral tracking", "one channel"])
+def test_one_emitting_grid_medium(extra, spectral):
     """One medium that scatters and emits (a cloud grid with a plume's temperatures): mis
-    agrees with the collision estimator, grey and with colour-dependent extinction."""
-    for extra in ({}, {"albedo": [0.6, 0.5, 0.4]}):
-        med = {"bounds": [[-1, -1, -1], [1, 1, 1]],
-               "density": {"generator": "cloud", "resolution": 16}, "scale": 4.0,
-               "albedo": 0.7, "phase": {"type": "hg", "g": 0.4},
-               "emission": {"temperature": {"generator": "plume", "resolution": 16, "seed": 3},
-                            "remap": [300.0, 1700.0, 0.0, 1400.0], "scale": 3e-3}, **extra}
-        cam = {"eye": [0.0, 0.0, 3.0], "target": [0.0, 0.0, 0.0], "size": 2.2}
-        a = render(_scene([med], "collision", spp=2048, seed=3, camera=cam), progress=False)
-        b = render(_scene([med], "mis", spp=512, seed=4, camera=cam), progress=False)
-        _assert_alike(a, b)
+    agrees with the collision estimator, grey, with an RGB albedo and with colour-dependent
+    extinction in each spectral mode."""
+    med = {"bounds": [[-1, -1, -1], [1, 1, 1]],
+           "density": {"generator": "cloud", "resolution": 16}, "scale": 4.0,
+           "albedo": 0.7, "phase": {"type": "hg", "g": 0.4},
+           "emission": {"temperature": {"generator": "plume", "resolution": 16, "seed": 3},
+                        "remap": [300.0, 1700.0, 0.0, 1400.0], "scale": 3e-3}, **extra}
+    cam = {"eye": [0.0, 0.0, 3.0], "target": [0.0, 0.0, 0.0], "size": 2.2}
+    keys = {"spectral": spectral} if spectral else None
+    a = render(_scene([med], "collision", spp=2048, seed=3, camera=cam, render_keys=keys),
+               progress=False)
+    b = render(_scene([med], "mis", spp=512, seed=4, camera=cam, render_keys=keys),
+               progress=False)
+    _assert_alike(a, b)
 
 
 @pytest.mark.parametrize("mode", ["light", "mis"])
