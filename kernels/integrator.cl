@@ -750,28 +750,6 @@ static inline STAGE void flight_end(const Params *prm, global const Light *light
 }
 
 #if FEATURE_EMISSION
-/* The majorant free flight along o + t d (unit d) uses at distance dist, in the active
- * lanes: that of the segment there, 0 where none covers it (twin in integrator.py). */
-static inline lfloat majorant_at(const MediumData *med, lvec3 o, lvec3 d, lfloat dist,
-                                 lmask active) {
-    lfloat t0, t1, shift;
-    lvec3 oo = enter_media(med, o, d, &t0, &t1, &shift);
-    t1 = fmin(t1, dist - shift);
-    lmask go = active & (t1 > t0);
-    lfloat span = t1 - t0;
-    lfloat s = (lfloat)(0.0f);
-    MajorantIter it;
-    majorant_iter_init(&it, med, madd3(oo, d, t0), d, (lfloat)(0.0f), span, go);
-    while (ANY(go)) {
-        Segment seg;
-        lmask ok = majorant_next(&it, med, &seg, go);
-        lmask there = ok & (seg.t_max >= span);
-        s = select(s, seg.sigma_maj, there);
-        go = go & ok & !there;
-    }
-    return s;
-}
-
 /* One emission-sampling shadow ray per lane of `active` from vertex p (the path arrived
  * along d and scatters in medium k): the ray of sample_emitters in integrator.py, without
  * its transmittance. Writes the direction, the distance and the contribution per unit
@@ -801,7 +779,7 @@ static inline lmask emitter_ray(const Params *prm, const MediumData *med, lvec3 
     lfloat mis = (lfloat)(1.0f);
     if (prm->emission_sampling == EMISSION_SAMPLING_MIS)
         mis = mis_weight(prm->mis, (float)prm->light_samples * pdf,
-                         f * majorant_at(med, p, *w, *dist, ok) / (*dist * *dist));
+                         f * majorant_at(med, y, ok) / (*dist * *dist));
     lfloat g = f * mis / ((float)prm->light_samples * pdf * *dist * *dist);
     *contrib = sel3(*contrib, scale3(src, g), ok);
     return ok;

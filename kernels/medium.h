@@ -185,6 +185,53 @@ static inline lvec3 emitted_radiance(const MediumData *med, int i, lvec3 p, lmas
               e.z * (gather_float(table, j + 2) * (1.0f - w) + gather_float(table, j + 5) * w));
 }
 
+/* The cell, of n along this axis, that coordinate q of the medium's space falls in. */
+static inline lint majorant_cell(lfloat q, float bmin, float inv_extent, int n) {
+    return clamp(to_lint(floor((q - bmin) * inv_extent * (float)n)), 0, n - 1);
+}
+
+/* The majorant at point p in the active lanes: the sum over the media whose box holds p of
+ * their majorant there, the sigma_maj of the merged segment that covers p (twin in
+ * medium.py). */
+static inline lfloat majorant_at(const MediumData *med, lvec3 p, lmask active) {
+    lfloat s = (lfloat)(0.0f);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        const Medium *m = &med->m[i];
+        lvec3 q = to_medium(m, p);
+        lmask in = MEDIA_COUNT == 1 ? active : in_box(m, q, active);
+        if (!ANY(in)) continue;
+        global const float *maj = med->maj + m->maj_off;
+        if (FEATURE_MAJORANT_GRID && m->majorant_kind == MAJORANT_GRID) {
+            int cz = m->maj_res[0], cy = m->maj_res[1], cx = m->maj_res[2];
+            lint k = (majorant_cell(q.z, m->bmin[2], m->inv_extent[2], cz) * cy +
+                      majorant_cell(q.y, m->bmin[1], m->inv_extent[1], cy)) * cx +
+                     majorant_cell(q.x, m->bmin[0], m->inv_extent[0], cx);
+            s += select((lfloat)(0.0f), m->scale * gather_float(maj, select((lint)(0), k, in)),
+                        in);
+        } else if (FEATURE_MAJORANT_OCTREE && m->majorant_kind == MAJORANT_OCTREE) {
+            int depth = m->octree_depth, n = 1 << depth;
+            lint ix = majorant_cell(q.x, m->bmin[0], m->inv_extent[0], n);
+            lint iy = majorant_cell(q.y, m->bmin[1], m->inv_extent[1], n);
+            lint iz = majorant_cell(q.z, m->bmin[2], m->inv_extent[2], n);
+            global const int *children = med->nodes + m->nodes_off;
+            lint node = (lint)(0);
+            lmask inner = in;
+            for (int lv = 0; lv < depth && ANY(inner); ++lv) {
+                lint first = gather_int(children, node);
+                inner = inner & (first != 0);
+                int k = depth - 1 - lv;
+                node = select(node, first + (((ix >> k) & 1) | (((iy >> k) & 1) << 1) |
+                                             (((iz >> k) & 1) << 2)),
+                              inner);
+            }
+            s += select((lfloat)(0.0f), m->scale * gather_float(maj, node), in);
+        } else {
+            s += select((lfloat)(0.0f), (lfloat)(m->sigma_maj), in);
+        }
+    }
+    return s;
+}
+
 /* True if some medium emits. */
 static inline int media_emit(const MediumData *med) {
     int any = 0;

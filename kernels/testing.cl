@@ -19,6 +19,7 @@
 #include "camera.h"
 #include "environment.h"
 #include "lights.h"
+#include "emitters.h"
 
 kernel void t_philox(global const uint *ctr, global const uint *key, global uint *out, int n) {
     lmask on;
@@ -446,4 +447,26 @@ kernel void t_lights(global const Light *lights, int li, global const float *in,
         store_float(out, i, 12, 7, sphere_light_pdf(lt, p, w, t), on);
     }
     if (lt->type == LIGHT_SPOT) store_float(out, i, 12, 8, spot_falloff(lt, w), on);
+}
+
+/* Medium 0's majorant at points p (3 floats each) and emission sampling's density there,
+ * and sample_emitter of uniforms u (5 floats each): out holds 6 floats an element
+ * (majorant_at, emitter_pdf, the sampled point, its pdf). maj (an octree's: per node),
+ * nodes and the table (blackbody rows, then the emitter's cells) are medium 0's. */
+kernel void t_emitters(global const Medium *media, global const float *maj,
+                       global const int *nodes, global const float *table,
+                       global const float *p, global const float *u, global float *out,
+                       int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    MediumData med = {{media[0]}, maj, maj, maj, maj, table, 0, maj, nodes, 0, 0, (lint)(-1)};
+    lvec3 x = load_float3(p, i, 3, 0);
+    store_float(out, i, 6, 0, majorant_at(&med, x, on), on);
+    store_float(out, i, 6, 1, emitter_pdf(&med, x, on), on);
+    lfloat pdf;
+    lvec3 y = sample_emitter(&med, load_float(u, i, 5, 0), load_float(u, i, 5, 1),
+                             load_float(u, i, 5, 2), load_float(u, i, 5, 3),
+                             load_float(u, i, 5, 4), &pdf, on);
+    store_float3(out, i, 6, 2, y, on);
+    store_float(out, i, 6, 5, pdf, on);
 }

@@ -80,9 +80,9 @@ from .free_flight import free_flight
 from .guards import sample_ok
 from .lights import (is_area_light, nearest_sphere, sample_area_light, spot_falloff,
                      sphere_light_pdf, sun_radiance)
-from .medium import (ZERO, MediumData, extinction, majorant_iter_init, majorant_next, media_emit,
-                     medium_chroma, medium_extinction, medium_pick, new_iter, ray_box,
-                     record_segment, to_medium, to_medium_dir)
+from .medium import (ZERO, MediumData, extinction, majorant_at, media_emit, medium_chroma,
+                     medium_extinction, medium_pick, ray_box, record_segment, to_medium,
+                     to_medium_dir)
 from .phase import phase_eval, phase_sample
 from .emitters import sample_emitter
 from .tracking import EMIS_PLAIN, emission_term, mis_weights
@@ -494,25 +494,6 @@ def sample_direct(prm, lights, env, med, k, ea, o, d, t0, t1, t, pix, s, b, rng,
 
 
 @njit(cache=True)
-def majorant_at(med, o, d, dist):
-    """The majorant free flight along o + t d (unit d) uses at distance dist: that of the
-    segment there, 0 where no segment covers it (tracking.emission_weight)."""
-    o, t0, t1, shift = enter_media(med, o, d)
-    t1 = min(t1, dist - shift)
-    if not t1 > t0:
-        return 0.0
-    span = t1 - t0
-    it = new_iter(med)
-    majorant_iter_init(it, med, madd3(o, d, t0), d, 0.0, span)
-    while True:
-        ok, _, tb, s_maj, _ = majorant_next(it, med)
-        if not ok:
-            return 0.0
-        if tb >= span:
-            return s_maj
-
-
-@njit(cache=True)
 def sample_emitters(prm, lights, med, k, p, d, rng, counters, rng_s):
     """Emission sampling (render.emission_sampling "light" or "mis"; emitters.py) at the
     vertex p, where the path arrived along d and scatters in medium k: light_samples points
@@ -545,7 +526,7 @@ def sample_emitters(prm, lights, med, k, p, d, rng, counters, rng_s):
         f = medium_phase_eval(med, k, dot(d, wl))
         w = 1.0
         if prm.emission_sampling == EMISSION_SAMPLING_MIS:
-            w = mis_weight(prm.mis, n * pdf, f * majorant_at(med, p, wl, dist) / (dist * dist))
+            w = mis_weight(prm.mis, n * pdf, f * majorant_at(med, y) / (dist * dist))
         tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
         L = add3(L, mul3(src, scale3(tr, f * w / (n * pdf * dist * dist))))
     return L

@@ -207,6 +207,48 @@ def emitted_radiance(med, i, p):
 
 
 @njit(cache=True, inline="always")
+def majorant_cell(q, bmin, inv_extent, n):
+    """The cell, of n along this axis, that coordinate q of the medium's space falls in."""
+    return min(max(int(math.floor((q - bmin) * inv_extent * n)), 0), n - 1)
+
+
+@njit(cache=True)
+def majorant_at(med, p):
+    """The majorant at point p of the scene frame: the sum over the media whose box holds p
+    of their majorant there -- the grid cell's or the octree leaf's maximum times the scale,
+    or the global one -- which is the sigma_maj of the merged segment that covers p (0 where
+    none does)."""
+    s = 0.0
+    for i in range(len(med)):
+        md = med[i]
+        m = md.m
+        q = to_medium(m, p)
+        if len(med) > 1 and not in_box(m, q):
+            continue
+        if m.majorant_kind == MAJORANT_GRID:
+            cz, cy, cx = m.maj_res[0], m.maj_res[1], m.maj_res[2]
+            s += m.scale * md.maj[majorant_cell(q[2], m.bmin[2], m.inv_extent[2], cz),
+                                  majorant_cell(q[1], m.bmin[1], m.inv_extent[1], cy),
+                                  majorant_cell(q[0], m.bmin[0], m.inv_extent[0], cx)]
+        elif m.majorant_kind == MAJORANT_OCTREE:
+            n = 1 << m.octree_depth
+            ix = majorant_cell(q[0], m.bmin[0], m.inv_extent[0], n)
+            iy = majorant_cell(q[1], m.bmin[1], m.inv_extent[1], n)
+            iz = majorant_cell(q[2], m.bmin[2], m.inv_extent[2], n)
+            node = 0
+            level = 0
+            while level < m.octree_depth and md.nodes[node] != 0:
+                k = m.octree_depth - 1 - level
+                node = md.nodes[node] + (((ix >> k) & 1) | (((iy >> k) & 1) << 1)
+                                         | (((iz >> k) & 1) << 2))
+                level += 1
+            s += m.scale * md.maj[0, 0, node]
+        else:
+            s += m.sigma_maj
+    return s
+
+
+@njit(cache=True, inline="always")
 def media_emit(med):
     """True if some medium emits."""
     for i in range(len(med)):
