@@ -32,7 +32,7 @@ SETTINGS = dict(deadline=None, derandomize=True, database=None,
 @pytest.fixture(scope="module")
 def fixtures():
     with fuzz.scratch_dir() as tmp:
-        yield fuzz.load_fixtures(tmp), Path(tmp)
+        yield fuzz.load_fixtures(tmp, Path(__file__).resolve().parent / "data"), Path(tmp)
 
 
 def _case(fixtures, data, kind):

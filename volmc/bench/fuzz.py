@@ -39,9 +39,9 @@ import numpy as np
 CASE_SECONDS = 10.0
 MEMORY_LIMIT = 64 << 20
 
+#: The test fixtures of a checkout (the tests pass their own folder: an installed volmc has
+#: no tests/ beside it).
 DATA = Path(__file__).resolve().parents[2] / "tests" / "data"
-#: The Mantaflow fire cache, which ships with the scenes (scenes/data/fire).
-CACHE = Path(__file__).resolve().parents[2] / "scenes" / "data"
 VDB_FIXTURES = ["fire/cache_fluid/data/fluid_data_0002.vdb", "fire/houdini_pyro.vdb",
                 "fire/embergen.vdb", "fire/double.vdb", "vdb/quirks.vdb", "vdb/quirks_zip.vdb",
                 "vdb/quirks_mask.vdb", "vdb/half_zip.vdb", "vdb/blobs_zip.vdb",
@@ -108,13 +108,16 @@ def structural_offsets(data):
     return np.union1d(counts, offsets)
 
 
-def load_fixtures(tmp):
-    """The fixtures: the VDB files of tests/data and an EXR map written into ``tmp``."""
+def load_fixtures(tmp, folder=None):
+    """The fixtures: the VDB files of ``folder`` (default DATA, a checkout's tests/data; the
+    Mantaflow cache from the scenes, scenes/data/fire) and an EXR map written into ``tmp``."""
     from ..film import write_exr
+    from ..resources import scenes_dir
     from ..scene.vdb import list_grids
+    folder = DATA if folder is None else Path(folder)
     out = []
     for rel in VDB_FIXTURES:
-        path = (CACHE if rel.startswith("fire/cache_fluid/") else DATA) / rel
+        path = (scenes_dir() / "data" if rel.startswith("fire/cache_fluid/") else folder) / rel
         data = path.read_bytes()
         if rel.endswith(".gz"):   # committed gzipped: an uncompressed NanoVDB file is large
             data = gzip.decompress(data)
