@@ -32,7 +32,7 @@ SETTINGS = dict(deadline=None, derandomize=True, database=None,
 @pytest.fixture(scope="module")
 def fixtures():
     with fuzz.scratch_dir() as tmp:
-        yield fuzz.load_fixtures(tmp, Path(__file__).resolve().parent / "data"), Path(tmp)
+        yield fuzz.load_fixtures(tmp, DATA), Path(tmp)
 
 
 def _case(fixtures, data, kind):
@@ -64,7 +64,7 @@ def test_exr_reader_survives_mutations(fixtures, data):
 def test_the_mutations_reach_the_structure():
     """The seeded run the benchmark makes: no failure, and the damage is found often
     (counts, sizes and offsets are hit, not only voxel values) but not always."""
-    counts, failures, _ = fuzz.fuzz(700, seed=3)
+    counts, failures, _ = fuzz.fuzz(700, seed=3, folder=DATA)
     assert not failures, failures[:3]
     assert counts["refused"] > 0.3 * 700 and counts["ok"] > 0.1 * 700, counts
 

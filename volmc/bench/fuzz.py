@@ -232,8 +232,9 @@ def scratch_dir():
     return tempfile.TemporaryDirectory(dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
 
 
-def fuzz(cases, seed=0, kinds=("vdb", "exr")):
-    """Run ``cases`` cases drawn by a seeded RNG; returns (counts, failures, seconds)."""
+def fuzz(cases, seed=0, kinds=("vdb", "exr"), folder=None):
+    """Run ``cases`` cases drawn by a seeded RNG over the fixtures of ``folder`` (see
+    load_fixtures); returns (counts, failures, seconds)."""
     rng = np.random.default_rng(seed)
 
     def draw(lo, hi):
@@ -242,7 +243,7 @@ def fuzz(cases, seed=0, kinds=("vdb", "exr")):
     counts, failures = {}, []
     t = time.perf_counter()
     with scratch_dir() as tmp:
-        fixtures = [f for f in load_fixtures(tmp) if f.kind in kinds]
+        fixtures = [f for f in load_fixtures(tmp, folder) if f.kind in kinds]
         for i in range(cases):
             fx = fixtures[i % len(fixtures)]
             damaged, what = mutate(fx.data, fx.structural, draw)
@@ -260,9 +261,15 @@ def main(argv=None):
     p.add_argument("--cases", type=int, default=5000, help="cases to run (default 5000)")
     p.add_argument("--seed", type=int, default=0, help="RNG seed (default 0)")
     p.add_argument("--only", choices=["vdb", "exr"], help="fuzz one reader only")
+    p.add_argument("--fixtures", type=Path, default=DATA,
+                   help="the folder of the test fixtures (default: tests/data of this checkout)")
     args = p.parse_args(argv)
+    if not (args.fixtures / "vdb").is_dir():
+        print(f"python -m volmc.bench.fuzz: --fixtures {args.fixtures}: no vdb/ fixture folder "
+              "there (the fixtures come with a checkout of volmc, in tests/data)", file=sys.stderr)
+        return 2
     counts, failures, seconds = fuzz(args.cases, args.seed,
-                                     (args.only,) if args.only else ("vdb", "exr"))
+                                     (args.only,) if args.only else ("vdb", "exr"), args.fixtures)
     print(f"{args.cases} cases in {seconds:.1f} s ({args.cases / seconds:.0f}/s): "
           + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
     for name, what, out in failures:
