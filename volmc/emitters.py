@@ -122,23 +122,23 @@ def _cell_means(values, res):
 def _luminance_source(record, field, table, density, bound):
     """luminance(sigma_a Le) for emission field values ``field`` and extinction ``density``
     (arrays of one shape; 1/unit), Le through the blackbody table's running maximum at the
-    next entry up when ``bound`` (an upper bound), else as the renderer interpolates it."""
-    rgb = np.asarray(record["emission_rgb"], np.float64)
-    if int(record["emission_kind"]) == EMISSION_RADIANCE:
-        le = np.maximum(field, 0.0)[..., None] * rgb
-    else:
-        x = np.clip(field * float(record["table_scale"]), 0.0, BLACKBODY_TABLE_SIZE - 1.0)
-        t = np.asarray(table, np.float64)[:BLACKBODY_TABLE_SIZE]
-        if bound:
-            row = np.minimum(np.floor(x).astype(np.int64) + 1, BLACKBODY_TABLE_SIZE - 1)
-            le = np.maximum.accumulate(t, axis=0)[row] * rgb
-        else:
-            i0 = np.minimum(x.astype(np.int64), BLACKBODY_TABLE_SIZE - 2)
-            w = (x - i0)[..., None]
-            le = (t[i0] * (1.0 - w) + t[i0 + 1] * w) * rgb
+    next entry up when ``bound`` (an upper bound), else as the renderer interpolates it.
+    Luminance is linear and its weights are not negative, so the table is reduced to one
+    luminance per row first: the interpolation is the same, and the running maximum of the
+    luminance bounds it (more tightly than the channels' own maxima would)."""
     ka = (1.0 - np.asarray(record["albedo"], np.float64)) * np.asarray(record["chroma"],
                                                                         np.float64)
-    return (le * (np.asarray(LUMINANCE_RGB) * ka)).sum(-1) * density
+    weights = np.asarray(record["emission_rgb"], np.float64) * np.asarray(LUMINANCE_RGB) * ka
+    if int(record["emission_kind"]) == EMISSION_RADIANCE:
+        return np.maximum(field, 0.0) * (float(weights.sum()) * density)
+    lum = np.asarray(table, np.float64)[:BLACKBODY_TABLE_SIZE] @ weights
+    x = np.clip(field * float(record["table_scale"]), 0.0, BLACKBODY_TABLE_SIZE - 1.0)
+    if bound:
+        row = np.minimum(np.floor(x).astype(np.int64) + 1, BLACKBODY_TABLE_SIZE - 1)
+        return np.maximum.accumulate(lum)[row] * density
+    i0 = np.minimum(x.astype(np.int64), BLACKBODY_TABLE_SIZE - 2)
+    w = x - i0
+    return (lum[i0] * (1.0 - w) + lum[i0 + 1] * w) * density
 
 
 def emitter_weights(record, stored, emis, table):
@@ -157,7 +157,7 @@ def emitter_weights(record, stored, emis, table):
     res = _resolution(finest)
     # Upper bounds per cell: the majorant grid's construction for each field.
     if kind == DENSITY_GRID:
-        mu_max = build_majorant_grid(np.asarray(stored), res)[0].astype(np.float64) * scale
+        mu_max = build_majorant_grid(np.asarray(stored), res, minima=False)[0].astype(np.float64) * scale
     elif kind == DENSITY_BRICKS:
         mu_max = np.asarray(majorant_from_bricks(stored.table, stored.pool, stored.dims, res)[0],
                             np.float64) * scale
@@ -165,7 +165,7 @@ def emitter_weights(record, stored, emis, table):
         mu_max = np.full(res, float(record["density"]) * scale)
     else:   # 1-D profiles: the global bound
         mu_max = np.full(res, float(record["sigma_maj"]))
-    f_max = build_majorant_grid(np.asarray(emis, np.float64), res)[0].astype(np.float64)
+    f_max = build_majorant_grid(np.asarray(emis), res, minima=False)[0].astype(np.float64)
     bound = _luminance_source(record, f_max, table, mu_max, True)
     # Means over a lattice with a point per voxel (at least 2 per cell and axis).
     lattice = tuple(r * max(2, min(-(-f // r), MAX_LATTICE // r)) for r, f in zip(res, finest))

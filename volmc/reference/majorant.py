@@ -36,10 +36,11 @@ def influence_ranges(n_voxels, n_cells):
     return lo, hi
 
 
-def build_majorant_grid(grid, resolution=None):
+def build_majorant_grid(grid, resolution=None, minima=True):
     """(maxima, minima) float32 arrays [cz, cy, cx] bounding ``grid`` in every cell.
 
-    resolution: (cz, cy, cx) cells, or None for ``auto_resolution(grid.shape)``."""
+    resolution: (cz, cy, cx) cells, or None for ``auto_resolution(grid.shape)``.
+    minima: False skips the minima (None in their place)."""
     grid = np.asarray(grid)
     res = auto_resolution(grid.shape) if resolution is None else tuple(int(r) for r in resolution)
     if len(res) != 3 or min(res) < 1:
@@ -52,12 +53,12 @@ def build_majorant_grid(grid, resolution=None):
                  for l, h in zip(lo, hi)]
         return np.concatenate(parts, axis=axis)
     out = []
-    for fn in (np.max, np.min):
+    for fn in (np.max, np.min) if minima else (np.max,):
         a = reduce(grid, rx, 2, fn)
         a = reduce(a, ry, 1, fn)
         a = reduce(a, rz, 0, fn)
         out.append(np.ascontiguousarray(a, dtype=np.float32))
-    return out[0], out[1]
+    return out[0], (out[1] if minima else None)
 
 
 def cell_of(p, bmin, bmax, res_zyx):
