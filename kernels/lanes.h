@@ -158,7 +158,7 @@ static inline int lane_count(lmask m) {
 static inline lulong lane_ones(lmask m) { return to_lulong(m & 1); }
 
 /* Gathers load lane by lane. LLVM turns that loop into a vector gather instruction, which
- * on the Zen 5 of README "Lanes" is slower than the scalar loads: volatile keeps them scalar
+ * on the Zen 5 of docs/lanes.md is slower than the scalar loads: volatile keeps them scalar
  * (1.07x samples/s on the default cloud at W = 16, 1.06x at W = 8, 1.10x on an fbm cloud).
  * -DGATHER_SCALAR=0 gives the gather instructions back, to measure on other CPUs. */
 #ifndef GATHER_SCALAR

@@ -126,7 +126,7 @@ def test_backends_draw_the_same_samples(sampler):
 def test_sobol_beats_independent_on_a_smooth_integrand():
     """Single scattering in a homogeneous cube lit by the sun: a smooth integrand over the
     pixel, flight and light dimensions. Over 10 seeds at 64 spp, the Sobol sampler's mean
-    squared error is below a third of the independent sampler's (measured: see README)."""
+    squared error is below a third of the independent sampler's (measured: see docs/sampling.md)."""
     truth = _single_scatter_truth(16)[:, None, None] * np.ones((16, 4, 3))
     keys = ["render.spp=64", "camera.resolution=[4, 16]"]
     mse = {s: float(np.mean((_replicas(SINGLE, keys + [f"render.sampler={s}"], 10)

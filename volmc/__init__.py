@@ -1,6 +1,6 @@
 """volmc: Monte Carlo volume path tracing (OpenCL kernels, Numba float64 reference).
 
-The Python API (volmc/api.py; the README's "Python API" section)::
+The Python API (volmc/api.py; docs/python_api.md and docs/api/volmc.md)::
 
     import volmc
     scene = volmc.load_scene("scene.toml", overrides={"render.spp": 16})

@@ -267,7 +267,7 @@ EQUIANGULAR_MIS = 2
 #: min(max(throughput), RR_MAX_SURVIVAL): the cap ends every path, even at albedo 1 in an
 #: unbounded medium (Mitsuba 3's policy). With max_depth >= 0 the depth bound ends paths and
 #: the cap is 1: a cap of 0.95 cost the default cloud (albedo 0.99, 64 events) twice the MSE
-#: per sample, 1.5x the time to equal error (README, "Russian roulette").
+#: per sample, 1.5x the time to equal error (docs/rendering.md, "Russian roulette").
 RR_MAX_SURVIVAL = 0.95
 #: Russian-roulette survival rules (render.rr): the throughput's largest channel ...
 RR_THROUGHPUT = 0

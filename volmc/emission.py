@@ -1,7 +1,7 @@
 """Blackbody emission: the table of linear-sRGB radiance against temperature that
 ``medium.emission.temperature`` reads (volmc/reference/medium.py ``emitted_radiance``).
 
-Units and colour conversion (README, "Emission"):
+Units and colour conversion (docs/colour_emission.md, "Emission"):
 
 * Spectral radiance of a blackbody at temperature T (kelvin), Planck's law:
   B(lambda, T) = 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1), in W sr^-1 m^-2 per

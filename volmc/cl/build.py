@@ -21,7 +21,7 @@ CACHE_ENV = "VOLMC_CACHE_DIR"
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)".*$', re.M)
 _memory_cache = {}
 
-#: Options every build gets. No fast-math flags: see the README's "Numerical robustness".
+#: Options every build gets. No fast-math flags: see docs/numerical_robustness.md, "Fast math".
 BASE_OPTIONS = ("-cl-std=CL1.2",)
 
 

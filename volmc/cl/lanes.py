@@ -1,12 +1,12 @@
 """Lane width W: the paths one work-item of the lane-generic kernels traces in lock-step
-(kernels/lanes.h; README, "Lanes").
+(kernels/lanes.h; docs/lanes.md).
 
 The default is the device's preferred float vector width (``preferred_vector_width_float``:
 16 on AVX-512 CPUs under PoCL, 8 on AVX2, 1 on GPUs), rounded down to a width the kernels
 are built for. ``--lanes N`` (CLI), ``lanes=`` (API) and the environment variable
 VOLMC_LANES override it. W is part of a render's identity: each lane traces exactly the
 path the scalar kernel traces for its sample, but the vector and scalar maths libraries may
-round differently (README, "Lanes"), so a checkpoint records W and a resume with another W
+round differently (docs/lanes.md), so a checkpoint records W and a resume with another W
 is refused.
 """
 

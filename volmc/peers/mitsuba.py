@@ -1,7 +1,7 @@
 """Mitsuba 3 as a peer renderer: translate a volmc scene, render it with ``volpath``.
 
 Conventions and how the translation matches them (each checked by tests/test_peer_mitsuba.py
-or by the README's cross-check):
+or by the cross-check of docs/peers.md):
 
 - **Camera.** volmc's ``fov`` is the full vertical angle; Mitsuba's ``perspective`` gets
   ``fov_axis = "y"`` and ``look_at(eye, target, up)``, which puts +x on the right when looking

@@ -58,7 +58,7 @@ EVENT_CAPPED (free flight) or T as it stands (track length: 0); "transmittance r
 ratio-type weights below TR_RR_THRESHOLD play Russian roulette (``transmittance_roulette``),
 so dense shadow rays stop after a few lookups.
 
-Colour (``m.spectral``; README "Colour-dependent extinction"): extinction per channel is
+Colour (``m.spectral``; docs/colour_emission.md, "Colour-dependent extinction"): extinction per channel is
 chroma_c x mu(x), with mu the largest channel's extinction (what ``extinction`` returns and
 every majorant bounds) and chroma_c <= 1. So one majorant serves all three channels, the
 segments and the tentative collisions are shared, and
@@ -235,7 +235,7 @@ def auto_segment_technique(s_maj, s_min, L):
     length otherwise. Both are unbiased per segment, and the choice depends only on the
     segment's bounds, never on its random numbers, so the product stays unbiased.
 
-    Why (README "Which estimator?", measured with ``volmc bench render`` on the default
+    Why (docs/which_estimator.md, measured with ``volmc bench render`` on the default
     cloud, the plume, the scan and the thin cloud): a shadow ray's variance is a small part of
     a scattering path's, so cost decides. On a thick segment track length stops at the first
     real collision, where ratio-type tracking goes on until roulette (the cloud: 13.2 against
