@@ -11,8 +11,8 @@ import json
 import math
 import re
 import sys
-from dataclasses import dataclass, field
-from typing import Optional, Union
+from dataclasses import MISSING, dataclass, field, fields
+from typing import Optional, Union, get_args
 
 from ..constants import MAX_MEDIA
 from ..techniques import ESTIMATORS, chromatic_estimators, grid_estimators
@@ -24,7 +24,6 @@ RGB = tuple[float, float, float]
 
 CAMERA_TYPES = ("perspective", "orthographic", "panoramic")
 PHASE_TYPES = ("isotropic", "hg")
-LIGHT_TYPES = ("environment", "directional", "point", "spot", "sphere")
 #: Procedural sources and the fields each returns, in order (``channel``; generators.py
 #: returns a tuple when there are several).
 GENERATORS = {"cloud": ("density",), "plume": ("density", "temperature")}
@@ -203,8 +202,8 @@ class Render:
     max_steps: int = 1_000_000
     transmittance: str = "auto"
     majorant: str = "grid"
-    free_flight: str = "delta"
     majorant_resolution: tuple = ()
+    free_flight: str = "delta"
     spectral: str = "hero"
     grid_storage: str = "auto"
     mis: str = "balance"
@@ -240,17 +239,36 @@ class SceneSpec:
         return any(m.chromatic for m in self.media)
 
 
-# (key, default or REQUIRED); the kind of each key is checked in the section functions.
-REQUIRED = object()
-CAMERA_KEYS = ("type", "eye", "target", "up", "fov", "size", "resolution", "aperture",
-               "focus_distance")
-MEDIUM_KEYS = ("bounds", "density", "scale", "albedo", "phase", "emission", "transform")
-EMISSION_KEYS = ("radiance", "field", "temperature", "scale", "remap")
-PHASE_KEYS = ("type", "g")
-RENDER_KEYS = ("spp", "max_depth", "rr_depth", "seed", "max_steps", "transmittance", "majorant",
-               "majorant_resolution", "free_flight", "spectral", "grid_storage", "mis",
-               "sampler", "light_samples", "equiangular", "rr", "transparent_background",
-               "env_sampling", "env_compensation", "emission_sampling")
+#: Where a section's TOML keys differ from its dataclass's fields: field -> the keys that set
+#: it (none: the field is not a key). Every other field is a key of the same name, in field
+#: order; ``_keys`` derives the key lists below from this table and the dataclasses.
+_KEYS_OF_FIELD = {
+    SceneSpec: {"file": (),                      # the scene file's path, not a key
+                "medium": ("medium", "media"),   # [medium], or the first of [[media]]
+                "others": ()},                   # the rest of [[media]]
+    FileDensity: {"path": ("file",),             # as written in the scene
+                  "resolved": ()},               # the absolute path, worked out
+    EnvironmentLight: {"resolved": (), "texels": ()},   # worked out / loaded later
+    SphereLight: {"radiance": ("radiance", "power")},   # or power / (4 pi^2 radius^2)
+}
+
+
+def _keys(cls):
+    """The TOML keys of dataclass ``cls``'s table, in field order."""
+    renamed = _KEYS_OF_FIELD.get(cls, {})
+    return tuple(k for f in fields(cls) for k in renamed.get(f.name, (f.name,)))
+
+
+def _defaults(cls):
+    """{field: default} of the fields of dataclass ``cls`` that have one."""
+    return {f.name: f.default for f in fields(cls) if f.default is not MISSING}
+
+
+CAMERA_KEYS = _keys(Camera)
+MEDIUM_KEYS = _keys(Medium)
+EMISSION_KEYS = _keys(Emission)
+PHASE_KEYS = _keys(Phase)
+RENDER_KEYS = _keys(Render)
 #: How emission reaches a scattering vertex (render.emission_sampling; docs/emission.md).
 EMISSION_SAMPLINGS = ("collision", "light", "mis")
 ENV_SAMPLINGS = ("importance", "uniform")
@@ -266,16 +284,15 @@ FREE_FLIGHTS = ("delta", "decomposition")
 #: Shadow-ray transmittance estimators for grids: every estimator of the registry
 #: (volmc/techniques.py) except those exact only on homogeneous segments.
 TRANSMITTANCE_ESTIMATORS = grid_estimators()
-LIGHT_KEYS = {
-    "environment": ("type", "radiance", "file", "strength", "rotation"),
-    "directional": ("type", "direction", "irradiance", "angle"),
-    "point": ("type", "position", "intensity"),
-    "spot": ("type", "position", "direction", "intensity", "angle", "blend"),
-    "sphere": ("type", "position", "radius", "radiance", "power"),
-}
-TOP_KEYS = ("camera", "medium", "media", "lights", "render")
-FILE_DENSITY_KEYS = ("file", "grid")
-GENERATOR_KEYS = ("generator", "resolution", "seed", "channel")
+#: The type of each light class (its ``type`` default) -> the class.
+LIGHT_CLASSES = {_defaults(cls)["type"]: cls for cls in get_args(Light)}
+#: Each light type's keys, ``type`` (which picks the class) first.
+LIGHT_KEYS = {t: ("type",) + tuple(k for k in _keys(cls) if k != "type")
+              for t, cls in LIGHT_CLASSES.items()}
+LIGHT_TYPES = tuple(LIGHT_CLASSES)
+TOP_KEYS = _keys(SceneSpec)
+FILE_DENSITY_KEYS = _keys(FileDensity)
+GENERATOR_KEYS = _keys(GeneratedDensity)
 
 
 class _Checker:
@@ -442,7 +459,7 @@ def _source(c, v, key, file_dir, channel="density"):
             if not isinstance(path, str) or not path:
                 c.fail(key + ".file", f"expected a file path, got {_show(path)}")
             suffix = os.path.splitext(path)[1].lower()
-            grid = v.get("grid", "density")
+            grid = v.get("grid", _defaults(FileDensity)["grid"])
             if not isinstance(grid, str) or not grid:
                 c.fail(key + ".grid", f"expected a grid name, got {_show(grid)}")
             if "grid" in v and suffix not in NAMED_GRID_SUFFIXES:
@@ -455,7 +472,8 @@ def _source(c, v, key, file_dir, channel="density"):
             gen = c.choice(v["generator"], key + ".generator", tuple(GENERATORS))
             res = c.integer(c.required(v, "resolution", key + "."), key + ".resolution",
                             lo=1, hi=2048)
-            seed = c.integer(v.get("seed", 0), key + ".seed", lo=0, hi=2**63 - 1)
+            seed = c.integer(v.get("seed", _defaults(GeneratedDensity)["seed"]), key + ".seed",
+                             lo=0, hi=2**63 - 1)
             ch = c.choice(v.get("channel", channel), key + ".channel", GENERATORS[gen])
             return GeneratedDensity(gen, res, seed, ch)
         c.fail(key, "a grid table needs 'file' or 'generator'")
@@ -479,12 +497,13 @@ def _emission(c, raw, file_dir, p="medium.emission."):
         if "remap" in raw:
             c.fail(p + "remap", "only 'temperature' emission takes a remap (to kelvin)")
         radiance = c.rgb(raw["radiance"], p + "radiance")
-        field = _source(c, raw.get("field", 1.0), p + "field", file_dir)
+        field = _source(c, raw.get("field", _defaults(Emission)["field"].value), p + "field",
+                        file_dir)
         return Emission(radiance=radiance, field=field)
     if "field" in raw:
         c.fail(p + "field", "only 'radiance' emission takes a field")
     temperature = _source(c, raw["temperature"], p + "temperature", file_dir, "temperature")
-    scale = c.number(raw.get("scale", 1.0), p + "scale", 0.0)
+    scale = c.number(raw.get("scale", _defaults(Emission)["scale"]), p + "scale", 0.0)
     remap = None
     if "remap" in raw:
         r = raw["remap"]
@@ -511,12 +530,13 @@ def _medium(c, raw, file_dir, p="medium."):
         bounds = (lo, hi)
     else:
         bounds = None   # from the VDB file's active voxels (loading.py)
-    scale = c.rgb(raw.get("scale", 1.0), p + "scale")
+    d = _defaults(Medium)
+    scale = c.rgb(raw.get("scale", list(d["scale"])), p + "scale")
     if isinstance(density, ConstantDensity) and max(scale) * density.value > FLOAT32_MAX:
         c.fail(p + "scale", f"scale * density = {max(scale) * density.value:g} overflows "
                             f"float32 (at most {FLOAT32_MAX:g})")
-    albedo = c.rgb(raw.get("albedo", 1.0), p + "albedo", hi=1.0)
-    ph = c.table(raw.get("phase", {"type": "isotropic"}), p + "phase")
+    albedo = c.rgb(raw.get("albedo", list(d["albedo"])), p + "albedo", hi=1.0)
+    ph = c.table(raw.get("phase", {"type": d["phase"].type}), p + "phase")
     c.known(ph, PHASE_KEYS, p + "phase.")
     ptype = c.choice(c.required(ph, "type", p + "phase."), p + "phase.type", PHASE_TYPES)
     g = 0.0
@@ -564,7 +584,8 @@ def _light(c, raw, i, file_dir):
     if ltype == "directional":
         direction = _unit(c, raw, "direction", p)
         irradiance = c.rgb(c.required(raw, "irradiance", p), p + "irradiance")
-        angle = c.number(raw.get("angle", 0.0), p + "angle", 0.0)
+        angle = c.number(raw.get("angle", _defaults(DirectionalLight)["angle"]), p + "angle",
+                         0.0)
         if not angle < 180.0:
             c.fail(p + "angle", f"the sun's apex angle must be below 180 degrees, got "
                                 f"{_fmt(angle)}")
@@ -580,7 +601,7 @@ def _light(c, raw, i, file_dir):
         if not 0.0 < angle <= 180.0:
             c.fail(p + "angle", f"the cone's half-angle must be in (0, 180] degrees, got "
                                 f"{_fmt(angle)}")
-        blend = c.number(raw.get("blend", 0.0), p + "blend", 0.0)
+        blend = c.number(raw.get("blend", _defaults(SpotLight)["blend"]), p + "blend", 0.0)
         if blend > 1.0:
             c.fail(p + "blend", f"must be in [0, 1], got {_fmt(blend)}")
         return SpotLight(c.vec3(c.required(raw, "position", p), p + "position"),
@@ -638,7 +659,8 @@ def _environment(c, raw, p, file_dir):
         c.fail(p + "file", f"expected a path to an image file, got {_show(path)}")
     resolved = path if os.path.isabs(path) else os.path.join(file_dir, path)
     radiance = c.rgb(raw.get("radiance", 1.0), p + "radiance")
-    strength = c.number(raw.get("strength", 1.0), p + "strength", 0.0)
+    strength = c.number(raw.get("strength", _defaults(EnvironmentLight)["strength"]),
+                        p + "strength", 0.0)
     rot = raw.get("rotation", 0.0)
     if isinstance(rot, list):
         rots = _rotations(c, rot, p + "rotation")
@@ -670,7 +692,8 @@ def _render(c, raw):
         majorant=c.choice(raw.get("majorant", d.majorant), p + "majorant", MAJORANTS),
         free_flight=c.choice(raw.get("free_flight", d.free_flight), p + "free_flight",
                              FREE_FLIGHTS),
-        majorant_resolution=_majorant_resolution(c, raw.get("majorant_resolution", [])),
+        majorant_resolution=_majorant_resolution(c, raw.get("majorant_resolution",
+                                                            list(d.majorant_resolution))),
         spectral=c.choice(raw.get("spectral", d.spectral), p + "spectral", SPECTRAL_MODES),
         grid_storage=c.choice(raw.get("grid_storage", d.grid_storage), p + "grid_storage",
                               GRID_STORAGES),
