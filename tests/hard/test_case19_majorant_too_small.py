@@ -7,7 +7,7 @@ backend was built, or bounds built by other code. Every lookup above its bound i
 (``over_majorant``) in every estimator and free-flight loop of both backends, and the count is
 reported: RenderResult.stats(), the EXR metadata (``volmc:count.over_majorant``), the
 ``volmc render --stats`` table, and a warning line on stderr even without --stats (guard
-"reported counters", volmc/cli.py).
+"reported counters", volmc/cli/render.py).
 """
 
 import numpy as np

@@ -1,0 +1,57 @@
+"""The command line's dispatch tables: every subcommand the parser lists has a parser builder
+and a handler in ``volmc.cli.COMMANDS`` (``volmc.cli.bench.BENCHES`` for ``volmc bench``),
+and ``main`` reaches that handler."""
+
+import argparse
+
+import pytest
+
+from volmc import cli
+from volmc.cli import bench
+
+#: The least each command needs on the command line to parse.
+REQUIRED = {"peer": ["mitsuba"], "bench": ["sparse"], "convert": ["in.npy", "out.vol"]}
+
+
+def _subcommands(parser):
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return action.choices
+
+
+def test_tables_cover_every_subcommand():
+    commands = _subcommands(cli.build_parser())
+    assert list(commands) == list(cli.COMMANDS)
+    assert list(_subcommands(commands["bench"])) == list(bench.BENCHES)
+
+
+@pytest.mark.parametrize("prefix, table", [("", cli.COMMANDS), ("bench_", bench.BENCHES)])
+def test_builder_and_handler_sit_together(prefix, table):
+    for name, (add, handler) in table.items():
+        assert add.__name__ == f"add_{prefix}{name}_parser"
+        assert handler.__name__ == f"cmd_{prefix}{name}"
+        assert add.__module__ == handler.__module__
+
+
+@pytest.mark.parametrize("name", list(cli.COMMANDS))
+def test_main_dispatches_each_command(name, monkeypatch):
+    seen = []
+    add, _ = cli.COMMANDS[name]
+    monkeypatch.setitem(cli.COMMANDS, name, (add, lambda args: seen.append(args) or 7))
+    assert cli.main([name, *REQUIRED.get(name, [])]) == 7
+    assert seen[0].command == name
+
+
+@pytest.mark.parametrize("name", list(bench.BENCHES))
+def test_bench_dispatches_each_benchmark(name, monkeypatch):
+    seen = []
+    add, _ = bench.BENCHES[name]
+    monkeypatch.setitem(bench.BENCHES, name, (add, lambda args: seen.append(args) or 5))
+    assert cli.main(["bench", name]) == 5
+    assert seen[0].bench == name
+
+
+def test_unknown_command_is_one_line(capsys):
+    assert cli.main(["nosuch"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("volmc: error: command line: argument command: invalid choice")
+    assert err.count("\n") == 1

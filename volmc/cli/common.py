@@ -1,0 +1,174 @@
+"""What the commands share: the one-line-error parser, the flag value types, the options
+several commands take and the checks of output paths."""
+
+import argparse
+import contextlib
+import math
+import os
+
+from ..scene.errors import SceneError
+
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+SCENE_HELP = "scene .toml (default: the bundled cloud scene)"
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (no usage dump) and exit status 2."""
+
+    def error(self, message):
+        raise SceneError("command line", "", message)
+
+
+def _convert(text, kind, expected):
+    """``kind(text)``, or the argparse error "expected <expected>, got '<text>'"."""
+    try:
+        return kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+
+
+def positive_int(text):
+    v = _convert(text, int, "a positive integer")
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {v}")
+    return v
+
+
+def nonnegative_seconds(text):
+    v = _convert(text, float, "a number of seconds")
+    if not (v >= 0.0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0, got {v}")
+    return v
+
+
+def seed(text):
+    v = _convert(text, int, "an integer in [0, 2^64)")
+    if not 0 <= v < 2**64:
+        raise argparse.ArgumentTypeError(f"must be in [0, 2^64), got {v}")
+    return v
+
+
+def finite_float(text):
+    v = _convert(text, float, "a number")
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return v
+
+
+def exposure(text):
+    v = finite_float(text)
+    if abs(v) > 100.0:   # 2 ** exposure must stay a finite float
+        raise argparse.ArgumentTypeError(f"must be in [-100, 100] stops, got {text!r}")
+    return v
+
+
+def lanes(text):
+    from ..cl.lanes import check_lanes
+    return check_lanes(text)
+
+
+def add_scene_argument(parser):
+    """The optional scene positional of render, check, peer and bench render."""
+    parser.add_argument("scene", nargs="?", help=SCENE_HELP)
+
+
+def add_device_option(parser, help="OpenCL device (as for render)"):
+    parser.add_argument("--device", help=help)
+
+
+def add_defines_option(parser, help="override a scene key (repeatable)"):
+    parser.add_argument("-D", dest="defines", action="append", default=[],
+                        metavar="SECTION.KEY=VALUE", help=help)
+
+
+def add_cluster_options(parser, what):
+    """--workers N | --scheduler ADDRESS (rendering on Dask; see dask_session)."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=positive_int, metavar="N",
+                       help=f"{what} on a new local Dask cluster of N worker processes "
+                            "(needs volmc[dask])")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help=f"{what} on the running Dask scheduler at ADDRESS, e.g. "
+                            "tcp://10.0.0.1:8786 (its workers need volmc installed)")
+
+
+def add_lanes_option(parser):
+    parser.add_argument("--lanes", type=lanes, metavar="W",
+                        help="OpenCL paths per work-item, 1, 4, 8 or 16 (default: $VOLMC_LANES, "
+                             "else the device's preferred float vector width)")
+
+
+def add_ladder_arguments(p, repeats, levels="4,16,64", reference_spp=1024):
+    """--spp-levels, --reference-spp and --repeats of the speed-against-error benchmarks."""
+    p.add_argument("--spp-levels", default=levels,
+                   help=f"comma-separated samples per pixel of the timed renders (default "
+                        f"{levels})")
+    p.add_argument("--reference-spp", type=positive_int, default=reference_spp,
+                   help=f"samples per pixel of the reference (default {reference_spp})")
+    p.add_argument("--repeats", type=positive_int, default=repeats,
+                   help=f"passes over the spp ladder (default {repeats})")
+
+
+def scene_path(args):
+    """The scene positional's path, the bundled cloud scene when none is given."""
+    from ..resources import default_scene
+    return str(default_scene()) if args.scene is None else args.scene
+
+
+def check_writable(path, flag, where="command line"):
+    """Raise SceneError(where, flag, ...) unless ``path`` names a file in a writable
+    directory."""
+    if not path or path.endswith(("/", os.sep)) or os.path.isdir(path):
+        raise SceneError(where, flag, f"expected a file path, got {path!r}")
+    d = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(d):
+        raise SceneError(where, flag, f"directory does not exist: {d}")
+    if not os.access(d, os.W_OK):
+        raise SceneError(where, flag, f"directory is not writable: {d}")
+
+
+def check_directory(path, flag):
+    """Raise SceneError unless ``path`` is an existing directory."""
+    if not os.path.isdir(path):
+        raise SceneError("command line", flag, f"not a directory: {path}")
+
+
+def comma_list(text, flag, allowed):
+    """The items of a comma-separated flag value, each one of ``allowed``."""
+    items = [x.strip() for x in text.split(",") if x.strip()]
+    bad = [x for x in items if x not in allowed]
+    if not items or bad:
+        raise SceneError("command line", flag, f"expected a comma-separated list of "
+                                               f"{', '.join(allowed)}, got {text!r}")
+    return items
+
+
+def spp_levels(text):
+    """The ``--spp-levels`` list: positive integers separated by commas."""
+    levels = []
+    for x in text.split(","):
+        if not (x.strip().isascii() and x.strip().isdigit()) or int(x) < 1:
+            raise SceneError("command line", "--spp-levels",
+                             f"expected positive integers separated by commas, got {text!r}")
+        levels.append(int(x))
+    return levels
+
+
+@contextlib.contextmanager
+def dask_session(args):
+    """The Dask client of --workers or --scheduler (None without either), closed with the
+    local cluster it started on leaving; a one-line error without Dask or when the scheduler
+    cannot be reached (distributed.connect)."""
+    if not (args.workers or args.scheduler):
+        yield None
+        return
+    from ..distributed import connect
+    client, cluster = connect(args.workers, args.scheduler, "command line",
+                              "--workers" if args.workers else "--scheduler")
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

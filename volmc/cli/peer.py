@@ -1,0 +1,60 @@
+"""``volmc peer``: a scene rendered by volmc and by a peer renderer (Mitsuba 3, Blender
+Cycles): agreement, and speed against error."""
+
+import os
+
+from ..scene.errors import SceneError
+from .common import (add_defines_option, add_device_option, add_scene_argument,
+                     check_directory, check_writable, positive_int, scene_path)
+
+
+def add_peer_parser(sub):
+    pe = sub.add_parser("peer", help="render a scene with volmc and with a peer renderer "
+                                     "(Mitsuba 3, Blender Cycles): agreement and speed "
+                                     "against error")
+    pe.add_argument("peer", choices=["mitsuba", "cycles"], help="the peer renderer")
+    add_scene_argument(pe)
+    pe.add_argument("--spp", type=positive_int, help="samples per pixel of both renders "
+                                                     "(default: the scene's)")
+    pe.add_argument("--passes", type=positive_int, default=16,
+                    help="the peer renders in this many independent launches, whose spread "
+                         "gives its per-pixel variance (default 16)")
+    pe.add_argument("--reference-spp", type=int, default=None,
+                    help="samples per pixel of the volmc reference for RMSE (default 8 x spp; "
+                         "0: agreement only)")
+    add_device_option(pe)
+    add_defines_option(pe)
+    pe.add_argument("--json", help="write the report to this JSON file")
+    pe.add_argument("--images", metavar="DIR",
+                    help="write volmc.exr, PEER.exr (and reference.exr) into DIR")
+    return pe
+
+
+def cmd_peer(args):
+    from ..peers import PeerUnavailable, compare_with_peer
+    from ..scene import load_scene
+    if args.reference_spp is not None and args.reference_spp < 0:
+        raise SceneError("command line", "--reference-spp",
+                         f"must be 0 or a positive integer, got {args.reference_spp}")
+    if args.json:
+        check_writable(args.json, "--json")
+    if args.images:
+        check_directory(args.images, "--images")
+    path = scene_path(args)
+    scene = load_scene(path, args.defines)   # rejects a box of zero thickness
+    print(f"volmc peer {args.peer}: {path}", flush=True)
+    try:
+        report, images = compare_with_peer(args.peer, scene, args.spp, args.passes,
+                                           args.reference_spp, args.device)
+    except PeerUnavailable as e:
+        raise SceneError("command line", "peer", str(e)) from None
+    if args.json:
+        import json
+        report["scene"] = os.path.abspath(path)
+        with open(args.json, "w") as f:
+            json.dump(report, f, indent=2)
+    if args.images:
+        from ..film import write_exr
+        for name, img in images.items():
+            write_exr(os.path.join(args.images, f"{name}.exr"), img, {"renderer": name})
+    return 0 if report["agreement"]["passed"] else 1

@@ -1,0 +1,237 @@
+"""``volmc render``: a scene (or a frame sequence) to EXR, and a PNG preview."""
+
+import os
+import sys
+import time
+
+from ..scene.errors import SceneError
+from .common import (EXIT_INTERRUPTED, add_cluster_options, add_defines_option,
+                     add_lanes_option, add_scene_argument, check_writable, dask_session,
+                     exposure, nonnegative_seconds, positive_int, seed)
+
+
+def add_render_parser(sub):
+    from ..backends import BACKENDS
+    r = sub.add_parser("render", help="render a scene to EXR (and PNG)")
+    add_scene_argument(r)
+    r.add_argument("-o", "--output", help="EXR path (default: <scene name>.exr here)")
+    r.add_argument("--spp", type=positive_int, help="samples per pixel (overrides render.spp)")
+    r.add_argument("--seed", type=seed, help="random seed (overrides render.seed)")
+    r.add_argument("--backend", choices=BACKENDS, default=BACKENDS[0],
+                   help="render backend (default opencl; numba is the float64 reference)")
+    r.add_argument("--device", help="OpenCL device as PLATFORM[:DEVICE] (index or name "
+                                    "substring; default: $VOLMC_CL_DEVICE, else PoCL)")
+    add_lanes_option(r)
+    add_defines_option(r, "override a scene key (repeatable), e.g. -D medium.albedo=0.9")
+    r.add_argument("--png", nargs="?", const="", default=None, metavar="PATH",
+                   help="also write a tonemapped sRGB PNG preview (default path: EXR name with "
+                        ".png); on by default when no scene is given")
+    r.add_argument("--exposure", type=exposure, default=0.0,
+                   help="PNG exposure in stops (default 0)")
+    r.add_argument("--tonemap", choices=("filmic", "clamp"), default="filmic",
+                   help="PNG tone curve (default filmic)")
+    r.add_argument("--variance", action="store_true",
+                   help="also write <output>.var.exr: per-pixel variance of the mean")
+    r.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+    r.add_argument("--stats", action="store_true",
+                   help="print samples/s, path length, lookups and guard counters")
+    add_cluster_options(r, "render")
+    r.add_argument("--checkpoint", metavar="FILE",
+                   help="write the accumulated samples to FILE (atomically) every "
+                        "--checkpoint-every seconds and at the end")
+    r.add_argument("--checkpoint-every", type=nonnegative_seconds, default=60.0,
+                   metavar="SECONDS", help="checkpoint interval in seconds (default 60)")
+    r.add_argument("--resume", metavar="FILE",
+                   help="continue the render saved in checkpoint FILE to the requested spp "
+                        "(it must be of the same scene, seed, sampler and backend); "
+                        "checkpoints go on to FILE unless --checkpoint says otherwise")
+    r.add_argument("--frames", metavar="FIRST-LAST[:STEP]",
+                   help="render a frame sequence: the scene once per frame, its grid file "
+                        "patterns ({frame:04d}) filled in, to <name>.0001.exr, ...; frames "
+                        "whose EXR is complete are skipped (e.g. 1-48, 1-48:2, 7)")
+    return r
+
+
+def _announce_start():
+    # Printed once the backend is ready and Ctrl-C keeps the samples rendered so far.
+    print("volmc: started (Ctrl-C stops after the current chunk and writes the partial image)",
+          file=sys.stderr, flush=True)
+
+
+def cmd_render(args):
+    from ..film import write_exr, write_png
+    from ..render import render
+    from ..scene import load_scene
+    from ..scene.serialize import to_toml
+
+    scene_path, out, png = _render_paths(args)
+    defines = _render_defines(args)
+    if args.frames is not None:
+        return cmd_render_frames(args, scene_path, out, png, defines)
+    scene = load_scene(scene_path, defines)
+
+    _check_render_device(args)
+    from ..memory import check_memory
+    check_memory(scene, args.backend, args.device)   # a render that cannot fit fails now
+    if not args.quiet:
+        w, h = scene.camera.resolution
+        print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "
+              f"backend {args.backend})", file=sys.stderr, flush=True)
+    checkpoint = args.checkpoint or args.resume
+    if checkpoint:
+        check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
+    _warn_out_of_view(scene, scene_path)
+    with dask_session(args) as client:
+        # By name: the driver reads a --resume checkpoint (and refuses a wrong one) before
+        # it builds and compiles the backend.
+        res = render(scene, backend=args.backend, progress=False if args.quiet else None,
+                     on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
+                     checkpoint_every=args.checkpoint_every, resume=args.resume,
+                     client=client, device=args.device, lanes=args.lanes)
+    meta = res.metadata()
+    meta["scene"] = os.path.abspath(scene_path)
+    meta["scene_toml"] = to_toml(scene.spec)
+    write_exr(out, res.film.rgba(), meta)
+    if args.variance:
+        write_exr(os.path.splitext(out)[0] + ".var.exr", res.film.variance_of_mean(), meta)
+    if png:
+        write_png(png, res.image, args.exposure, args.tonemap,
+                  alpha=res.alpha if scene.render.transparent_background else None)
+
+    if not args.quiet:
+        state = "interrupted, partial image" if res.partial else "done"
+        print(f"volmc: {state}: {_summary(out, png, res, scene)}", file=sys.stderr)
+    _report(args, res)
+    return EXIT_INTERRUPTED if res.partial else 0
+
+
+def _render_paths(args):
+    """(scene path, EXR path, PNG path or None) of ``volmc render``, the outputs checked."""
+    from ..resources import default_scene
+    use_default = args.scene is None
+    scene_path = str(default_scene()) if use_default else args.scene
+    stem = os.path.splitext(os.path.basename(scene_path))[0]
+    out = args.output or f"{stem}.exr"
+    png = args.png
+    if png is None and use_default:
+        png = ""
+    if png == "":
+        png = os.path.splitext(out)[0] + ".png"
+    if not out.lower().endswith(".exr"):   # the render is float: an EXR, a PNG beside it
+        raise SceneError("command line", "-o", f"expected a path ending in .exr, got {out!r} "
+                                               "(--png writes a PNG preview as well)")
+    check_writable(out, "-o")
+    if png:
+        if not png.lower().endswith(".png"):   # the image writer picks the format by suffix
+            raise SceneError("command line", "--png", f"expected a path ending in .png, got "
+                                                      f"{png!r}")
+        check_writable(png, "--png")
+    return scene_path, out, png
+
+
+def _render_defines(args):
+    """The -D overrides of ``volmc render`` with --spp and --seed appended."""
+    defines = list(args.defines)
+    if args.spp is not None:
+        defines.append(f"render.spp={args.spp}")
+    if args.seed is not None:
+        defines.append(f"render.seed={args.seed}")
+    return defines
+
+
+def _check_render_device(args):
+    if args.backend == "opencl":
+        from ..cl.device import select_device
+        from ..cl.lanes import resolve_lanes
+        select_device(args.device)   # a bad --device fails before anything is printed
+        resolve_lanes(args.lanes, args.device)   # and so does a bad $VOLMC_LANES
+
+
+def _warn_out_of_view(scene, scene_path, prefix=""):
+    from ..visibility import medium_in_view
+    if not medium_in_view(scene):
+        print(f"volmc: warning: {scene_path}: {prefix}medium: no camera ray reaches the medium "
+              "box; the image shows only the background", file=sys.stderr)
+
+
+def _summary(out, png, res, scene):
+    """"out.exr + out.png (WxH, N spp, backend, T s)" of a finished render."""
+    w, h = scene.camera.resolution
+    return (f"{out}{' + ' + png if png else ''} ({w}x{h}, {res.film.spp} spp, {res.backend}, "
+            f"{res.seconds:.2f} s)")
+
+
+def _report(args, res, prefix=""):
+    """--stats, and the guard warnings (``prefix``: "frame 7: " in a sequence)."""
+    if args.stats:
+        if prefix:
+            print(prefix.rstrip(": ") + ":")
+        for k, v in res.stats().items():
+            print(f"  {k:24s} {v:.6g}" if isinstance(v, float) else f"  {k:24s} {v}")
+    # Guard "reported counters" (robustness case 10, 19, 20): a render that cut paths, dropped
+    # samples or met extinction above its majorant says so even without --stats or with
+    # --quiet (the counts are also in the EXR metadata): never a silent bias.
+    for text in res.guard_warnings():
+        print(f"volmc: warning: {prefix}{text}", file=sys.stderr)
+
+
+def cmd_render_frames(args, scene_path, out, png, defines):
+    """``volmc render --frames``: frames.render_sequence with the command line's output,
+    progress and errors."""
+    from ..api import RenderedImage
+    from ..frames import FrameSequence, frame_path, parse_frames, render_sequence
+    from ..render import render
+    from ..scene.frames import describe
+    from ..scene.loading import read_raw
+    frames = parse_frames(args.frames)
+    for flag in ("checkpoint", "resume"):
+        if getattr(args, flag):
+            raise SceneError("command line", f"--{flag}", "a frame sequence resumes by "
+                             "skipping its complete frames; --checkpoint and --resume are "
+                             "for a single render")
+    _check_render_device(args)
+    seq = FrameSequence(read_raw(scene_path, defines), scene_path, None, frames)
+    plan = seq.plan(out, args.backend)
+    if not args.quiet:
+        n_done = sum(p.complete for p in plan)
+        print(f"volmc: rendering {scene_path}, {describe(seq.frames)} ({len(plan)} frames, "
+              f"{n_done} complete; backend {args.backend})", file=sys.stderr, flush=True)
+    started = []
+
+    def on_start():
+        if not started:
+            started.append(True)
+            _announce_start()
+
+    def render_one(scene, label):
+        _warn_out_of_view(scene, scene_path, label + ": ")
+        res = render(scene, backend=args.backend, progress=False if args.quiet else None,
+                     on_start=None if args.quiet else on_start, client=client,
+                     device=args.device, lanes=args.lanes, label=label)
+        return RenderedImage(res, scene)
+
+    t = time.perf_counter()
+    done = skipped = 0
+    with dask_session(args) as client:
+        for fr in render_sequence(seq, plan, render_one, png, args.variance, args.exposure,
+                                  args.tonemap):
+            head = f"frame {fr.index}/{fr.count} ({fr.frame})"
+            if fr.image is None:
+                skipped += 1
+                if not args.quiet:
+                    print(f"volmc: {head}: {fr.exr} is complete, skipped", file=sys.stderr)
+                continue
+            done += 1
+            res = fr.image.result
+            if not args.quiet:
+                state = "interrupted, partial image" if res.partial else "done"
+                written = _summary(fr.exr, png and frame_path(png, fr.frame), res,
+                                   fr.image.scene)
+                print(f"volmc: {head}: {state}: {written}", file=sys.stderr, flush=True)
+            _report(args, res, f"frame {fr.frame}: ")
+            if res.partial:
+                return EXIT_INTERRUPTED
+    if not args.quiet:
+        print(f"volmc: done: {len(seq.frames)} frames, {done} rendered, {skipped} complete "
+              f"already ({time.perf_counter() - t:.2f} s)", file=sys.stderr)
+    return 0
