@@ -4,8 +4,8 @@
  * Built for the scene: -DFEATURE_X=0/1 options (volmc/scene/features.py; features.h defaults
  * every one to 1) turn a code path off where the scene cannot take it; each is a plain constant
  * in an ordinary `if`, so the compiler drops the dead path. Only the switches `volmc bench
- * specialise` shows to pay are kept (README, "Specialisation"); a build with every one on
- * renders any scene. SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance);
+ * specialise` shows to pay are kept (docs/performance.md, "Specialisation"); a build with
+ * every one on renders any scene. SHADOW_ESTIMATOR names the shadow-ray estimator (render.transmittance);
  * VIEW_ESTIMATOR, defined only where it differs ("auto"), the one for camera rays that cannot
  * scatter, whose transmittance is the sample. -DLANES=W sets the paths per work-item
  * (lanes.h): each lane traces exactly the path the scalar kernel (W = 1) traces for its
@@ -452,6 +452,9 @@ typedef struct {
     lint light, sample;      /* next-event estimation: light (n_lights: the environment) */
     lvec3 contrib;           /* what the pending shadow ray's transmittance adds to L */
     lfloat alpha;            /* coverage of the camera ray (trace_path) */
+#if FEATURE_ALBEDO_AOV
+    lvec3 aov;               /* the albedo AOV: the medium's albedo where it first scattered */
+#endif
     lint hit;                /* the sphere light the flight's ray meets (-1: none) ... */
     lfloat pdf_hit;          /* ... and sample_sphere_light's pdf of that direction */
 } Path;
@@ -546,6 +549,9 @@ static inline STAGE void path_start(const Params *prm, global const Light *light
     path->d = sel3(path->d, d, fresh);
     path->L = sel3(path->L, v3s(0.0f), fresh);
     path->alpha = select(path->alpha, (lfloat)(0.0f), fresh);
+#if FEATURE_ALBEDO_AOV
+    path->aov = sel3(path->aov, v3s(0.0f), fresh);
+#endif
     float top = 0.0f; /* the largest albedo of any medium */
     for (int i = 0; i < MEDIA_COUNT; ++i) {
         float3 albedo = vec3(med->m[i].albedo);
@@ -740,6 +746,9 @@ static inline STAGE void flight_end(const Params *prm, global const Light *light
                                           go),
                               go);
     lvec3 albedo = medium_albedo(med, path->medium);
+#if FEATURE_ALBEDO_AOV
+    path->aov = sel3(path->aov, albedo, go & (path->depth == 1));
+#endif
     path->beta = sel3(path->beta, mul3(path->beta, albedo), go);
     beta_w = mul3(beta_w, albedo);
     go = go & (max3(beta_w) > 0.0f);
@@ -962,17 +971,26 @@ static inline STAGE void path_bounce(const Params *prm, const MediumData *med, P
     path->state = select(path->state, select((lint)(PATH_DONE), (lint)(PATH_START), alive), m);
 }
 
-/* The samples of the lanes of m (RGBA), filtered (guard "sample filter", guards.h: a dropped
- * sample is 0 in every channel), to out[job]. */
+/* The samples of the lanes of m (RGBA; with FEATURE_ALBEDO_AOV, RGBA and the albedo AOV
+ * padded to 8 floats), filtered (guard "sample filter", guards.h: a dropped sample is 0 in
+ * every channel), to out[job]. */
 static inline STAGE void path_write(const Params *prm, const Path *path, global float *out,
                               lulong *counters, lmask m) {
     lmask ok = sample_ok(path->L, prm->signed_samples);
     counters[C_DROPPED] += lane_ones(m & !ok);
     lvec3 c = sel3(v3s(0.0f), path->L, ok);
     lfloat a = select((lfloat)(0.0f), path->alpha, ok);
+#if FEATURE_ALBEDO_AOV
+    lvec3 aov = sel3(v3s(0.0f), path->aov, ok);
+#endif
     for (int l = 0; l < LANES; ++l)
         if (lane_on(m, l))
+#if FEATURE_ALBEDO_AOV
+            vstore8((float8)(lane_vec3(c, l), lane_float(a, l), lane_vec3(aov, l), 0.0f),
+                    lane_uint(path->job, l), out);
+#else
             vstore4((float4)(lane_vec3(c, l), lane_float(a, l)), lane_uint(path->job, l), out);
+#endif
 }
 
 /* Work-item i renders the jobs [i J, (i + 1) J) of the launch (J = launch.jobs_per_item): job

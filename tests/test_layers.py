@@ -13,7 +13,7 @@ LAYERS = [
     ("volmc.reference",),
     ("volmc.techniques",),
     ("volmc.scene",),
-    ("volmc.pack", "volmc.emitters", "volmc.film", "volmc.checkpoint"),
+    ("volmc.pack", "volmc.emitters", "volmc.film", "volmc.denoise", "volmc.checkpoint"),
     ("volmc.cl", "volmc.memory"),
     ("volmc.backends",),
     ("volmc.render", "volmc.check", "volmc.distributed"),

@@ -186,7 +186,8 @@ def _lanes(lanes, backend, where):
 
 
 def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=True,
-           client=None, checkpoint=None, checkpoint_every=60.0, resume=None, lanes=None):
+           client=None, checkpoint=None, checkpoint_every=60.0, resume=None, lanes=None,
+           albedo=False):
     """Render a scene; returns a ``RenderedImage`` (``.image``, ``.variance``, ``.save()``).
 
     scene: a Scene (``load_scene``, ``scene_from_dict``), a scene file path or a scene dict.
@@ -211,6 +212,9 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     backend to continue from (another is refused with VolmcError), which is then also the
     checkpoint unless ``checkpoint`` names another. The result equals an uninterrupted
     render bit for bit.
+
+    albedo: also accumulate the albedo AOV (``RenderedImage.albedo``), which guides
+    ``RenderedImage.denoised()``; the image is the same with it or without it.
     """
     from .render import render as _render
     where = "volmc.render()"
@@ -228,7 +232,7 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
         # By name: the driver checks the memory the scene needs before it builds the backend.
         result = _render(scene, backend=name, device=device, progress=bool(progress),
                          client=client, checkpoint=checkpoint, checkpoint_every=every,
-                         resume=resume, lanes=lanes)
+                         resume=resume, lanes=lanes, albedo=bool(albedo))
     _warn_guards(result)
     return RenderedImage(result, scene)
 
@@ -374,6 +378,8 @@ class RenderedImage:
     (its ``film`` holds the float64 sums). ``stats()``: samples/s and per-sample counts.
     ``save(path, variance=False)`` writes an EXR or PNG (and the variance EXR); in Jupyter
     the object shows as a tonemapped PNG.
+    albedo: the albedo AOV, float32 [height, width, 3] (``volmc.render(albedo=True)``;
+    None without it). ``denoised()``: a denoised preview of ``image`` (``volmc[denoise]``).
     """
 
     def __init__(self, result, scene):
@@ -383,12 +389,23 @@ class RenderedImage:
         self.image = result.film.mean().astype(np.float32)
         self.alpha = result.film.alpha().astype(np.float32)
         self.variance = result.film.variance_of_mean().astype(np.float32)
+        aov = result.film.albedo()
+        self.albedo = None if aov is None else aov.astype(np.float32)
         self.counters = dict(result.counters)
         self.seconds = result.seconds
         self.spp = result.film.spp
         self.seed = result.seed
         self.backend = result.backend
         self.partial = result.partial
+
+    def denoised(self):
+        """A denoised preview of ``image``, float32 [height, width, 3]: Intel Open Image
+        Denoise (the ``volmc[denoise]`` extra) on the linear radiance, guided by ``albedo``
+        when the render accumulated it (``volmc.render(albedo=True)``), by the colour alone
+        otherwise. ``image`` is unchanged: the preview is biased (it is a filter) and is
+        for looking at, not for measuring. Raises VolmcError without the extra."""
+        from .denoise import denoise
+        return denoise(self.image, self.albedo, "RenderedImage.denoised()", "pyoidn")
 
     def stats(self):
         """samples, samples_per_second, mean_path_length, lookups_per_sample, ... (dict)."""
@@ -406,12 +423,15 @@ class RenderedImage:
             pass
         return meta
 
-    def save(self, path, exposure=0.0, tonemap="filmic", variance=False):
+    def save(self, path, exposure=0.0, tonemap="filmic", variance=False, denoised=False):
         """Write the image: ``.exr`` (float32 RGBA with metadata, as ``volmc render``) or
         ``.png`` (tonemapped 8-bit sRGB: ``exposure`` in stops, ``tonemap`` "filmic" or
         "clamp"; RGBA with ``render.transparent_background``), chosen by the extension.
         ``variance``: also write the per-pixel variance of the mean to ``<path without its
         extension>.var.exr``, with the same metadata (as ``volmc render --variance``).
+        ``denoised``: also write the denoised preview (``denoised()``, with the unbiased
+        alpha) to ``<path without its extension>.denoised.exr`` or ``.png``, its metadata
+        marked as denoised (as ``volmc render --denoise``).
         Returns the path of the image. Raises VolmcError."""
         from .cli import _check_writable
         from .film import write_exr, write_png
@@ -431,6 +451,17 @@ class RenderedImage:
                       self.scene.render.transparent_background else None)
         if variance:
             write_exr(os.path.splitext(path)[0] + ".var.exr", self.variance, self.metadata())
+        if denoised:
+            from .denoise import denoise_film, denoised_metadata, denoised_path
+            film = self.result.film
+            rgba = denoise_film(film, where, "denoised")
+            if suffix == ".exr":
+                write_exr(denoised_path(path), rgba,
+                          denoised_metadata(self.metadata(), film.has_albedo, path))
+            else:
+                write_png(denoised_path(path), rgba[..., :3], exposure, tonemap,
+                          alpha=rgba[..., 3] if self.scene.render.transparent_background
+                          else None)
         return path
 
     def png_bytes(self, exposure=0.0, tonemap="filmic"):

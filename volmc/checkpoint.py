@@ -28,7 +28,7 @@ import tempfile
 
 import numpy as np
 
-from .film import CHANNELS, Film
+from .film import ALBEDO_CHANNELS, Film
 from .params import COUNTER_NAMES
 from .scene.errors import SceneError
 
@@ -58,8 +58,8 @@ def identity(scene, backend, lanes=None):
     """The identity record of a render of ``scene`` on ``backend`` (a backend name) at lane
     width ``lanes`` (OpenCL's; None for Numba). The scene's render.spp is left out: a render
     may resume towards more samples. The lane width is in: each lane traces its sample's path,
-    but the vector maths library may round differently from the scalar one (README,
-    "Lanes"), so another width need not give the same image bit for bit."""
+    but the vector maths library may round differently from the scalar one
+    (docs/lanes.md), so another width need not give the same image bit for bit."""
     import dataclasses
     from .scene.serialize import to_toml
     spec = dataclasses.replace(scene.spec, render=dataclasses.replace(scene.spec.render, spp=1))
@@ -96,12 +96,12 @@ def save(path, film, counters, seconds, ident):
         raise
 
 
-def load(path, scene, backend, lanes=None):
+def load(path, scene, backend, lanes=None, albedo=False):
     """(film, counters dict, seconds) of the checkpoint at ``path``, after checking it is a
     checkpoint of a render of ``scene`` on ``backend`` (a backend name) at lane width
     ``lanes``. Anything else -- no such file, not a checkpoint, another format version,
-    another scene, grid, seed, backend, lane width or sampler, another resolution -- raises
-    SceneError(path, "--resume", ...)."""
+    another scene, grid, seed, backend, lane width or sampler, another resolution, with or
+    without the albedo AOV unlike ``albedo`` -- raises SceneError(path, "--resume", ...)."""
     def bad(what):
         return SceneError(path, "--resume", what)
     try:
@@ -126,10 +126,15 @@ def load(path, scene, backend, lanes=None):
                       "the checkpoint's grids differ from the scene's (a grid file changed, "
                       "or another array was given)")
     w, h = scene.camera.resolution
-    if s.shape != (h, w, CHANNELS) or sq.shape != (h, w, CHANNELS) or \
+    film = Film(w, h, albedo)
+    if s.shape[-1:] == (film.channels + ALBEDO_CHANNELS,) or \
+            s.shape[-1:] == (film.channels - ALBEDO_CHANNELS,):
+        raise bad("the checkpoint was rendered " + ("without" if albedo else "with")
+                  + " the albedo AOV of --denoise: resume it " + ("with" if not albedo else
+                                                                   "without") + " --denoise")
+    if s.shape != film.sum.shape or sq.shape != film.sum.shape or \
             len(cnt) != len(COUNTER_NAMES):
         raise bad("the checkpoint's arrays do not match the scene's resolution")
-    film = Film(w, h)
     film.sum[...] = s
     film.sum_sq[...] = sq
     film.spp = int(header["spp"])

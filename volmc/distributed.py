@@ -34,22 +34,22 @@ _WORKER_BACKENDS = {}
 _WORKER_LOCK = threading.Lock()
 
 
-def render_task(scene, token, backend, device, chunk, lanes=None):
+def render_task(scene, token, backend, device, chunk, lanes=None, albedo=False):
     """Runs on a worker: ``render.render_chunk`` of ``chunk`` with the backend of render
     ``token`` (built on first use in this process, at the client's lane width ``lanes``).
     Returns (sum, sum_sq) float64 [h, w, 3] of the chunk and the counts int64 [N_COUNTERS]
-    it made."""
+    it made. albedo: the sums hold the albedo AOV too (film.py)."""
     with _WORKER_LOCK:
-        return _render_task(scene, token, backend, device, chunk, lanes)
+        return _render_task(scene, token, backend, device, chunk, lanes, albedo)
 
 
-def _render_task(scene, token, backend, device, chunk, lanes):
+def _render_task(scene, token, backend, device, chunk, lanes, albedo):
     from .backends import make_backend
     from .render import render_chunk
     be = _WORKER_BACKENDS.get(token)
     if be is None:
         _WORKER_BACKENDS.clear()   # one render at a time per worker process
-        be = make_backend(backend, scene, device, lanes=lanes)
+        be = make_backend(backend, scene, device, lanes=lanes, albedo=albedo)
         be.warm_up()
         _WORKER_BACKENDS[token] = be
     before = np.asarray(be.counter_totals(), np.int64).copy()
@@ -63,10 +63,11 @@ class ClusterChunks:
     chunk's sums to the film in schedule order and yields its samples per pixel (the
     protocol of render.LocalChunks)."""
 
-    def __init__(self, client, scene, backend, device, film, chunks, lanes=None):
+    def __init__(self, client, scene, backend, device, film, chunks, lanes=None, albedo=False):
         from .backends.base import techniques
         self.client, self.scene, self.film = client, scene, film
         self.backend, self.device, self.lanes = backend, device, lanes
+        self.albedo = albedo
         self.name = f"{backend} on dask"
         self.techniques = techniques(scene)
         if lanes is not None:
@@ -84,7 +85,8 @@ class ClusterChunks:
         self.scene_future = hold(self.client, self.scene, "volmc-scene")
         self.futures = [
             self.client.submit(render_task, self.scene_future, self.token, self.backend,
-                               self.device, r, self.lanes, key=f"volmc-{self.token}-{i}",
+                               self.device, r, self.lanes, self.albedo,
+                               key=f"volmc-{self.token}-{i}",
                                retries=3, pure=False)
             for i, r in enumerate(self.tasks)]
 

@@ -6,7 +6,12 @@ of their squares, so it knows its own noise: the variance of the pixel mean is
 
 The channels are R, G, B and A. A sample's A is 1 - T, T the estimate of the camera ray's
 transmittance to the background that its own path makes (the medium's coverage; see
-docs/scene_format.md, ``render.transparent_background``).
+docs/scene_format.md, ``render.transparent_background``). A film made with ``albedo``
+(``volmc render --denoise``) has three more: the albedo AOV a denoiser reads (denoise.py).
+A sample's albedo is the single-scattering albedo sigma_s / sigma_t (RGB) of the medium its
+camera ray first scatters in, and 0 when the camera ray does not scatter (it escapes, ends
+on a sphere light, or the scene cannot scatter); so a pixel's mean is the coverage-weighted
+albedo, sum_k albedo_k P(the first collision is in medium k), in [0, 1].
 
 Images are float arrays [height, width, 3] of linear RGB, row 0 at the top; ``alpha()`` is
 [height, width].
@@ -20,19 +25,33 @@ import numpy as np
 META_PREFIX = "volmc:"
 
 
-#: Channels a film accumulates per pixel.
+#: Channels a film accumulates per pixel: RGBA ...
 CHANNELS = 4
+#: ... and with the albedo AOV, its R, G and B after them.
+ALBEDO_CHANNELS = 3
 
 
 class Film:
-    """Running per-pixel sums for a width x height RGBA image."""
+    """Running per-pixel sums for a width x height RGBA image (and the albedo AOV with
+    ``albedo``)."""
 
-    def __init__(self, width, height):
+    def __init__(self, width, height, albedo=False):
         self.width = int(width)
         self.height = int(height)
-        self.sum = np.zeros((self.height, self.width, CHANNELS), np.float64)
-        self.sum_sq = np.zeros((self.height, self.width, CHANNELS), np.float64)
+        self.channels = CHANNELS + (ALBEDO_CHANNELS if albedo else 0)
+        self.sum = np.zeros((self.height, self.width, self.channels), np.float64)
+        self.sum_sq = np.zeros((self.height, self.width, self.channels), np.float64)
         self.spp = 0
+
+    @property
+    def has_albedo(self):
+        return self.channels > CHANNELS
+
+    def albedo(self):
+        """Per-pixel mean albedo AOV [h, w, 3] (module docstring), or None without it."""
+        if not self.has_albedo:
+            return None
+        return self.sum[..., CHANNELS:] / max(self.spp, 1)
 
     def mean(self):
         """Per-pixel mean radiance [h, w, 3] (zeros before the first sample)."""
@@ -44,7 +63,7 @@ class Film:
 
     def rgba(self):
         """[h, w, 4]: the mean radiance and the coverage."""
-        return self.sum / max(self.spp, 1)
+        return self.sum[..., :CHANNELS] / max(self.spp, 1)
 
     def variance_of_mean(self, alpha=False):
         """Per-pixel variance of the mean [h, w, 3] ([h, w] for the coverage with alpha);

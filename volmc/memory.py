@@ -27,7 +27,7 @@ import math
 from dataclasses import dataclass
 
 from .scene.hostmem import ENV_VAR, fmt_bytes, host_available, parse_size  # noqa: F401
-from .film import CHANNELS
+from .film import ALBEDO_CHANNELS, CHANNELS
 from .params import N_COUNTERS, launch_spp
 from .scene.errors import SceneError
 
@@ -36,8 +36,10 @@ LAUNCH_BUDGET = 256 << 20
 #: ... and at most this fraction of the memory available.
 LAUNCH_FRACTION = 8
 
-#: Film: float64 sums and sums of squares, CHANNELS (RGBA) each.
+#: Film: float64 sums and sums of squares, CHANNELS (RGBA) each; the albedo AOV adds its
+#: channels.
 FILM_BYTES_PER_PIXEL = 2 * CHANNELS * 8
+FILM_ALBEDO_BYTES_PER_PIXEL = 2 * ALBEDO_CHANNELS * 8
 #: Peak above the film of writing its outputs (volmc render): the mean image (float64) with
 #: its float32 EXR copies (37 B/pixel), the variance of the mean with its temporaries
 #: (74 B/pixel with --variance) or the PNG (the mean, its 8-bit copy and matplotlib's RGBA:
@@ -51,6 +53,9 @@ COUNTER_BYTES_PER_PIXEL = N_COUNTERS * 8
 #: per sample more, counted with the samples.
 CL_SAMPLE_BYTES = CHANNELS * 4
 CL_TEMP_BYTES_PER_SAMPLE = 2 * CHANNELS * 8
+#: With the albedo AOV a sample is 8 floats (RGBA, the AOV and a pad), 7 of them summed.
+CL_ALBEDO_SAMPLE_BYTES = 8 * 4
+CL_ALBEDO_TEMP_BYTES_PER_SAMPLE = 2 * (CHANNELS + ALBEDO_CHANNELS) * 8
 CL_COUNTER_BYTES_PER_SAMPLE = 1
 
 
@@ -107,24 +112,26 @@ def _emission_key(scene):
     return "medium.emission.field" if e.radiance is not None else "medium.emission.temperature"
 
 
-def launch_bytes_per_pixel(backend, width, height):
+def launch_bytes_per_pixel(backend, width, height, albedo=False):
     """(host, device, largest device buffer) bytes per pixel of one launch of ``backend``
     for a width x height image: OpenCL keeps every sample of a launch, of which a pixel has
-    at most ``params.launch_spp`` (the render's batch schedule)."""
+    at most ``params.launch_spp`` (the render's batch schedule); ``albedo``: with the
+    albedo AOV."""
     if backend == "numba":
         return COUNTER_BYTES_PER_PIXEL, 0, 0
     spp = launch_spp(width * height)
-    return (spp * (CL_SAMPLE_BYTES + CL_TEMP_BYTES_PER_SAMPLE),
-            spp * (CL_SAMPLE_BYTES + CL_COUNTER_BYTES_PER_SAMPLE), spp * CL_SAMPLE_BYTES)
+    sample = CL_ALBEDO_SAMPLE_BYTES if albedo else CL_SAMPLE_BYTES
+    temp = CL_ALBEDO_TEMP_BYTES_PER_SAMPLE if albedo else CL_TEMP_BYTES_PER_SAMPLE
+    return (spp * (sample + temp), spp * (sample + CL_COUNTER_BYTES_PER_SAMPLE), spp * sample)
 
 
-def band_rows(width, height, backend, available=None, max_alloc=None):
+def band_rows(width, height, backend, available=None, max_alloc=None, albedo=False):
     """Rows of pixels per launch: all of them unless the launch buffers of the whole image
     would exceed LAUNCH_BUDGET, 1/LAUNCH_FRACTION of ``available`` bytes or, per device
     buffer, ``max_alloc``; at least one row."""
     if available is None:
         available = host_available()[0]
-    host, device, buffer = launch_bytes_per_pixel(backend, width, height)
+    host, device, buffer = launch_bytes_per_pixel(backend, width, height, albedo)
     budget = LAUNCH_BUDGET
     if available is not None:
         budget = min(budget, available // LAUNCH_FRACTION)
@@ -222,19 +229,20 @@ def _env_components(scene, backend):
 
 
 def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
-             device_is_host=True, film=True, scene_data=True):
+             device_is_host=True, film=True, scene_data=True, albedo=False):
     """The ``Estimate`` of a render of ``scene`` with ``backend`` ("opencl" or "numba") in
     bands of ``rows`` rows (None: ``band_rows`` for ``available`` and ``max_alloc``).
     film, scene_data: include the film, and the grids and majorant structure (a render
-    given a backend already built has allocated the latter)."""
+    given a backend already built has allocated the latter); albedo: with the albedo AOV."""
     w, h = scene.camera.resolution
     if rows is None:
-        rows = band_rows(w, h, backend, available, max_alloc)
+        rows = band_rows(w, h, backend, available, max_alloc, albedo)
     rows = max(1, min(int(rows), h))
     comps = []
     if film:
         comps.append(Component("camera.resolution", f"a {w}x{h} film",
-                               host=w * h * (FILM_BYTES_PER_PIXEL + OUTPUT_BYTES_PER_PIXEL)))
+                               host=w * h * (FILM_BYTES_PER_PIXEL + OUTPUT_BYTES_PER_PIXEL
+                                             + (FILM_ALBEDO_BYTES_PER_PIXEL if albedo else 0))))
     if scene_data:
         parts = scene.media_scenes
         for i, part in enumerate(parts):
@@ -247,7 +255,7 @@ def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
                                          "shared buffers", host=sum(c.device for c in own)))
             comps += own
         comps += _env_components(scene, backend)
-    host, device, buffer = launch_bytes_per_pixel(backend, w, h)
+    host, device, buffer = launch_bytes_per_pixel(backend, w, h, albedo)
     px = rows * w
     comps.append(Component("camera.resolution",
                            f"the launch buffers of {rows} row{'s' if rows > 1 else ''}",
@@ -256,7 +264,7 @@ def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
 
 
 def check_memory(scene, backend="opencl", device=None, rows=None, film=True,
-                 scene_data=True):
+                 scene_data=True, albedo=False):
     """Raise SceneError(scene file, key, what) when a render of ``scene`` would not fit:
     the host's memory, or for "opencl" the device's global memory or its largest buffer.
     The key is that of the largest component. ``device``: a pyopencl Device or a --device
@@ -273,7 +281,7 @@ def check_memory(scene, backend="opencl", device=None, rows=None, film=True,
         held = sum(c.host for c in _density_components(scene, backend)[:1]
                    + _emission_components(scene, backend)[:1]) if scene_data else 0
     est = estimate(scene, backend, rows, None if available is None else available + held,
-                   max_alloc, is_cpu, film, scene_data)
+                   max_alloc, is_cpu, film, scene_data, albedo)
     keys = est.by_key()
     w, h = scene.camera.resolution
 

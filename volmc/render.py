@@ -169,7 +169,7 @@ class _StopFlag:
 
 def render(scene, backend="opencl", spp=None, progress=None, on_start=None, checkpoint=None,
            checkpoint_every=60.0, resume=None, client=None, device=None,
-           chunk_samples=CHUNK_SAMPLES, band_rows=None, lanes=None, label=None):
+           chunk_samples=CHUNK_SAMPLES, band_rows=None, lanes=None, label=None, albedo=False):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 
     spp: samples per pixel (default: scene.render.spp). progress: show a tqdm bar (default:
@@ -186,7 +186,8 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     volmc.memory.band_rows). lanes: OpenCL's paths per work-item (None:
     volmc.cl.lanes.resolve_lanes here, also for a cluster, whose workers render with it); it
     is part of a checkpoint's identity. label: the progress bar's title (a frame sequence's
-    "frame 3/48").
+    "frame 3/48"). albedo: the film also accumulates the albedo AOV a denoiser reads
+    (film.py; a backend given here must have been made with it).
 
     Before any work, ``volmc.memory.check_memory`` raises SceneError (naming the key, the
     memory needed and the memory there is) when the render would not fit; given a backend
@@ -198,12 +199,13 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     spp = scene.render.spp if spp is None else int(spp)
     name = backend if isinstance(backend, str) else backend.name
     if client is not None:
-        check_memory(scene, name, device, band_rows, scene_data=False)
+        check_memory(scene, name, device, band_rows, scene_data=False, albedo=albedo)
     elif isinstance(backend, str):
-        check_memory(scene, backend, device, band_rows)
+        check_memory(scene, backend, device, band_rows, albedo=albedo)
     else:
+        albedo = getattr(backend, "albedo", False)
         check_memory(scene, backend.name, getattr(backend, "device", None),
-                     getattr(backend, "band_rows", None), scene_data=False)
+                     getattr(backend, "band_rows", None), scene_data=False, albedo=albedo)
     if name == "opencl":
         from .cl.lanes import resolve_lanes
         lanes = backend.lanes if not isinstance(backend, str) else \
@@ -211,16 +213,17 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     else:
         lanes = None
     w, h = scene.camera.resolution
-    film, prior, elapsed = Film(w, h), dict.fromkeys(COUNTER_NAMES, 0), 0.0
+    film, prior, elapsed = Film(w, h, albedo), dict.fromkeys(COUNTER_NAMES, 0), 0.0
     if resume is not None:
-        film, prior, elapsed = ckpt.load(resume, scene, name, lanes)
+        film, prior, elapsed = ckpt.load(resume, scene, name, lanes, albedo)
     ident = ckpt.identity(scene, name, lanes) if checkpoint is not None else None
     chunks = chunk_schedule(w * h, spp, film.spp, chunk_samples)
     if client is not None:
         from .distributed import ClusterChunks
-        runner = ClusterChunks(client, scene, name, device, film, chunks, lanes)
+        runner = ClusterChunks(client, scene, name, device, film, chunks, lanes, albedo)
     else:
-        be = (make_backend(backend, scene, device, band_rows=band_rows, lanes=lanes)
+        be = (make_backend(backend, scene, device, band_rows=band_rows, lanes=lanes,
+                           albedo=albedo)
               if isinstance(backend, str) else backend)
         runner = LocalChunks(be, film, chunks)
     runner.warm_up()
@@ -288,7 +291,7 @@ class LocalChunks:
 def render_chunk(backend, width, height, chunk):
     """A Film holding the batches (sample_start, n_samples) of ``chunk`` rendered by
     ``backend`` in order into an empty film (what a cluster task returns too)."""
-    part = Film(width, height)
+    part = Film(width, height, getattr(backend, "albedo", False))
     for start, n in chunk:
         backend.render(start, n, part)
         part.spp += n

@@ -60,19 +60,21 @@ def bands(width, height, rows):
         yield y * width, min(rows, height - y) * width
 
 
-def make_backend(name, scene, device=None, record=0, band_rows=None, lanes=None):
+def make_backend(name, scene, device=None, record=0, band_rows=None, lanes=None,
+                 albedo=False):
     """A render backend by name: "opencl" on ``device`` (None: the default device), or
     "numba"; ``record`` > 0 records up to that many transmittance segments per pixel
     (``segment_record``); ``band_rows``: rows of pixels per launch (None: as many as
     ``volmc.memory.band_rows`` allows; the image is the same whatever the bands);
-    ``lanes``: OpenCL's paths per work-item (None: volmc.cl.lanes.resolve_lanes)."""
+    ``lanes``: OpenCL's paths per work-item (None: volmc.cl.lanes.resolve_lanes);
+    ``albedo``: also accumulate the albedo AOV (film.py) into films made with it."""
     if name == "numba":
         from .numba import NumbaBackend
-        return NumbaBackend(scene, record=record, band_rows=band_rows)
+        return NumbaBackend(scene, record=record, band_rows=band_rows, albedo=albedo)
     if name == "opencl":
         from .opencl import OpenCLBackend
         return OpenCLBackend(scene, device=device, record=record, band_rows=band_rows,
-                             lanes=lanes)
+                             lanes=lanes, albedo=albedo)
     raise ValueError(f"unknown backend {name!r} (available: {', '.join(BACKENDS)})")
 
 

@@ -20,16 +20,18 @@ class NumbaBackend(RenderBackend):
 
     name = "numba"
 
-    def __init__(self, scene, record=0, band_rows=None):
+    def __init__(self, scene, record=0, band_rows=None, albedo=False):
         """record: transmittance segments to record per pixel (0: none); band_rows: rows of
-        pixels per launch (None: volmc.memory.band_rows)."""
+        pixels per launch (None: volmc.memory.band_rows); albedo: films of this backend hold
+        the albedo AOV (render_pixel writes it into a film that has its channels)."""
         self.scene = scene
+        self.albedo = bool(albedo)
         self.packed = pack_scene(scene, np.float64)
         self.media = media_data(self.packed)
         self.pool = ThreadPoolExecutor(max(1, numba.get_num_threads()))
         w, h = scene.camera.resolution
-        self.band_rows = choose_band_rows(w, h, self.name) if band_rows is None else \
-            max(1, min(int(band_rows), h))
+        self.band_rows = (choose_band_rows(w, h, self.name, albedo=albedo)
+                          if band_rows is None else max(1, min(int(band_rows), h)))
         # Per-pixel counters of one band, summed into the totals after each launch.
         self.counters = np.zeros((self.band_rows * w, N_COUNTERS), np.int64)
         self.totals = np.zeros(N_COUNTERS, np.int64)

@@ -50,15 +50,17 @@ class OpenCLBackend(RenderBackend):
 
     def __init__(self, scene, device=None, feature_set=None, local_size=DEFAULT_LOCAL_SIZE,
                  options=(), record=0, band_rows=None, lanes=None,
-                 jobs_per_item=None):
+                 jobs_per_item=None, albedo=False):
         """feature_set: the FEATURE_X switches to compile in (default: what the scene needs);
         options: more compiler options; local_size: the work-group size (None: driver's);
         record: transmittance segments to record per pixel (0: none; > 0 adds the RECORD
         switch to the build); band_rows: rows of pixels per launch (None:
         volmc.memory.band_rows for the device); lanes: paths per work-item (None:
         volmc.cl.lanes.resolve_lanes); jobs_per_item: samples per work-item (None: chosen
-        per launch, ``launch_jobs_per_item``)."""
+        per launch, ``launch_jobs_per_item``); albedo: also write the albedo AOV (adds the
+        ALBEDO_AOV switch: each sample is then 8 floats, RGBA, the AOV and a pad)."""
         self.scene = scene
+        self.albedo = bool(albedo)
         self.clc = cl_context(device)
         self.device = self.clc.device
         self.lanes = resolve_lanes(lanes, self.device)
@@ -67,6 +69,9 @@ class OpenCLBackend(RenderBackend):
         self.features = needed if feature_set is None else frozenset(feature_set)
         if record > 0:
             self.features = self.features | {"RECORD"}
+        if self.albedo:
+            self.features = self.features | {"ALBEDO_AOV"}
+        self.stride = 8 if self.albedo else CHANNELS   # floats per sample (path_write)
         if not needed <= self.features:
             raise ValueError(f"a build without {', '.join(sorted(needed - self.features))} "
                              "cannot render this scene")
@@ -86,7 +91,8 @@ class OpenCLBackend(RenderBackend):
         self.params, self.medium = pk.params, media
         self.n_pix = w * h
         self.band_rows = (choose_band_rows(w, h, self.name,
-                                           max_alloc=device_limits(self.device)[1])
+                                           max_alloc=device_limits(self.device)[1],
+                                           albedo=self.albedo)
                           if band_rows is None else max(1, min(int(band_rows), h)))
         clc = self.clc
         self.lights_buf = clc.to_device(pk.lights)
@@ -119,7 +125,7 @@ class OpenCLBackend(RenderBackend):
         """Output and counter buffers for launches of up to n_jobs samples."""
         if self.out_host is not None and len(self.out_host) >= n_jobs:
             return
-        self.out_host, self.out_buf = self.clc.output((n_jobs, CHANNELS))
+        self.out_host, self.out_buf = self.clc.output((n_jobs, self.stride))
         items = -(-n_jobs // min(self.launch_jobs_per_item(1), MIN_JOB_ROUNDS * self.lanes))
         self.cnt_host, self.cnt_buf = self.clc.output((items, N_COUNTERS), np.uint64)
 
@@ -160,9 +166,11 @@ class OpenCLBackend(RenderBackend):
             # in the same order however the work was cut among lanes and work-items.
             rows = slice(pix_start // w, (pix_start + n_pix) // w)
             k = n_pix // w
-            x = self.out_host[:n_jobs].reshape(n_pix, n_samples, CHANNELS).astype(np.float64)
-            film.sum[rows] += x.sum(axis=1).reshape(k, w, CHANNELS)
-            film.sum_sq[rows] += (x * x).sum(axis=1).reshape(k, w, CHANNELS)
+            c = film.channels
+            x = self.out_host[:n_jobs].reshape(n_pix, n_samples, self.stride)[..., :c]
+            x = x.astype(np.float64)
+            film.sum[rows] += x.sum(axis=1).reshape(k, w, c)
+            film.sum_sq[rows] += (x * x).sum(axis=1).reshape(k, w, c)
             self.totals += self.cnt_host[:items].sum(axis=0).astype(np.int64)
 
     def counter_totals(self):

@@ -92,6 +92,9 @@ from .sampling import (cone_pdf, dot, equiangular_pdf, mis_weight, sample_equian
                        sample_uniform_sphere, uniform_sphere_pdf)
 from .vec import add3, div3, madd3, max3, mul3, scale3
 
+#: No albedo (the AOV of a camera ray that does not scatter; film.py).
+ZERO3 = (0.0, 0.0, 0.0)
+
 
 @njit(cache=True, inline="always")
 def enter_box(o, d, bmin, bmax):
@@ -610,11 +613,13 @@ def coverage(T):
 
 @njit(cache=True)
 def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
-    """(r, g, b, a): the radiance carried by sample s of pixel (px, py), and its coverage
-    a = coverage(T), T the camera ray's transmittance to the background as this path
+    """(r, g, b, a, albedo): the radiance carried by sample s of pixel (px, py), its
+    coverage a = coverage(T), T the camera ray's transmittance to the background as this path
     estimates it: the weight of its first flight's escape (0 when it scatters or is capped,
     1 when the ray misses the medium), or the transmittance estimate of a scene that cannot
-    scatter. With prm.transparent the camera ray does not see the environment."""
+    scatter; and its albedo AOV (film.py): the albedo of the medium the camera ray first
+    scatters in, else (0, 0, 0). With prm.transparent the camera ray does not see the
+    environment."""
     m = med[0].m
     top = 0.0   # the largest albedo of any medium
     for i in range(len(med)):
@@ -638,10 +643,10 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
         if hit >= 0:   # an opaque sphere light: it covers the pixel
             lt = lights[hit]
             L = mul3((lt.color[0], lt.color[1], lt.color[2]), T)
-            return L[0], L[1], L[2], 1.0
+            return L[0], L[1], L[2], 1.0, ZERO3
         if prm.has_env != 0 or prm.area_lights > 0:
             L = mul3(escape_light(prm, lights, env, d, 0.0, 0), T)
-        return L[0], L[1], L[2], coverage(T)
+        return L[0], L[1], L[2], coverage(T), ZERO3
     hero = -1
     R = (1.0, 1.0, 1.0)   # hero MIS: each channel's decision probability over the hero's
     if m.spectral == SPECTRAL_CHANNEL or m.spectral == SPECTRAL_HERO:
@@ -657,6 +662,7 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
     ea = equiangular_mode(prm, med)
     k = ZERO   # the medium the path scattered in last
     alpha = 0.0
+    aov = ZERO3
     while True:
         t_hit, hit, pdf_hit = math.inf, -1, 0.0   # the sphere light the ray meets first
         if prm.spheres != 0:
@@ -717,6 +723,8 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
         counters[C_SCATTER] += 1
         k = medium_pick(med, madd3(o, d, t), rng, counters)
         albedo = medium_albedo(med, k)
+        if depth == 1:
+            aov = albedo
         beta = mul3(beta, albedo)
         beta_w = mul3(beta_w, albedo)
         if max3(beta_w) <= 0.0:
@@ -732,7 +740,7 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
         u1, u2 = path_u2(prm, pix, s, bounce_pair(depth - 1, SAMPLER_PHASE), 0, 1, rng)
         d, pdf_phase = medium_phase_sample(med, k, u1, u2, d)
         o = p
-    return L[0], L[1], L[2], alpha
+    return L[0], L[1], L[2], alpha, aov
 
 
 @njit(cache=True)
@@ -759,10 +767,12 @@ def render_pixel(params, lights, env, media, rec, pix, sample_start, n_samples, 
     qg = 0.0
     qb = 0.0
     qa = 0.0
+    aov_sum = ZERO3
+    aov_sq = ZERO3
     for s in range(sample_start, sample_start + n_samples):
         rng_init(rng, seed, pix, s, STREAM_PATH)
         rng_init(rng_s, seed, pix, s, STREAM_SHADOW)
-        r, g, b, a = trace_path(prm, lights, env, med, px, py, s, rng, rng_s, cnt)
+        r, g, b, a, aov = trace_path(prm, lights, env, med, px, py, s, rng, rng_s, cnt)
         if not sample_ok(r, g, b, prm.signed_samples):
             # The sample counts as 0 in every channel (guard "sample filter", guards.py).
             cnt[C_DROPPED] += 1
@@ -775,6 +785,8 @@ def render_pixel(params, lights, env, media, rec, pix, sample_start, n_samples, 
         qg += g * g
         qb += b * b
         qa += a * a
+        aov_sum = add3(aov_sum, aov)
+        aov_sq = add3(aov_sq, mul3(aov, aov))
     film_sum[py, px, 0] += sr
     film_sum[py, px, 1] += sg
     film_sum[py, px, 2] += sb
@@ -783,6 +795,10 @@ def render_pixel(params, lights, env, media, rec, pix, sample_start, n_samples, 
     film_sq[py, px, 1] += qg
     film_sq[py, px, 2] += qb
     film_sq[py, px, 3] += qa
+    if film_sum.shape[2] > 4:   # the albedo AOV (film.py)
+        for c in range(3):
+            film_sum[py, px, 4 + c] += aov_sum[c]
+            film_sq[py, px, 4 + c] += aov_sq[c]
 
 
 @njit(cache=True, nogil=True)

@@ -2,8 +2,8 @@
 scene needs"). The reference decides the same things at run time from the records.
 
 A switch stays only while `volmc bench specialise` shows it pays at least 3 % on some
-shipped scene (README, "Specialisation"): of the nine switches and six baked constants
-measured for issue 10, only MAJORANT_GRID did. MAJORANT_OCTREE (issue 13) pays 1.15x on the
+shipped scene (docs/performance.md, "Specialisation"): of the nine switches and six baked
+constants measured for issue 10, only MAJORANT_GRID did. MAJORANT_OCTREE (issue 13) pays 1.15x on the
 homogeneous scene and 1.12x on the roulette scene, whose loops would otherwise carry the
 octree walk (docs/bench_specialise_issue13.json). CHROMATIC and EMISSION measured neutral
 (0.98-1.015 on the cloud, homogeneous, sunset and plume scenes,
@@ -46,6 +46,8 @@ TEST_FEATURES = {
 #: Instrumentation no scene needs: off in every render build unless a tool asks for it
 #: (``OpenCLBackend(record=K)``), so a normal render compiles none of it.
 TOOL_FEATURES = {
+    "ALBEDO_AOV": "the albedo AOV a denoiser reads (volmc render --denoise; film.py): each "
+                  "sample's albedo at its camera ray's first scattering",
     "RECORD": "recording of the transmittance segments a render queries (med.rec; "
               "volmc/bench/segments.py)",
 }

@@ -1,7 +1,7 @@
 """Scene schema: frozen dataclasses and the validation of a parsed TOML dictionary.
 
-Every key of docs/scene_format.md is here, with its type, default and allowed range; the README's
-"Scene format" table lists the same keys. ``validate(raw, file)`` turns a dictionary (as
+Every key of docs/scene_format.md is here, with its type, default and allowed range; the table
+of docs/scenes.md lists the same keys. ``validate(raw, file)`` turns a dictionary (as
 read from TOML, after ``-D`` overrides) into a ``SceneSpec`` or raises ``SceneError`` naming
 the file and the dotted key (``medium.phase.g``, ``lights[1].irradiance``).
 """

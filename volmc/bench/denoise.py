@@ -1,0 +1,126 @@
+"""What the denoised preview gains (``volmc bench denoise``, ``python -m volmc.bench.denoise``).
+
+Each scene (default: the gallery's) is rendered by OpenCL at a small resolution at each
+level of an spp ladder with the albedo AOV, and once more at ``reference_spp`` with another
+seed as the reference. Per level: the mean squared error of the unbiased image, of its
+denoised preview guided by the albedo AOV, and of the preview from the colour alone.
+
+The reference has noise of its own. Its film knows it: the mean of its per-pixel variance
+of the mean is subtracted from every squared error (the rendered images are independent
+of the reference, so E[(x - ref)^2] = MSE(x) + Var(ref)). A denoised error near the
+reference's own variance is then poorly resolved, which the report says by printing the
+reference's share.
+
+"Worth" is the spp the unbiased renderer needs to reach the preview's error: spp x
+MSE(noisy) / MSE(denoised), since the unbiased error falls as 1/spp. It is a measure of
+the filter on these scenes, not a claim of equal images: the preview is biased (it blurs
+what it takes for noise), and its error stops falling once the bias dominates.
+"""
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import report_main
+from ..resources import scenes_dir
+
+#: The gallery scenes the benchmark renders by default.
+GALLERY = ("cloud.toml", "gallery/plume.toml", "gallery/fire.toml", "gallery/sunrise.toml",
+           "gallery/spotlight.toml")
+
+
+def _scenes(paths):
+    return [Path(p) for p in paths] if paths else [scenes_dir() / g for g in GALLERY]
+
+
+def _mse(image, ref, ref_var):
+    d = np.asarray(image, np.float64) - ref
+    return float(np.mean(d * d) - ref_var)
+
+
+def measure(path, width=160, spp_levels=(4, 16, 64), reference_spp=2048, lanes=None,
+            log=print):
+    """The rows of one scene (module docstring)."""
+    from ..api import render
+    from ..denoise import denoise
+    from ..scene.loading import load_scene
+    base = load_scene(path)
+    w0, h0 = base.camera.resolution
+    res = [int(width), max(1, round(width * h0 / w0))]
+    scene = load_scene(path, {"camera.resolution": res})
+    t = time.perf_counter()
+    ref = render(scene, spp=reference_spp, seed=1_000_003, progress=False, lanes=lanes)
+    log(f"{path.name}: reference {reference_spp} spp in {time.perf_counter() - t:.0f} s")
+    ref_img = np.asarray(ref.image, np.float64)
+    ref_var = float(np.mean(ref.variance))
+    rows = []
+    for spp in spp_levels:
+        img = render(scene, spp=spp, progress=False, lanes=lanes, albedo=True)
+        t = time.perf_counter()
+        with_albedo = img.denoised()
+        seconds = time.perf_counter() - t
+        colour = denoise(img.image)
+        row = {"spp": int(spp), "render_seconds": img.seconds, "denoise_seconds": seconds,
+               "mse_noisy": _mse(img.image, ref_img, ref_var),
+               "mse_denoised": _mse(with_albedo, ref_img, ref_var),
+               "mse_denoised_colour_only": _mse(colour, ref_img, ref_var)}
+        row["worth_spp"] = spp * row["mse_noisy"] / max(row["mse_denoised"], 1e-30)
+        rows.append(row)
+        log(f"  {spp} spp done")
+    return {"scene": str(path), "resolution": res, "reference_spp": reference_spp,
+            "reference_variance": ref_var, "mean_square_of_reference": float(np.mean(
+                ref_img * ref_img)), "rows": rows}
+
+
+def run(paths=(), width=160, spp_levels=(4, 16, 64), reference_spp=2048, lanes=None,
+        log=print):
+    return {"scenes": [measure(p, width, spp_levels, reference_spp, lanes, log)
+                       for p in _scenes(paths)]}
+
+
+def print_report(report, log=print):
+    log("denoised preview against the unbiased image: RMSE against the reference (its own "
+        "noise subtracted)")
+    log("scene | spp | noisy | denoised (albedo) | denoised (colour) | worth spp | "
+        "OIDN s")
+    for s in report["scenes"]:
+        name = Path(s["scene"]).name
+        for r in s["rows"]:
+            rm = [np.sqrt(max(r[k], 0.0)) for k in ("mse_noisy", "mse_denoised",
+                                                      "mse_denoised_colour_only")]
+            log(f"  {name} {s['resolution'][0]}x{s['resolution'][1]} | {r['spp']} | "
+                f"{rm[0]:.4g} | {rm[1]:.4g} | {rm[2]:.4g} | {r['worth_spp']:.0f} | "
+                f"{r['denoise_seconds']:.2f}")
+        share = s["reference_variance"] / max(s["rows"][-1]["mse_denoised"], 1e-30)
+        log(f"  ({name}: the reference's own variance is {share:.2g}x the last level's "
+            "denoised MSE)")
+
+
+def add_arguments(p):
+    p.add_argument("scenes", nargs="*", help="scene files (default: the gallery's)")
+    p.add_argument("--width", type=int, default=160,
+                   help="image width; the height keeps the scene's aspect (default 160)")
+    p.add_argument("--spp-levels", default="4,16,64",
+                   help="comma-separated spp of the noisy renders (default 4,16,64)")
+    p.add_argument("--reference-spp", type=int, default=2048,
+                   help="spp of the reference (default 2048)")
+    p.add_argument("--json", default=None, help="also write the report to this JSON file")
+
+
+def run_args(a, lanes=None):
+    levels = tuple(int(x) for x in str(a.spp_levels).split(","))
+    report_main(lambda: run(a.scenes, a.width, levels, a.reference_spp, lanes),
+                print_report, a.json)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m volmc.bench.denoise",
+                                description=__doc__.split("\n\n")[0])
+    add_arguments(p)
+    run_args(p.parse_args(argv))
+
+
+if __name__ == "__main__":
+    main()
