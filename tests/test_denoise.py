@@ -156,3 +156,58 @@ def test_save_denoised_leaves_the_unbiased_image_alone(cloud_renders, tmp_path):
     assert int(dmeta["denoised.albedo_aov"]) == 1
     assert dmeta["denoised.from"] == os.fspath(tmp_path / "a.exr")
     assert (tmp_path / "a.denoised.png").stat().st_size > 0
+
+
+# ------------------------------------------------------------------ the command line
+
+def _run(args, tmp_path, env=None):
+    import subprocess
+    from cli_subprocess import volmc_cli, volmc_env
+    return subprocess.run(volmc_cli(*args), capture_output=True, text=True, cwd=tmp_path,
+                          env=env or volmc_env(), timeout=600)
+
+
+def test_cli_denoise_writes_a_preview_beside_the_unchanged_render(tmp_path):
+    pytest.importorskip("pyoidn")
+    scene = str(scenes_dir() / "cloud.toml")
+    common = [scene, "--spp", "4", "-D", "camera.resolution=[32,24]", "--quiet"]
+    a = _run(["render", *common, "-o", "plain.exr"], tmp_path)
+    b = _run(["render", *common, "-o", "d.exr", "--png", "--denoise"], tmp_path)
+    assert a.returncode == 0 and b.returncode == 0, (a.stderr, b.stderr)
+    plain, _ = read_exr(tmp_path / "plain.exr", alpha=True)
+    img, meta = read_exr(tmp_path / "d.exr", alpha=True)
+    assert np.array_equal(plain, img)   # the AOV changes nothing in the unbiased image
+    den, dmeta = read_exr(tmp_path / "d.denoised.exr", alpha=True)
+    assert dmeta["denoised.from"] == "d.exr" and int(dmeta["denoised.albedo_aov"]) == 1
+    assert "denoised" not in meta
+    assert np.array_equal(den[..., 3], img[..., 3])
+    assert (tmp_path / "d.png").exists() and (tmp_path / "d.denoised.png").exists()
+
+
+def test_cli_denoise_without_oidn_fails_before_rendering(tmp_path):
+    from cli_subprocess import volmc_env
+    # A pyoidn that cannot be imported, first on the path.
+    (tmp_path / "shadow").mkdir()
+    (tmp_path / "shadow" / "pyoidn.py").write_text("raise ImportError('no OIDN here')\n")
+    env = volmc_env()
+    env["PYTHONPATH"] = os.pathsep.join([str(tmp_path / "shadow"), env["PYTHONPATH"]])
+    r = _run(["render", str(scenes_dir() / "cloud.toml"), "--denoise", "-o", "x.exr"],
+             tmp_path, env)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "volmc[denoise]" in lines[0] and "--denoise" in lines[0]
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_bench_denoise_reports_errors_that_fall(tmp_path):
+    pytest.importorskip("pyoidn")
+    import json
+    from volmc.cli import main
+    out = tmp_path / "d.json"
+    assert main(["bench", "denoise", str(scenes_dir() / "cloud.toml"), "--width", "48",
+                 "--spp-levels", "2,16", "--reference-spp", "256", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["scenes"][0]["rows"]
+    assert [r["spp"] for r in rows] == [2, 16]
+    assert rows[1]["mse_noisy"] < rows[0]["mse_noisy"]
+    assert rows[0]["mse_denoised"] < rows[0]["mse_noisy"]
+    assert rows[0]["worth_spp"] > 2

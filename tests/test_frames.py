@@ -293,3 +293,17 @@ def test_render_frames_api(seq, tmp_path):
                                progress=False)
     np.testing.assert_array_equal(imgs[2].image, volmc.render(
         volmc.load_scene(seq, frame=2), spp=3, seed=5, progress=False).image)
+
+
+def test_cli_frames_denoise_each_frame(seq):
+    pytest.importorskip("pyoidn")
+    d = seq.parent
+    r = run(["render", str(seq), "--frames", "1-2", "-o", "f.exr", "--png", "--denoise",
+             "--quiet"], d)
+    assert r.returncode == 0, r.stderr
+    for f in (1, 2):
+        img, meta = read_exr(d / f"f.{f:04d}.exr", alpha=True)
+        den, dmeta = read_exr(d / f"f.{f:04d}.denoised.exr", alpha=True)
+        assert dmeta["frame"] == f and dmeta["denoised.from"] == f"f.{f:04d}.exr"
+        assert np.array_equal(den[..., 3], img[..., 3]) and "denoised" not in meta
+        assert (d / f"f.{f:04d}.denoised.png").exists()

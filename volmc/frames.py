@@ -178,13 +178,15 @@ class FrameDone:
 
 
 def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.0,
-                    tonemap="filmic"):
+                    tonemap="filmic", denoise=False):
     """Render the frames of FrameSequence ``seq`` by its ``plan`` (``seq.plan``) in order
     and yield a FrameDone for each. Frame f is written to its EXR (a PNG to
     ``frame_path(png, f)`` when ``png`` is a path, the variance beside the EXR) when the
     plan has one, and skipped when that EXR is complete. ``render_one`` (scene, label)
     renders a scene into an api.RenderedImage. The sequence stops after an interrupted
-    (partial) frame, which is written marked partial."""
+    (partial) frame, which is written marked partial. ``denoise``: each frame's denoised
+    preview is written beside its EXR and PNG (denoise.write_denoised; render_one then
+    renders with the albedo AOV), before the EXR that marks the frame complete."""
     from .film import write_exr
     n = len(plan)
     for i, p in enumerate(plan, 1):
@@ -200,6 +202,10 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
                 img.save(frame_path(png, f), exposure, tonemap)
             if variance:
                 write_exr(os.path.splitext(exr)[0] + ".var.exr", img.variance, meta)
+            if denoise:
+                from .denoise import write_denoised
+                write_denoised(img.result.film, meta, exr, frame_path(png, f) if png else None,
+                               exposure, tonemap, img.scene.render.transparent_background)
             write_exr_atomic(exr, img.result.film.rgba(), meta)
         yield FrameDone(f, i, n, exr, img)
         if img.partial:

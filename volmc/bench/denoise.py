@@ -1,4 +1,4 @@
-"""What the denoised preview gains (``volmc bench denoise``, ``python -m volmc.bench.denoise``).
+"""What the denoised preview gains: ``volmc bench denoise``.
 
 Each scene (default: the gallery's) is rendered by OpenCL at a small resolution at each
 level of an spp ladder with the albedo AOV, and once more at ``reference_spp`` with another
@@ -17,13 +17,11 @@ the filter on these scenes, not a claim of equal images: the preview is biased (
 what it takes for noise), and its error stops falling once the bias dominates.
 """
 
-import argparse
 import time
 from pathlib import Path
 
 import numpy as np
 
-from . import report_main
 from ..resources import scenes_dir
 
 #: The gallery scenes the benchmark renders by default.
@@ -96,31 +94,3 @@ def print_report(report, log=print):
         share = s["reference_variance"] / max(s["rows"][-1]["mse_denoised"], 1e-30)
         log(f"  ({name}: the reference's own variance is {share:.2g}x the last level's "
             "denoised MSE)")
-
-
-def add_arguments(p):
-    p.add_argument("scenes", nargs="*", help="scene files (default: the gallery's)")
-    p.add_argument("--width", type=int, default=160,
-                   help="image width; the height keeps the scene's aspect (default 160)")
-    p.add_argument("--spp-levels", default="4,16,64",
-                   help="comma-separated spp of the noisy renders (default 4,16,64)")
-    p.add_argument("--reference-spp", type=int, default=2048,
-                   help="spp of the reference (default 2048)")
-    p.add_argument("--json", default=None, help="also write the report to this JSON file")
-
-
-def run_args(a, lanes=None):
-    levels = tuple(int(x) for x in str(a.spp_levels).split(","))
-    report_main(lambda: run(a.scenes, a.width, levels, a.reference_spp, lanes),
-                print_report, a.json)
-
-
-def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m volmc.bench.denoise",
-                                description=__doc__.split("\n\n")[0])
-    add_arguments(p)
-    run_args(p.parse_args(argv))
-
-
-if __name__ == "__main__":
-    main()

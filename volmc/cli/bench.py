@@ -7,9 +7,9 @@ import time
 
 from ..scene.errors import SceneError
 from .common import (Parser, add_cluster_options, add_defines_option, add_device_option,
-                     add_ladder_arguments, add_scene_argument, check_directory, check_writable,
-                     comma_list, dask_session, finite_float, positive_int, scene_path,
-                     spp_levels)
+                     add_ladder_arguments, add_lanes_option, add_scene_argument,
+                     check_directory, check_writable, comma_list, dask_session, finite_float,
+                     positive_int, scene_path, spp_levels)
 
 
 def add_bench_transmittance_parser(sub):
@@ -392,6 +392,34 @@ def cmd_bench_sparse(args):
     return sparse.main(argv)
 
 
+def add_bench_denoise_parser(sub):
+    bd = sub.add_parser("denoise", help="the denoised preview's error against the unbiased "
+                                        "image's per spp, with and without the albedo AOV")
+    bd.add_argument("scenes", nargs="*", help="scene files (default: the gallery's)")
+    bd.add_argument("--width", type=positive_int, default=160,
+                    help="image width; the height keeps the scene's aspect (default 160)")
+    bd.add_argument("--spp-levels", default="4,16,64",
+                    help="comma-separated spp of the noisy renders (default 4,16,64)")
+    bd.add_argument("--reference-spp", type=positive_int, default=2048,
+                    help="spp of the reference (default 2048)")
+    add_lanes_option(bd)
+    bd.add_argument("--json", help="also write the report to this JSON file")
+    return bd
+
+
+def cmd_bench_denoise(args):
+    from ..bench import denoise as bench
+    from ..denoise import oidn
+    oidn("command line", "volmc bench denoise")
+    levels = spp_levels(args.spp_levels)
+    if args.json:
+        check_writable(args.json, "--json")
+    from ..bench import report_main
+    report_main(lambda: bench.run(args.scenes, args.width, levels, args.reference_spp,
+                                  args.lanes), bench.print_report, args.json)
+    return 0
+
+
 #: ``volmc bench`` NAME -> (parser builder, handler), in the order ``--help`` lists them.
 BENCHES = {
     "transmittance": (add_bench_transmittance_parser, cmd_bench_transmittance),
@@ -401,6 +429,7 @@ BENCHES = {
     "specialise": (add_bench_specialise_parser, cmd_bench_specialise),
     "workgroup": (add_bench_workgroup_parser, cmd_bench_workgroup),
     "sparse": (add_bench_sparse_parser, cmd_bench_sparse),
+    "denoise": (add_bench_denoise_parser, cmd_bench_denoise),
 }
 
 

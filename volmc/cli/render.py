@@ -32,6 +32,11 @@ def add_render_parser(sub):
                    help="PNG tone curve (default filmic)")
     r.add_argument("--variance", action="store_true",
                    help="also write <output>.var.exr: per-pixel variance of the mean")
+    r.add_argument("--denoise", action="store_true",
+                   help="also write a denoised preview, <output>.denoised.exr (and "
+                        ".denoised.png with --png), by Intel Open Image Denoise guided by an "
+                        "albedo AOV the render accumulates; the unbiased EXR is unchanged "
+                        "(pip install 'volmc[denoise]')")
     r.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
     r.add_argument("--stats", action="store_true",
                    help="print samples/s, path length, lookups and guard counters")
@@ -66,13 +71,17 @@ def cmd_render(args):
 
     scene_path, out, png = _render_paths(args)
     defines = _render_defines(args)
+    if args.denoise:   # a missing denoiser fails before anything is rendered
+        from ..denoise import oidn
+        oidn()
     if args.frames is not None:
         return cmd_render_frames(args, scene_path, out, png, defines)
     scene = load_scene(scene_path, defines)
 
     _check_render_device(args)
     from ..memory import check_memory
-    check_memory(scene, args.backend, args.device)   # a render that cannot fit fails now
+    # A render that cannot fit fails now.
+    check_memory(scene, args.backend, args.device, albedo=args.denoise)
     if not args.quiet:
         w, h = scene.camera.resolution
         print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "
@@ -87,7 +96,8 @@ def cmd_render(args):
         res = render(scene, backend=args.backend, progress=False if args.quiet else None,
                      on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
                      checkpoint_every=args.checkpoint_every, resume=args.resume,
-                     client=client, device=args.device, lanes=args.lanes)
+                     client=client, device=args.device, lanes=args.lanes,
+                     albedo=args.denoise)
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
     meta["scene_toml"] = to_toml(scene.spec)
@@ -97,10 +107,17 @@ def cmd_render(args):
     if png:
         write_png(png, res.image, args.exposure, args.tonemap,
                   alpha=res.alpha if scene.render.transparent_background else None)
+    denoised = []
+    if args.denoise:   # after the unbiased files: nothing rendered is lost if it fails
+        from ..denoise import write_denoised
+        denoised = write_denoised(res.film, meta, out, png or None, args.exposure,
+                                  args.tonemap, scene.render.transparent_background)
 
     if not args.quiet:
         state = "interrupted, partial image" if res.partial else "done"
         print(f"volmc: {state}: {_summary(out, png, res, scene)}", file=sys.stderr)
+        if denoised:
+            print(f"volmc: denoised preview: {' + '.join(denoised)}", file=sys.stderr)
     _report(args, res)
     return EXIT_INTERRUPTED if res.partial else 0
 
@@ -207,14 +224,15 @@ def cmd_render_frames(args, scene_path, out, png, defines):
         _warn_out_of_view(scene, scene_path, label + ": ")
         res = render(scene, backend=args.backend, progress=False if args.quiet else None,
                      on_start=None if args.quiet else on_start, client=client,
-                     device=args.device, lanes=args.lanes, label=label)
+                     device=args.device, lanes=args.lanes, label=label,
+                     albedo=args.denoise)
         return RenderedImage(res, scene)
 
     t = time.perf_counter()
     done = skipped = 0
     with dask_session(args) as client:
         for fr in render_sequence(seq, plan, render_one, png, args.variance, args.exposure,
-                                  args.tonemap):
+                                  args.tonemap, args.denoise):
             head = f"frame {fr.index}/{fr.count} ({fr.frame})"
             if fr.image is None:
                 skipped += 1
