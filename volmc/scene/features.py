@@ -5,11 +5,12 @@ A switch stays only while `volmc bench specialise` shows it pays at least 3 % on
 shipped scene (docs/performance.md, "Specialisation"): of the nine switches and six baked
 constants measured for issue 10, only MAJORANT_GRID did. MAJORANT_OCTREE (issue 13) pays 1.15x on the
 homogeneous scene and 1.12x on the roulette scene, whose loops would otherwise carry the
-octree walk (docs/bench_specialise_issue13.json). CHROMATIC and EMISSION measured neutral
-(0.98-1.015 on the cloud, homogeneous, sunset and plume scenes,
-docs/bench_specialise_issue11.json) but stay for what they guarantee rather than for speed:
-a grey scene runs exactly the scalar arithmetic it ran before colour existed (the same
-image bit for bit), and a scene without emission compiles none of it. TRANSFORM (issue 22)
+octree walk (docs/bench_specialise.json). CHROMATIC and EMISSION measured neutral
+(0.98-1.015 on the cloud, homogeneous, sunset and plume scenes; issue 11,
+docs/bench_specialise_issue11.json in git history, commit 351519c) but stay for what they
+guarantee rather than for speed: a grey scene runs exactly the scalar arithmetic it ran
+before colour existed (the same image bit for bit), and a scene without emission compiles
+none of it. TRANSFORM (issue 22)
 stays for the same guarantee: a medium that is not turned, mirrored or sheared runs exactly
 the code it ran before placement existed. A BRICKS switch
 measured neutral too and was not kept: brick lookups are one more density kind. PROFILES is not a
