@@ -307,3 +307,11 @@ def test_cli_frames_denoise_each_frame(seq):
         assert dmeta["frame"] == f and dmeta["denoised.from"] == f"f.{f:04d}.exr"
         assert np.array_equal(den[..., 3], img[..., 3]) and "denoised" not in meta
         assert (d / f"f.{f:04d}.denoised.png").exists()
+    out = d / "api" / "g.exr"
+    out.parent.mkdir()
+    volmc.render_frames(str(seq), "1-2", output=out, denoise=True, progress=False)
+    for f in (1, 2):
+        dmeta = read_exr(d / "api" / f"g.{f:04d}.denoised.exr")[1]
+        assert int(dmeta["denoised.albedo_aov"]) == 1
+    with pytest.raises(volmc.VolmcError, match="denoise: needs an output"):
+        volmc.render_frames(seq, 1, denoise=True)

@@ -279,7 +279,8 @@ def _warn_guards(result, prefix=""):
 
 def render_frames(scene, frames, output=None, spp=None, seed=None, backend="opencl",
                   device=None, progress=True, client=None, lanes=None, overrides=None,
-                  base_dir=".", png=False, variance=False, exposure=0.0, tonemap="filmic"):
+                  base_dir=".", png=False, variance=False, exposure=0.0, tonemap="filmic",
+                  denoise=False):
     """Render a frame sequence: the scene once per frame, its grid file patterns (``file =
     "cache/fluid_data_{frame:04d}.vdb"``) filled with the frame number.
 
@@ -296,7 +297,9 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     complete (finished, not partial, of this scene, frame and backend) are skipped, so a
     call that was stopped or killed goes on where it was. png: also write "out/fire.0001.png"
     (``exposure``, ``tonemap`` as for ``RenderedImage.save``); variance: also
-    "out/fire.0001.var.exr". Every frame's grid files are checked before the first frame
+    "out/fire.0001.var.exr"; denoise: render with the albedo AOV and also write each
+    frame's denoised preview, "out/fire.0001.denoised.exr" (and ".denoised.png" with png),
+    as ``volmc render --frames --denoise``. Every frame's grid files are checked before the first frame
     renders: a missing one raises VolmcError naming the file and key and listing the frames
     on disk. An interrupt stops after the current frame, which is returned (and written)
     with ``partial`` True. A guard that fired issues a ``volmc.VolmcWarning`` naming the
@@ -324,8 +327,12 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     output = _path(output, where, "output", writable=True)
     if output is not None and not output.lower().endswith(".exr"):
         raise _error(where, "output", f"expected a path ending in .exr, got {output!r}")
-    if (png or variance) and output is None:
-        raise _error(where, "png" if png else "variance", "needs an output path")
+    if (png or variance or denoise) and output is None:
+        raise _error(where, "png" if png else "variance" if variance else "denoise",
+                     "needs an output path")
+    if denoise:   # a missing denoiser fails before the first frame renders
+        from .denoise import oidn
+        oidn(where, "denoise")
     png = os.path.splitext(output)[0] + ".png" if png else None
     seq = FrameSequence(raw, file, file_dir, frames, "frames")
     plan = seq.plan(output, name)
@@ -333,10 +340,12 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     with _client(client, where) as client:
         def render_one(frame_scene, label):
             result = _render(frame_scene, backend=name, device=device,
-                             progress=bool(progress), client=client, lanes=lanes, label=label)
+                             progress=bool(progress), client=client, lanes=lanes, label=label,
+                             albedo=bool(denoise))
             return RenderedImage(result, frame_scene)
         out = {}
-        for done in render_sequence(seq, plan, render_one, png, variance, exposure, tonemap):
+        for done in render_sequence(seq, plan, render_one, png, variance, exposure, tonemap,
+                                    bool(denoise)):
             out[done.frame] = done.exr if output else done.image
             if done.image is not None:
                 _warn_guards(done.image.result, f"frame {done.frame}: ")
