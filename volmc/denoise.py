@@ -10,8 +10,8 @@ noise, so the filter prefilters it (OIDN's ``cleanAux`` off). With a transparent
 the RGB is premultiplied and is denoised as it is; the alpha channel stays the unbiased
 coverage.
 
-No normal-like AOV: a volume has no surface normal, and the density gradient at the first
-collision would be a noisy guess at one, which OIDN's models were not trained on.
+No normal-like AOV: a noise-free density-gradient "normal" made the preview worse on the
+cloud and the fire (volmc/bench/denoise_normal.py; docs/denoising.md).
 """
 
 import numpy as np
