@@ -48,9 +48,14 @@ The -cl-fast-relaxed-math build also found two uses of INFINITY, undefined under
 math (-Wnan-infinity-disabled); the kernels use NO_LIMIT (FLT_MAX) there now.
 
 The test skips when clang-19 is absent (``.ci/run`` installs it from Debian).
+
+The builds start in the background when the session begins (tests/background.py: as
+``python tests/test_gpu_portability.py OUT.json``, which writes every check's problems as
+JSON), and the tests collect them; without that job the tests build here.
 """
 
 import itertools
+import math
 import os
 import re
 import shutil
@@ -59,6 +64,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
+import background
 from volmc.backends.opencl import render_options
 from volmc.bench.fastmath import FAST_MATH
 from volmc.bench.sparse import LOOKUPS, lookup_options
@@ -93,25 +99,39 @@ WORKERS = max(1, min(4, os.cpu_count() or 1))
 
 
 def switch_sets(switches):
-    """All off, all on, each alone, each left out: every pair of switches meets in each of
-    its four on/off combinations."""
-    out = [(), tuple(switches)]
-    out += [(x,) for x in switches]
-    out += [tuple(y for y in switches if y != x) for x in switches]
+    """All on, and a binary covering array of strength 2: every pair of switches meets in
+    each of its four on/off combinations, in N + 1 builds where all off, all on, each alone
+    and each left out take 2 + 2 n.
+
+    The array has N rows, the first all off. Switch j is on in the rows of S_j, a subset of
+    rows 1..N-1 of size w = floor((N - 1) / 2) + 1, distinct for each switch: two such sets
+    of one size intersect (2 w > N - 1: both on), and neither holds the other (one on, the
+    other off, both ways). N is the least with C(N - 1, w) >= n: 6 rows for up to 10
+    switches."""
+    n = len(switches)
+    rows = 2
+    while math.comb(rows - 1, (rows - 1) // 2 + 1) < n:
+        rows += 1
+    w = (rows - 1) // 2 + 1
+    subsets = list(itertools.combinations(range(1, rows), w))[:n]
+    out = [tuple(x for x, sub in zip(switches, subsets) if r in sub) for r in range(rows)]
+    out.append(tuple(switches))
     return list(dict.fromkeys(out))
 
 
 def programs():
     """[(label, kernels/ file, options)]: every build the code makes, without repeats.
 
-    integrator.cl (renders): the render FEATURES and the tool switch RECORD with the default
-    estimator, all off, all on, each alone and each left out, which puts every pair of
-    switches in each of its four on/off combinations (2 + 2 n builds; every subset, 2^n,
-    took 600 s on the AMD target once there were seven); every registry estimator with all of them on (auto adds
-    VIEW_ESTIMATOR); the -cl-fast-relaxed-math build of `volmc bench fastmath` and test case
-    20. estimators.cl (estimator benchmark): every estimator grey and chromatic, and the
-    shadow-ray functions. bench_sparse.cl: every lookup kind. testing.cl,
-    testing_power_series.cl and bench.cl build without options. All at W = 1, and WIDE's
+    integrator.cl (renders): the render FEATURES and the tool switches with the default
+    estimator, in the sets of switch_sets, which put every pair of switches in each of its
+    four on/off combinations (all off, all on, each alone and each left out took 2 + 2 n
+    builds: 18 for eight switches, 50 s of compiling for the AMD target, now 7; every
+    subset, 2^n, took 600 s on the AMD target once there were seven); every registry
+    estimator with all of them on (auto adds VIEW_ESTIMATOR); the -cl-fast-relaxed-math
+    build of `volmc bench fastmath` and test case 20. estimators.cl (estimator benchmark):
+    every estimator grey and chromatic, and the shadow-ray functions. bench_sparse.cl:
+    every lookup kind. testing.cl, testing_power_series.cl and bench.cl build without
+    options. All at W = 1, and WIDE's
     widths for the largest builds. Returns (label, file, options, lanes)."""
     switches = sorted(FEATURES) + sorted(TOOL_FEATURES)
     default = Render().transmittance
@@ -154,15 +174,19 @@ def programs():
 PROGRAMS = programs()
 
 
-@pytest.fixture(scope="module")
-def sources(tmp_path_factory):
-    """{kernels/ file: path of its assembled source}."""
-    folder = tmp_path_factory.mktemp("gpu_kernels")
+def write_sources(folder):
+    """{kernels/ file: path of its assembled source in folder}."""
     out = {}
     for name in sorted({name for _, name, _, _ in PROGRAMS}):
         out[name] = folder / name
         out[name].write_text(assemble(name))
     return out
+
+
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory):
+    """{kernels/ file: path of its assembled source}."""
+    return write_sources(tmp_path_factory.mktemp("gpu_kernels"))
 
 
 def clang(args, source):
@@ -236,7 +260,8 @@ def test_every_kernel_program_is_covered():
     assert built == {p.name for p in kernels_dir().glob("*.cl")}
     n = len(FEATURES) + len(TOOL_FEATURES)
     assert len([p for p in PROGRAMS if p[1] == "integrator.cl" and p[3] == 1]) == (
-        2 + 2 * n + len(ESTIMATORS) - 1 + 1)
+        len(switch_sets(range(n))) + len(ESTIMATORS) - 1 + 1)
+    assert len(switch_sets(range(n))) <= 8   # n <= 10: six rows, and all on
     sets = [set(s) for s in switch_sets(sorted(FEATURES) + sorted(TOOL_FEATURES))]
     for a, b in itertools.combinations(sorted(FEATURES) + sorted(TOOL_FEATURES), 2):
         assert {(a in s, b in s) for s in sets} == {(False, False), (False, True),
@@ -244,23 +269,80 @@ def test_every_kernel_program_is_covered():
     assert {p[3] for p in PROGRAMS if p[1] == "integrator.cl"} == {1, *WIDE}
 
 
+def compile_problems(target, program, sources):
+    """The problems of one program compiled to target assembly: errors, warnings (doubles
+    among them), more than PRIVATE_BUDGET bytes of private memory per work item."""
+    label, name, opts, lanes = program
+    rc, diag, asm = clang(TARGETS[target] + opts + ["-S"], sources[name])
+    if rc != 0 or diag:
+        return [f"{label}: clang exit {rc}\n{diag[:4000]}"]
+    if private_bytes(target, asm) > PRIVATE_BUDGET * max(1, lanes // 8):
+        return [f"{label}: {private_bytes(target, asm)} bytes of private memory per work "
+                f"item (budget {PRIVATE_BUDGET} per 8 lanes)"]
+    return []
+
+
+def call_graph_problems(program, sources):
+    """The problems of one program's unoptimised call graph: recursion, and functions called
+    without a definition."""
+    label, name, opts, _ = program
+    rc, diag, ir = clang(TARGETS["nvptx"] + opts + ["-O0", "-emit-llvm", "-S"], sources[name])
+    if rc != 0:
+        return [f"{label}: clang exit {rc}\n{diag[:4000]}"]
+    graph, declared = call_graph(ir)
+    problems = []
+    if not graph:
+        problems.append(f"{label}: no function in the IR")
+    cycle = find_cycle(graph)
+    if cycle:
+        problems.append(f"{label}: recursion {' -> '.join(cycle)}")
+    missing = undefined_kernel_functions(declared)
+    if missing:
+        problems.append(f"{label}: called without a definition (an inline function "
+                        f"without static?): {', '.join(missing)}")
+    return problems
+
+
+def checks():
+    """{check name: function of (program, sources) giving its problems}: one per target, and
+    the call graph."""
+    out = {f"compile {t}": (lambda program, src, t=t: compile_problems(t, program, src))
+           for t in sorted(TARGETS)}
+    out["call graph"] = call_graph_problems
+    return out
+
+
+def run_checks(names, sources, workers=WORKERS):
+    """{check name: [problem, ...]} of the named checks over every program, the slowest
+    builds (the widest, then the largest sources) first so that the last ones to finish are
+    short."""
+    fns = checks()
+    order = sorted(PROGRAMS, key=lambda p: (-p[3], -len(sources[p[1]].read_text()), p[0]))
+    jobs = [(n, p) for p in order for n in names]
+    with ThreadPoolExecutor(workers) as pool:
+        found = pool.map(lambda job: fns[job[0]](job[1], sources), jobs)
+        out = {n: [] for n in names}
+        for (n, _), problems in zip(jobs, found):
+            out[n] += problems
+    return out
+
+
+def checked(name, sources):
+    """The problems of one check: from the build started in the background when the session
+    began (tests/background.py, on cores the other tests leave idle), or, without it, from
+    builds made here."""
+    done = background.result("gpu_portability")
+    if done is not None and done["labels"] == [p[0] for p in PROGRAMS]:
+        return done["problems"][name]
+    return run_checks([name], sources)[name]
+
+
 @needs_clang
 @pytest.mark.parametrize("target", sorted(TARGETS))
 def test_kernels_compile_cleanly_for_gpu(target, sources):
     """Every program compiles to target assembly without errors, warnings, doubles or more
     than PRIVATE_BUDGET bytes of private memory per work item."""
-    def one(program):
-        label, name, opts, lanes = program
-        rc, diag, asm = clang(TARGETS[target] + opts + ["-S"], sources[name])
-        problems = []
-        if rc != 0 or diag:
-            problems.append(f"{label}: clang exit {rc}\n{diag[:4000]}")
-        elif private_bytes(target, asm) > PRIVATE_BUDGET * max(1, lanes // 8):
-            problems.append(f"{label}: {private_bytes(target, asm)} bytes of private memory "
-                            f"per work item (budget {PRIVATE_BUDGET} per 8 lanes)")
-        return problems
-    with ThreadPoolExecutor(WORKERS) as pool:
-        problems = [p for ps in pool.map(one, PROGRAMS) for p in ps]
+    problems = checked(f"compile {target}", sources)
     assert not problems, f"{len(problems)} of {len(PROGRAMS)} builds fail on {target}:\n" + \
         "\n\n".join(problems)
 
@@ -269,26 +351,7 @@ def test_kernels_compile_cleanly_for_gpu(target, sources):
 def test_no_recursion_and_no_undefined_functions(sources):
     """The unoptimised call graph of every program is acyclic, and every function a kernel
     calls is defined (or an OpenCL builtin)."""
-    def one(program):
-        label, name, opts, _ = program
-        rc, diag, ir = clang(TARGETS["nvptx"] + opts + ["-O0", "-emit-llvm", "-S"],
-                             sources[name])
-        if rc != 0:
-            return [f"{label}: clang exit {rc}\n{diag[:4000]}"]
-        graph, declared = call_graph(ir)
-        problems = []
-        if not graph:
-            problems.append(f"{label}: no function in the IR")
-        cycle = find_cycle(graph)
-        if cycle:
-            problems.append(f"{label}: recursion {' -> '.join(cycle)}")
-        missing = undefined_kernel_functions(declared)
-        if missing:
-            problems.append(f"{label}: called without a definition (an inline function "
-                            f"without static?): {', '.join(missing)}")
-        return problems
-    with ThreadPoolExecutor(WORKERS) as pool:
-        problems = [p for ps in pool.map(one, PROGRAMS) for p in ps]
+    problems = checked("call graph", sources)
     assert not problems, "\n".join(problems)
 
 
@@ -323,3 +386,22 @@ def test_the_checks_catch_what_they_claim(tmp_path):
                                    "kernel void k(global int *o) { o[0] = g(o[0]); }\n",
                                    TARGETS["nvptx"] + ["-O0", "-emit-llvm", "-S"])
     assert rc == 0 and undefined_kernel_functions(call_graph(ir)[1]) == ["g"]
+
+
+def main(out):
+    """Run every check and write {"labels": [...], "problems": {check: [...]}} to out (JSON,
+    written whole or not at all): the background job of tests/background.py."""
+    import json
+    import tempfile
+    from pathlib import Path
+    with tempfile.TemporaryDirectory() as folder:
+        sources = write_sources(Path(folder))
+        problems = run_checks(sorted(checks()), sources)
+    Path(out + ".part").write_text(json.dumps({"labels": [p[0] for p in PROGRAMS],
+                                               "problems": problems}))
+    os.replace(out + ".part", out)
+
+
+if __name__ == "__main__":
+    import sys
+    main(sys.argv[1])
