@@ -1,5 +1,4 @@
 import os
-import shutil
 import sys
 
 # The statistics helpers live beside the tests.
@@ -29,58 +28,3 @@ def lanes(request, monkeypatch):
     monkeypatch.setenv("VOLMC_LANES", str(request.param))
     return request.param
 
-
-def _gpu_tests_selected(items):
-    return shutil.which("clang-19") is not None and any(
-        item.path.name == "test_gpu_portability.py" and item.originalname in (
-            "test_kernels_compile_cleanly_for_gpu",
-            "test_no_recursion_and_no_undefined_functions") for item in items)
-
-
-def _broad_run(items):
-    return len({item.path for item in items}) >= 5
-
-
-#: Background jobs (tests/background.py): {job: (script, arguments, nice, when to start it)}.
-#: The Numba compiles of the render path start when the run is broad (tests from five modules
-#: or more, where some test renders one and several media with the Numba backend; a narrow
-#: run that needs them compiles them itself), the GPU builds when their tests are selected
-#: (and clang-19 exists). Jobs needed earlier in the run are served first (lower nice): the
-#: one-medium compile (tests/hard), the several-media one (test_check.py), the GPU builds.
-BACKGROUND_JOBS = {
-    "numba_one": ("warm_numba.py", ("one",), 10, _broad_run),
-    "numba_several": ("warm_numba.py", ("several",), 15, _broad_run),
-    "gpu_portability": ("test_gpu_portability.py", (), 19, _gpu_tests_selected),
-}
-
-
-@pytest.hookimpl(trylast=True)   # after -k and -m have deselected
-def pytest_collection_modifyitems(session, config, items):
-    """Start the background jobs the selected tests need."""
-    import background
-    for job, (script, args, nice, wanted) in BACKGROUND_JOBS.items():
-        if wanted(items):
-            background.start(job, script, nice, args)
-
-
-@pytest.fixture(scope="session", autouse=True)
-def render_path_compiled():
-    """The first Numba render of one medium, and of several, waits for the background job
-    that compiles its render path (warm_numba.py) rather than compiling it a second time
-    beside it."""
-    import background
-    import volmc.backends.numba as numba_backend
-    media_data = numba_backend.media_data
-
-    def waiting(pk):
-        out = media_data(pk)
-        background.result("numba_one" if len(out) == 1 else "numba_several")
-        return out
-    numba_backend.media_data = waiting
-    yield
-    numba_backend.media_data = media_data
-
-
-def pytest_sessionfinish(session, exitstatus):
-    import background
-    background.stop_all()

@@ -48,10 +48,6 @@ The -cl-fast-relaxed-math build also found two uses of INFINITY, undefined under
 math (-Wnan-infinity-disabled); the kernels use NO_LIMIT (FLT_MAX) there now.
 
 The test skips when clang-19 is absent (``.ci/run`` installs it from Debian).
-
-The builds start in the background when the session begins (tests/background.py: as
-``python tests/test_gpu_portability.py OUT.json``, which writes every check's problems as
-JSON), and the tests collect them; without that job the tests build here.
 """
 
 import itertools
@@ -64,7 +60,6 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-import background
 from volmc.backends.opencl import render_options
 from volmc.bench.fastmath import FAST_MATH
 from volmc.bench.sparse import LOOKUPS, lookup_options
@@ -327,22 +322,13 @@ def run_checks(names, sources, workers=WORKERS):
     return out
 
 
-def checked(name, sources):
-    """The problems of one check: from the build started in the background when the session
-    began (tests/background.py, on cores the other tests leave idle), or, without it, from
-    builds made here."""
-    done = background.result("gpu_portability")
-    if done is not None and done["labels"] == [p[0] for p in PROGRAMS]:
-        return done["problems"][name]
-    return run_checks([name], sources)[name]
-
-
 @needs_clang
 @pytest.mark.parametrize("target", sorted(TARGETS))
 def test_kernels_compile_cleanly_for_gpu(target, sources):
     """Every program compiles to target assembly without errors, warnings, doubles or more
     than PRIVATE_BUDGET bytes of private memory per work item."""
-    problems = checked(f"compile {target}", sources)
+    name = f"compile {target}"
+    problems = run_checks([name], sources)[name]
     assert not problems, f"{len(problems)} of {len(PROGRAMS)} builds fail on {target}:\n" + \
         "\n\n".join(problems)
 
@@ -351,7 +337,7 @@ def test_kernels_compile_cleanly_for_gpu(target, sources):
 def test_no_recursion_and_no_undefined_functions(sources):
     """The unoptimised call graph of every program is acyclic, and every function a kernel
     calls is defined (or an OpenCL builtin)."""
-    problems = checked("call graph", sources)
+    problems = run_checks(["call graph"], sources)["call graph"]
     assert not problems, "\n".join(problems)
 
 
@@ -387,21 +373,3 @@ def test_the_checks_catch_what_they_claim(tmp_path):
                                    TARGETS["nvptx"] + ["-O0", "-emit-llvm", "-S"])
     assert rc == 0 and undefined_kernel_functions(call_graph(ir)[1]) == ["g"]
 
-
-def main(out):
-    """Run every check and write {"labels": [...], "problems": {check: [...]}} to out (JSON,
-    written whole or not at all): the background job of tests/background.py."""
-    import json
-    import tempfile
-    from pathlib import Path
-    with tempfile.TemporaryDirectory() as folder:
-        sources = write_sources(Path(folder))
-        problems = run_checks(sorted(checks()), sources)
-    Path(out + ".part").write_text(json.dumps({"labels": [p[0] for p in PROGRAMS],
-                                               "problems": problems}))
-    os.replace(out + ".part", out)
-
-
-if __name__ == "__main__":
-    import sys
-    main(sys.argv[1])
