@@ -27,4 +27,3 @@ def lanes(request, monkeypatch):
     monkeypatch.setattr(cl_harness, "LANES", request.param)
     monkeypatch.setenv("VOLMC_LANES", str(request.param))
     return request.param
-

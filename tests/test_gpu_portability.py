@@ -50,6 +50,7 @@ math (-Wnan-infinity-disabled); the kernels use NO_LIMIT (FLT_MAX) there now.
 The test skips when clang-19 is absent (``.ci/run`` installs it from Debian).
 """
 
+import functools
 import itertools
 import math
 import os
@@ -126,8 +127,7 @@ def programs():
     build of `volmc bench fastmath` and test case 20. estimators.cl (estimator benchmark):
     every estimator grey and chromatic, and the shadow-ray functions. bench_sparse.cl:
     every lookup kind. testing.cl, testing_power_series.cl and bench.cl build without
-    options. All at W = 1, and WIDE's
-    widths for the largest builds. Returns (label, file, options, lanes)."""
+    options. All at W = 1, and WIDE's widths for the largest builds. Returns (label, file, options, lanes)."""
     switches = sorted(FEATURES) + sorted(TOOL_FEATURES)
     default = Render().transmittance
     out = []
@@ -169,19 +169,15 @@ def programs():
 PROGRAMS = programs()
 
 
-def write_sources(folder):
-    """{kernels/ file: path of its assembled source in folder}."""
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory):
+    """{kernels/ file: path of its assembled source}."""
+    folder = tmp_path_factory.mktemp("gpu_kernels")
     out = {}
     for name in sorted({name for _, name, _, _ in PROGRAMS}):
         out[name] = folder / name
         out[name].write_text(assemble(name))
     return out
-
-
-@pytest.fixture(scope="module")
-def sources(tmp_path_factory):
-    """{kernels/ file: path of its assembled source}."""
-    return write_sources(tmp_path_factory.mktemp("gpu_kernels"))
 
 
 def clang(args, source):
@@ -253,12 +249,12 @@ def test_every_kernel_program_is_covered():
     """Each kernels/*.cl is a program the project builds; a new one must join PROGRAMS."""
     built = {name for _, name, _, _ in PROGRAMS}
     assert built == {p.name for p in kernels_dir().glob("*.cl")}
-    n = len(FEATURES) + len(TOOL_FEATURES)
+    switches = sorted(FEATURES) + sorted(TOOL_FEATURES)
+    sets = [set(s) for s in switch_sets(switches)]
     assert len([p for p in PROGRAMS if p[1] == "integrator.cl" and p[3] == 1]) == (
-        len(switch_sets(range(n))) + len(ESTIMATORS) - 1 + 1)
-    assert len(switch_sets(range(n))) <= 8   # n <= 10: six rows, and all on
-    sets = [set(s) for s in switch_sets(sorted(FEATURES) + sorted(TOOL_FEATURES))]
-    for a, b in itertools.combinations(sorted(FEATURES) + sorted(TOOL_FEATURES), 2):
+        len(sets) + len(ESTIMATORS) - 1 + 1)
+    assert len(sets) <= 8   # up to 10 switches: six rows, and all on
+    for a, b in itertools.combinations(switches, 2):
         assert {(a in s, b in s) for s in sets} == {(False, False), (False, True),
                                                     (True, False), (True, True)}, (a, b)
     assert {p[3] for p in PROGRAMS if p[1] == "integrator.cl"} == {1, *WIDE}
@@ -298,28 +294,13 @@ def call_graph_problems(program, sources):
     return problems
 
 
-def checks():
-    """{check name: function of (program, sources) giving its problems}: one per target, and
-    the call graph."""
-    out = {f"compile {t}": (lambda program, src, t=t: compile_problems(t, program, src))
-           for t in sorted(TARGETS)}
-    out["call graph"] = call_graph_problems
-    return out
-
-
-def run_checks(names, sources, workers=WORKERS):
-    """{check name: [problem, ...]} of the named checks over every program, the slowest
-    builds (the widest, then the largest sources) first so that the last ones to finish are
-    short."""
-    fns = checks()
-    order = sorted(PROGRAMS, key=lambda p: (-p[3], -len(sources[p[1]].read_text()), p[0]))
-    jobs = [(n, p) for p in order for n in names]
-    with ThreadPoolExecutor(workers) as pool:
-        found = pool.map(lambda job: fns[job[0]](job[1], sources), jobs)
-        out = {n: [] for n in names}
-        for (n, _), problems in zip(jobs, found):
-            out[n] += problems
-    return out
+def run_checks(check, sources):
+    """Every problem check(program, sources) finds over PROGRAMS, in WORKERS threads, the
+    widest builds first (then the largest sources), so that the last to finish are short."""
+    size = {name: path.stat().st_size for name, path in sources.items()}
+    order = sorted(PROGRAMS, key=lambda p: (-p[3], -size[p[1]], p[0]))
+    with ThreadPoolExecutor(WORKERS) as pool:
+        return [x for found in pool.map(lambda p: check(p, sources), order) for x in found]
 
 
 @needs_clang
@@ -327,8 +308,7 @@ def run_checks(names, sources, workers=WORKERS):
 def test_kernels_compile_cleanly_for_gpu(target, sources):
     """Every program compiles to target assembly without errors, warnings, doubles or more
     than PRIVATE_BUDGET bytes of private memory per work item."""
-    name = f"compile {target}"
-    problems = run_checks([name], sources)[name]
+    problems = run_checks(functools.partial(compile_problems, target), sources)
     assert not problems, f"{len(problems)} of {len(PROGRAMS)} builds fail on {target}:\n" + \
         "\n\n".join(problems)
 
@@ -337,7 +317,7 @@ def test_kernels_compile_cleanly_for_gpu(target, sources):
 def test_no_recursion_and_no_undefined_functions(sources):
     """The unoptimised call graph of every program is acyclic, and every function a kernel
     calls is defined (or an OpenCL builtin)."""
-    problems = run_checks(["call graph"], sources)["call graph"]
+    problems = run_checks(call_graph_problems, sources)
     assert not problems, "\n".join(problems)
 
 
@@ -372,4 +352,3 @@ def test_the_checks_catch_what_they_claim(tmp_path):
                                    "kernel void k(global int *o) { o[0] = g(o[0]); }\n",
                                    TARGETS["nvptx"] + ["-O0", "-emit-llvm", "-S"])
     assert rc == 0 and undefined_kernel_functions(call_graph(ir)[1]) == ["g"]
-
