@@ -127,7 +127,8 @@ def programs():
     build of `volmc bench fastmath` and test case 20. estimators.cl (estimator benchmark):
     every estimator grey and chromatic, and the shadow-ray functions. bench_sparse.cl:
     every lookup kind. testing.cl, testing_power_series.cl and bench.cl build without
-    options. All at W = 1, and WIDE's widths for the largest builds. Returns (label, file, options, lanes)."""
+    options. All at W = 1, and WIDE's widths for the largest builds. Returns (label, file,
+    options, lanes)."""
     switches = sorted(FEATURES) + sorted(TOOL_FEATURES)
     default = Render().transmittance
     out = []
