@@ -43,11 +43,12 @@ def oidn_version():
         return ""
 
 
-def denoise(image, albedo=None, file="command line", key="--denoise"):
+def denoise(image, albedo=None, file="command line", key="--denoise", normal=None):
     """The denoised image, float32 [h, w, 3], of a linear HDR ``image`` [h, w, 3] guided by
     the mean ``albedo`` AOV [h, w, 3] (None: colour alone). Negative and non-finite values
     (signed samples, or an empty film) are clamped to 0 first: OIDN reads non-negative
-    radiance."""
+    radiance. ``normal`` [h, w, 3], a normal guide with the albedo, is for the measurement
+    that found none worth having (volmc/bench/denoise_normal.py)."""
     pyoidn = oidn(file, key)
     color = np.asarray(image, np.float64)
     color = np.ascontiguousarray(np.where(np.isfinite(color), np.maximum(color, 0.0), 0.0),
@@ -57,7 +58,10 @@ def denoise(image, albedo=None, file="command line", key="--denoise"):
         a = np.asarray(albedo, np.float64)
         guide = np.ascontiguousarray(np.clip(np.where(np.isfinite(a), a, 0.0), 0.0, 1.0),
                                      np.float32)
-    return np.asarray(pyoidn.denoise(color, guide, hdr=True, quality="high"), np.float32)
+    if normal is not None:
+        normal = np.ascontiguousarray(normal, np.float32)
+    return np.asarray(pyoidn.denoise(color, guide, normal, hdr=True, quality="high"),
+                      np.float32)
 
 
 def denoised_metadata(meta, with_albedo, source=None):

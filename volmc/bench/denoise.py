@@ -33,9 +33,26 @@ def _scenes(paths):
     return [Path(p) for p in paths] if paths else [scenes_dir() / g for g in GALLERY]
 
 
-def _mse(image, ref, ref_var):
+def mse(image, ref, ref_var):
+    """Mean squared error of ``image`` against the reference image ``ref``, whose mean
+    variance of the mean ``ref_var`` is subtracted (module docstring)."""
     d = np.asarray(image, np.float64) - ref
     return float(np.mean(d * d) - ref_var)
+
+
+def scene_and_reference(path, width, reference_spp=2048, lanes=None):
+    """(scene, resolution, reference image float64, its mean variance of the mean, seconds):
+    the scene at ``path`` resized to ``width`` pixels across, and its reference render (a
+    seed of its own, independent of the renders measured against it)."""
+    from ..api import render
+    from ..scene.loading import load_scene
+    w0, h0 = load_scene(path).camera.resolution
+    res = [int(width), max(1, round(width * h0 / w0))]
+    scene = load_scene(path, {"camera.resolution": res})
+    t = time.perf_counter()
+    ref = render(scene, spp=reference_spp, seed=1_000_003, progress=False, lanes=lanes)
+    return (scene, res, np.asarray(ref.image, np.float64), float(np.mean(ref.variance)),
+            time.perf_counter() - t)
 
 
 def measure(path, width=160, spp_levels=(4, 16, 64), reference_spp=2048, lanes=None,
@@ -43,16 +60,9 @@ def measure(path, width=160, spp_levels=(4, 16, 64), reference_spp=2048, lanes=N
     """The rows of one scene (module docstring)."""
     from ..api import render
     from ..denoise import denoise
-    from ..scene.loading import load_scene
-    base = load_scene(path)
-    w0, h0 = base.camera.resolution
-    res = [int(width), max(1, round(width * h0 / w0))]
-    scene = load_scene(path, {"camera.resolution": res})
-    t = time.perf_counter()
-    ref = render(scene, spp=reference_spp, seed=1_000_003, progress=False, lanes=lanes)
-    log(f"{path.name}: reference {reference_spp} spp in {time.perf_counter() - t:.0f} s")
-    ref_img = np.asarray(ref.image, np.float64)
-    ref_var = float(np.mean(ref.variance))
+    scene, res, ref_img, ref_var, seconds = scene_and_reference(path, width, reference_spp,
+                                                                lanes)
+    log(f"{Path(path).name}: reference {reference_spp} spp in {seconds:.0f} s")
     rows = []
     for spp in spp_levels:
         img = render(scene, spp=spp, progress=False, lanes=lanes, albedo=True)
@@ -61,9 +71,9 @@ def measure(path, width=160, spp_levels=(4, 16, 64), reference_spp=2048, lanes=N
         seconds = time.perf_counter() - t
         colour = denoise(img.image)
         row = {"spp": int(spp), "render_seconds": img.seconds, "denoise_seconds": seconds,
-               "mse_noisy": _mse(img.image, ref_img, ref_var),
-               "mse_denoised": _mse(with_albedo, ref_img, ref_var),
-               "mse_denoised_colour_only": _mse(colour, ref_img, ref_var)}
+               "mse_noisy": mse(img.image, ref_img, ref_var),
+               "mse_denoised": mse(with_albedo, ref_img, ref_var),
+               "mse_denoised_colour_only": mse(colour, ref_img, ref_var)}
         row["worth_spp"] = spp * row["mse_noisy"] / max(row["mse_denoised"], 1e-30)
         rows.append(row)
         log(f"  {spp} spp done")

@@ -60,30 +60,24 @@ def _view_normals(scene, steps=400):
 
 
 def main(argv=None):
-    import pyoidn
     import volmc
+    from ..denoise import denoise
+    from .denoise import mse, scene_and_reference
     argv = sys.argv[1:] if argv is None else argv
     path = argv[0]
     width = int(argv[1]) if len(argv) > 1 else 128
-    w0, h0 = volmc.load_scene(path).camera.resolution
-    scene = volmc.load_scene(path, {"camera.resolution": [width, max(1, round(width * h0 / w0))]})
+    scene, _, ref_img, ref_var, _ = scene_and_reference(path, width)
     normal, share = _view_normals(scene)
-    ref = volmc.render(scene, spp=2048, seed=1_000_003, progress=False)
-    ref_img, ref_var = np.asarray(ref.image, np.float64), float(np.mean(ref.variance))
 
     def rmse(a):
-        err = np.mean((np.asarray(a, np.float64) - ref_img) ** 2) - ref_var
-        return float(np.sqrt(max(err, 0.0)))
+        return float(np.sqrt(max(mse(a, ref_img, ref_var), 0.0)))
     print(f"{path}: {share:.2f} of the pixels reach optical depth 1")
     print("spp | noisy | albedo | albedo + normal | ratio")
     for spp in (4, 16, 64):
         img = volmc.render(scene, spp=spp, progress=False, albedo=True)
-        col = np.ascontiguousarray(np.maximum(img.image, 0.0), np.float32)
-        alb = np.ascontiguousarray(np.clip(img.albedo, 0.0, 1.0), np.float32)
-        a = rmse(pyoidn.denoise(col, alb, hdr=True))
-        b = rmse(pyoidn.denoise(col, alb, np.ascontiguousarray(normal), hdr=True))
+        a = rmse(denoise(img.image, img.albedo))
+        b = rmse(denoise(img.image, img.albedo, normal=normal))
         print(f"{spp} | {rmse(img.image):.4g} | {a:.4g} | {b:.4g} | {b / a:.3f}")
-
 
 if __name__ == "__main__":
     main()
