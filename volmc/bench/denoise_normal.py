@@ -19,18 +19,18 @@ def _view_normals(scene, steps=400):
     whose camera ray reaches optical depth 1."""
     from scipy.ndimage import map_coordinates
     from ..pack import pack_scene
+    from ..reference.camera import camera_ray
     pk = pack_scene(scene, np.float64)
     prm, rec = pk.params[0], pk.medium[0]
     grid = np.asarray(scene.grid, np.float64)   # [nz, ny, nx]
     bmin, bmax = np.asarray(rec["bmin"]), np.asarray(rec["bmax"])
     scale = float(np.max(rec["scale"]))
-    e, f, r, u = (np.asarray(prm[k], np.float64) for k in ("eye", "forward", "right", "up"))
+    f, r, u = (np.asarray(prm[k], np.float64) for k in ("forward", "right", "up"))
     w, h = scene.camera.resolution
-    ys, xs = np.mgrid[0:h, 0:w]
-    sx = (2.0 * (xs + 0.5) / w - 1.0) * prm["half_height"] * prm["aspect"]
-    sy = (1.0 - 2.0 * (ys + 0.5) / h) * prm["half_height"]
-    d = f + sx[..., None] * r + sy[..., None] * u
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    # Each pixel's centre ray, through the lens centre (the camera's own ray generation).
+    rays = [camera_ray(prm, x, y, 0.5, 0.5, 0.5, 0.5) for y in range(h) for x in range(w)]
+    e = np.array([o for o, _ in rays]).reshape(h, w, 3)
+    d = np.array([v for _, v in rays]).reshape(h, w, 3)
     inv = 1.0 / np.where(d == 0.0, 1e-30, d)
     ta, tb = (bmin - e) * inv, (bmax - e) * inv
     t0 = np.maximum(np.minimum(ta, tb).max(axis=-1), 0.0)
