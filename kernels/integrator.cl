@@ -90,8 +90,14 @@ static inline lvec3 enter_media(const MediumData *med, lvec3 o, lvec3 d, lfloat 
     lfloat te[MEDIA_COUNT], tx[MEDIA_COUNT];
     lfloat first = (lfloat)(FLT_MAX);
     lint j = (lint)(-1);
+    lint near = media_near(med, o, d, (lfloat)(0.0f), (lfloat)(FLT_MAX), LANES_ALL);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
         const Medium *m = &med->m[i];
+        if (!ANY(has_medium(near, i, LANES_ALL))) { /* missed in every lane */
+            te[i] = (lfloat)(FLT_MAX);
+            tx[i] = (lfloat)(-FLT_MAX);
+            continue;
+        }
         te[i] = ray_box(to_medium(m, o), to_medium_dir(m, d), vec3(m->bmin), vec3(m->bmax),
                         &tx[i]);
         lmask hit = (tx[i] > te[i]) & (tx[i] > 0.0f) & (te[i] < first);
@@ -335,9 +341,12 @@ static inline lvec3 in_scattering(const MediumData *med, lvec3 p, lfloat cos_the
                                   lulong *counters, lmask active) {
     float3 k = (float3)(1.0f) * medium_chroma(med);
     lvec3 out = v3s(0.0f);
+    lint here = media_at(med, p, active);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
         const Medium *m = &med->m[i];
-        lfloat mu = medium_extinction(med, i, p, counters, active);
+        lmask on = has_medium(here, i, active);
+        if (!ANY(on)) continue;
+        lfloat mu = medium_extinction(med, i, p, counters, on);
         lfloat f = phase_eval(m->phase_kind, m->g, cos_theta);
         float3 a = vec3(m->albedo);
         out = add3(out, v3(a.x * (k.x * mu) * f, a.y * (k.y * mu) * f, a.z * (k.z * mu) * f));
@@ -782,7 +791,8 @@ static inline lmask emitter_ray(const Params *prm, const MediumData *med, lvec3 
 #else
     lfloat mu = (lfloat)(0.0f);
 #endif
-    lvec3 src = emission_term(med, y, mu, (lfloat)(1.0f), v3s(1.0f), counters, ok);
+    lvec3 src = emission_term(med, media_at(med, y, ok), y, mu, (lfloat)(1.0f), v3s(1.0f),
+                              counters, ok);
     ok = ok & (max3(src) > 0.0f);
     lfloat f = medium_phase_eval(med, k, dot3(d, *w));
     lfloat mis = (lfloat)(1.0f);

@@ -6,9 +6,10 @@
  *
  * A scene holds MEDIA_COUNT media (a build option, default 1; at most MAX_MEDIA). Medium i
  * has its record m[i]; its arrays begin at its record's offsets in buffers the media share.
- * Functions that take (med, i) are medium i's; the others (extinction, majorant_iter_init,
- * majorant_next, medium_chroma) are the scene's: where media overlap their coefficients add,
- * and the majorant segments are the sums of each medium's. A one-medium build compiles the
+ * Functions that take (med, i) are medium i's; the others (extinction_in, extinction,
+ * media_at, media_near, majorant_iter_init, majorant_next, medium_chroma) are the scene's:
+ * where media overlap their coefficients add, the majorant segments are the sums of each
+ * medium's, and a segment's lookups read the media that cover it (Segment.media). A one-medium build compiles the
  * code it compiled before several media existed (the same image bit for bit). */
 #ifndef VOLMC_MEDIUM_H
 #define VOLMC_MEDIUM_H
@@ -70,6 +71,42 @@ static inline lfloat ray_box(lvec3 o, lvec3 d, float3 bmin, float3 bmax, lfloat 
 
 static inline float3 vec3(const float v[3]) { return (float3)(v[0], v[1], v[2]); }
 
+/* The lanes of `active` whose bit i is set in `bits`. */
+static inline lmask has_medium(lint bits, int i, lmask active) {
+    return active & (((bits >> i) & 1) != 0);
+}
+
+#if MEDIA_COUNT > 1
+/* The media whose near box (params.py: a box of the scene frame a little larger than the
+ * medium's placed box) the segment [t_lo, t_hi] of o + t d touches, a bit per medium in
+ * each lane of `active` (twin in medium.py). A ray that misses a near box misses the medium,
+ * so a medium near no lane's ray needs no box test and no walk. The test is cheap because it
+ * runs for every medium of the scene at every walk's start: no transform, the direction's
+ * reciprocal computed once, and min/max without NaN handling. None arises: a zero
+ * component's reciprocal is FLT_MAX, so its slab gives +-inf or 0, never 0 * inf (an
+ * origin on or inside the slab gets no limit from it, one outside it a limit at or past
+ * FLT_MAX, a miss where the near box's margin can tell). */
+static inline lint media_near(const MediumData *med, lvec3 o, lvec3 d, lfloat t_lo,
+                              lfloat t_hi, lmask active) {
+    lfloat oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z}, inv[3];
+    LANE_UNROLL for (int a = 0; a < 3; ++a)
+        inv[a] = select(1.0f / da[a], (lfloat)(FLT_MAX), da[a] == 0.0f);
+    lint bits = (lint)(0);
+    _Pragma("unroll") for (int i = 0; i < MEDIA_COUNT; ++i) {
+        const Medium *m = &med->m[i];
+        lfloat t0 = t_lo, t1 = t_hi;
+        LANE_UNROLL for (int a = 0; a < 3; ++a) {
+            lfloat ta = (m->near_min[a] - oa[a]) * inv[a];
+            lfloat tb = (m->near_max[a] - oa[a]) * inv[a];
+            t0 = max(t0, min(ta, tb));
+            t1 = min(t1, max(ta, tb));
+        }
+        bits = bits | select((lint)(0), (lint)(1 << i), active & (t0 <= t1));
+    }
+    return bits;
+}
+#endif
+
 static inline lfloat profile_density(int kind, const float prof[5], lfloat x) {
     float a = prof[0], b = prof[1], c = prof[2], s = prof[3], L = prof[4];
     if (kind == DENSITY_RAMP) return a + (b - a) * x / L;
@@ -124,35 +161,59 @@ static inline lmask in_box(const Medium *m, lvec3 q, lmask active) {
            (q.y <= m->bmax[1]) & (q.z >= m->bmin[2]) & (q.z <= m->bmax[2]);
 }
 
-/* Extinction of medium i alone at p (its largest channel), in the lanes of `active`, with
- * a counted lookup in those whose point lies in its box (0 elsewhere). */
+/* Extinction of medium i alone at p (its largest channel), a counted lookup in the lanes of
+ * `active` (0 in the others), wherever p is (lookups clamp to the box's edge). */
 static inline lfloat medium_extinction(const MediumData *med, int i, lvec3 p, lulong *counters,
                                        lmask active) {
     const Medium *m = &med->m[i];
-    lvec3 q = to_medium(m, p);
-    lmask in = MEDIA_COUNT == 1 ? active : in_box(m, q, active);
-    if (!ANY(in)) return (lfloat)(0.0f);
-    counters[C_LOOKUPS] += lane_ones(in);
-    return select((lfloat)(0.0f), m->scale * density_at(med, i, q, in), in);
+    counters[C_LOOKUPS] += lane_ones(active);
+    return select((lfloat)(0.0f), m->scale * density_at(med, i, to_medium(m, p), active),
+                  active);
 }
 
-/* The counted lookup, in the active lanes (the others' results are not to be used): the
- * extinction of every medium at p, summed. Always inlined, as rng_next is: PoCL's inliner
- * kept both out of line, and inlining them measured 1.14x and 1.12x samples/s at W = 1 and
- * 16 on an fbm cloud (1.06x and 1.02x on the default cloud). */
-static inline __attribute__((always_inline)) lfloat extinction(const MediumData *med, lvec3 p,
-                                                               lfloat sigma_maj,
-                                                               lulong *counters, lmask active) {
+/* The counted lookup of the media in `media` (a bit per medium, per lane; see Segment) at p,
+ * in the active lanes (the others' results are not to be used): their extinction summed,
+ * without box tests, since a segment's media cover it (a point a rounding outside a box
+ * reads the box's edge: lookups clamp). One medium ignores `media`. Always inlined, as
+ * rng_next is: PoCL's inliner kept both out of line, and inlining them measured 1.14x and
+ * 1.12x samples/s at W = 1 and 16 on an fbm cloud (1.06x and 1.02x on the default cloud). */
+static inline __attribute__((always_inline)) lfloat extinction_in(const MediumData *med,
+                                                                  lint media, lvec3 p,
+                                                                  lfloat sigma_maj,
+                                                                  lulong *counters,
+                                                                  lmask active) {
 #if MEDIA_COUNT == 1
-    /* one medium is only ever asked inside its box: no box test */
     lfloat mu = med->m[0].scale * density_at(med, 0, to_medium(&med->m[0], p), active);
     counters[C_LOOKUPS] += lane_ones(active);
 #else
     lfloat mu = (lfloat)(0.0f);
-    for (int i = 0; i < MEDIA_COUNT; ++i) mu += medium_extinction(med, i, p, counters, active);
+    for (int i = 0; i < MEDIA_COUNT; ++i) {
+        lmask on = has_medium(media, i, active);
+        if (ANY(on)) mu += medium_extinction(med, i, p, counters, on);
+    }
 #endif
     counters[C_OVER_MAJORANT] += lane_ones(active & (mu > sigma_maj));
     return mu;
+}
+
+/* The media whose box holds p, a bit per medium (twin in medium.py). */
+static inline lint media_at(const MediumData *med, lvec3 p, lmask active) {
+#if MEDIA_COUNT == 1
+    return (lint)(1);
+#else
+    lint bits = (lint)(0);
+    for (int i = 0; i < MEDIA_COUNT; ++i)
+        bits = bits | select((lint)(0), (lint)(1 << i),
+                             in_box(&med->m[i], to_medium(&med->m[i], p), active));
+    return bits;
+#endif
+}
+
+/* The counted lookup at a point of no segment: every medium whose box holds p. */
+static inline __attribute__((always_inline)) lfloat extinction(const MediumData *med, lvec3 p,
+                                                               lfloat sigma_maj,
+                                                               lulong *counters, lmask active) {
+    return extinction_in(med, media_at(med, p, active), p, sigma_maj, counters, active);
 }
 
 /* Extinction per channel relative to extinction(): 1 in grey builds (folded away). Several
@@ -250,11 +311,12 @@ static inline lint medium_pick(const MediumData *med, lvec3 p, Rng *rng, lulong 
     return (lint)(0);
 #else
     /* A point in one box alone: that medium, without a lookup. */
-    lint boxes = (lint)(0), only = (lint)(0);
+    lint boxes = (lint)(0), only = (lint)(0), bits = (lint)(0);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
         lmask in = in_box(&med->m[i], to_medium(&med->m[i], p), active);
         boxes = boxes + (in & 1);
         only = select(only, (lint)(i), in);
+        bits = bits | select((lint)(0), (lint)(1 << i), in);
     }
     active = active & (boxes >= 2);
     if (!ANY(active)) return only;
@@ -262,7 +324,8 @@ static inline lint medium_pick(const MediumData *med, lvec3 p, Rng *rng, lulong 
     lfloat total = (lfloat)(0.0f);
     lint present = (lint)(0);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
-        mu[i] = medium_extinction(med, i, p, counters, active);
+        lmask on = has_medium(bits, i, active);
+        mu[i] = ANY(on) ? medium_extinction(med, i, p, counters, on) : (lfloat)(0.0f);
         total += mu[i];
         present = present + ((mu[i] > 0.0f) & 1);
     }
@@ -332,8 +395,11 @@ static inline void record_segment(const MediumData *med, lvec3 o, lvec3 d, lfloa
     }
 }
 
+/* A majorant segment: [t_min, t_max] with its extinction's bounds, and the media whose own
+ * segments cover it (a bit per medium; one medium: 1), the only ones its lookups read. */
 typedef struct {
     lfloat t_min, t_max, sigma_maj, sigma_min;
+    lint media;
 } Segment;
 
 /* One medium's walk over its majorant segments. */
@@ -427,6 +493,7 @@ static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, l
 
 static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segment *seg,
                                   lmask active) {
+    seg->media = (lint)(1);
     return medium_iter_next(it, med, 0, seg, active);
 }
 #else
@@ -441,9 +508,14 @@ typedef struct {
 
 static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, lvec3 o, lvec3 d,
                                       lfloat t0, lfloat t1, lmask active) {
+    lint near = media_near(med, o, d, t0, t1, active);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
-        medium_iter_init(&it->one[i], med, i, o, d, t0, t1, active);
         it->has[i] = it->has[i] & !active;
+        /* a medium near no lane's ray: its walk is over before it starts */
+        if (ANY(has_medium(near, i, active)))
+            medium_iter_init(&it->one[i], med, i, o, d, t0, t1, active);
+        else
+            it->one[i].done = it->one[i].done | active;
     }
     it->t = select(it->t, t0, active);
 }
@@ -458,6 +530,9 @@ static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segme
     for (int i = 0; i < MEDIA_COUNT; ++i) {
         /* A medium whose segment the merge has passed takes its next one, unless its walk
          * is over (done: no segment, or none left). */
+        /* (a medium with no segment pending and its walk over in every lane asked: nothing
+         * to do, the case of most media when a scene has many apart) */
+        if (!ANY(active & (it->has[i] | !it->one[i].done))) continue;
         lmask passed = active & !(it->has[i] & (it->cur[i].t_max > t));
         it->has[i] = it->has[i] & !passed;
         lmask need = passed & !it->one[i].done;
@@ -475,13 +550,17 @@ static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segme
     }
     lmask found = active & (start < FLT_MAX);
     lfloat end = (lfloat)(FLT_MAX), s_maj = (lfloat)(0.0f), s_min = (lfloat)(0.0f);
+    lint media = (lint)(0);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
         lmask h = found & it->has[i];
+        if (!ANY(h)) continue;
         lmask covers = h & (it->cur[i].t_min <= start);
         end = select(end, fmin(end, select(it->cur[i].t_min, it->cur[i].t_max, covers)), h);
         s_maj += select((lfloat)(0.0f), it->cur[i].sigma_maj, covers);
         s_min += select((lfloat)(0.0f), it->cur[i].sigma_min, covers);
+        media = media | select((lint)(0), (lint)(1 << i), covers);
     }
+    seg->media = select(seg->media, media, found);
     seg->t_min = select(seg->t_min, start, found);
     seg->t_max = select(seg->t_max, end, found);
     seg->sigma_maj = select(seg->sigma_maj, s_maj, found);

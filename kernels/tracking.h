@@ -57,8 +57,8 @@ static inline lmask spec_roulette(spec *T, Rng *rng, lmask active) {
 
 /* What one tentative collision adds to the emission estimate (twin in tracking.py): with
  * several media, each emitting medium's sigma_a Le at p, from its own counted lookup. */
-static inline lvec3 emission_term(const MediumData *med, lvec3 p, lfloat mu, lfloat s_maj,
-                                  lvec3 W, lulong *counters, lmask active) {
+static inline lvec3 emission_term(const MediumData *med, lint media, lvec3 p, lfloat mu,
+                                  lfloat s_maj, lvec3 W, lulong *counters, lmask active) {
     float3 k = (float3)(1.0f) * medium_chroma(med);
 #if MEDIA_COUNT == 1
     float3 ka = (1.0f - vec3(med->m[0].albedo)) * k;
@@ -68,10 +68,11 @@ static inline lvec3 emission_term(const MediumData *med, lvec3 p, lfloat mu, lfl
 #else
     lvec3 out = v3s(0.0f);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
-        if (med->m[i].emission_kind == EMISSION_NONE) continue;
+        lmask on = has_medium(media, i, active);
+        if (med->m[i].emission_kind == EMISSION_NONE || !ANY(on)) continue;
         float3 ka = (1.0f - vec3(med->m[i].albedo)) * k;
-        lfloat s = medium_extinction(med, i, p, counters, active) / s_maj;
-        lvec3 Le = emitted_radiance(med, i, p, active);
+        lfloat s = medium_extinction(med, i, p, counters, on) / s_maj;
+        lvec3 Le = emitted_radiance(med, i, p, on);
         out = add3(out, v3(ka.x * s * Le.x * W.x, ka.y * s * Le.y * W.y, ka.z * s * Le.z * W.z));
     }
     return out;
@@ -148,6 +149,7 @@ typedef struct {
     MajorantIter it;  /* the majorant segments */
     /* The current segment, the technique for it, and the walk's place in it */
     lfloat tb, s_maj, control, rate, inv_rate;
+    lint media;       /* the media the segment's lookups read */
     lmask in_seg, homogeneous, flight;
     lfloat t;         /* distance from o */
     lfloat budget;    /* optical depth left to the next tentative collision; < 0: not drawn */
@@ -281,6 +283,7 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
         wk->t = select(wk->t, ta, ok);
         wk->tb = select(wk->tb, seg.t_max, ok);
         wk->s_maj = select(wk->s_maj, sm, ok);
+        wk->media = select(wk->media, seg.media, ok);
         wk->control = select(wk->control, ctl, ok);
         wk->rate = select(wk->rate, rt, ok);
         wk->inv_rate = select(wk->inv_rate, 1.0f / rt, ok); /* a multiplication per step */
@@ -318,8 +321,9 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
     if (spectral && may_fly && ANY(col & wk->flight)) {
         lmask fly = col & wk->flight;
         /* Spectral tracking: the density of a homogeneous segment needs no lookup. */
-        lfloat mu = select(extinction(med, p, s_maj, counters, fly & !wk->homogeneous), s_maj,
-                           wk->homogeneous);
+        lfloat mu = select(extinction_in(med, wk->media, p, s_maj, counters,
+                                         fly & !wk->homogeneous),
+                           s_maj, wk->homogeneous);
         /* The hero's one-hot weights: its delta tracking decides (tracking.py). */
         lmask heroic = ff & (wk->hero >= 0);
         lvec3 hot = v3(select((lfloat)(0.0f), (lfloat)(1.0f), wk->hero == 0),
@@ -329,7 +333,7 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
         if (emissive) {
             lfloat we = emission_weight(&wk->emis, med, p, s_maj, wk->emis.shift + t, fly & ff);
             wk->E = sel3(wk->E,
-                         add3(wk->E, emission_term(med, p, mu, s_maj,
+                         add3(wk->E, emission_term(med, wk->media, p, mu, s_maj,
                                                    scale3(sel3(T, mis_weights(mul3(T, wk->beta)),
                                                                heroic), we),
                                                    counters, fly & ff)),
@@ -358,17 +362,18 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
         lfloat um = rng_next(rng, draw) * s_maj;
         lmask by_control = draw & (um < control);
         lmask look = draw & !by_control;
-        lfloat mu = extinction(med, p, s_maj, counters, look);
+        lfloat mu = extinction_in(med, wk->media, p, s_maj, counters, look);
         lmask real = sure | by_control | (look & (um < mu));
         if (emissive && ANY(fly & ff)) {
             lmask glow = fly & ff;
             /* -1: not looked up */
             mu = select(select((lfloat)(-1.0f), s_maj, sure), mu, look);
             lmask again = glow & (mu < 0.0f);
-            mu = select(mu, extinction(med, p, s_maj, counters, again), again);
+            mu = select(mu, extinction_in(med, wk->media, p, s_maj, counters, again), again);
             lfloat we = emission_weight(&wk->emis, med, p, s_maj, wk->emis.shift + t, glow);
-            wk->E = sel3(wk->E, add3(wk->E, emission_term(med, p, mu, s_maj, v3s(we), counters,
-                                                         glow)),
+            wk->E = sel3(wk->E,
+                         add3(wk->E, emission_term(med, wk->media, p, mu, s_maj, v3s(we),
+                                                   counters, glow)),
                          glow);
         }
         /* Free flight's weight stays 1; track length's estimate is 0 at a real collision. */
@@ -378,8 +383,8 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
     }
     if ((may & TRACK_BIT(TRACK_NEXT_FLIGHT)) && ANY(col & next)) {
         lmask nf = col & next;
-        spec w = spec_mul(wk->w, spec_one_minus(k, extinction(med, p, s_maj, counters, nf) /
-                                                      s_maj));
+        lfloat mu = extinction_in(med, wk->media, p, s_maj, counters, nf);
+        spec w = spec_mul(wk->w, spec_one_minus(k, mu / s_maj));
         lmask alive = spec_roulette(&w, rng, nf);
         wk->w = spec_sel(wk->w, w, nf);
         /* The rest of this segment adds nothing: its estimate is acc, and the next segment
@@ -394,7 +399,7 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
     }
     if (may_ratio && ANY(col & !wk->flight & !next)) {
         lmask ratio = col & !wk->flight & !next;
-        lfloat mu = extinction(med, p, s_maj, counters, ratio);
+        lfloat mu = extinction_in(med, wk->media, p, s_maj, counters, ratio);
         T = spec_sel(T, spec_mul(T, spec_one_minus(k, (mu - control) / wk->rate)), ratio);
         lmask alive = spec_roulette(&T, rng, ratio);
         end = end | (ratio & !alive);

@@ -202,3 +202,105 @@ def test_several_media_checkpoint_and_resume(tmp_path):
     with pytest.raises(SceneError):
         render(other, backend="opencl", spp=8, progress=False, resume=str(ck),
                chunk_samples=1)
+
+
+_NEAR_SRC = """
+#include "lane_io.h"
+#include "medium.h"
+/* Per ray (6 floats: o, d): the media whose near box the ray [0, inf) touches
+ * (media_near), and those whose own box it crosses by the kernels' exact test (ray_box in
+ * the medium's space, as enter_media uses it). */
+kernel void t_media_near(global const Medium *media, global const float *rays,
+                         global uint *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    MediumData med;
+    for (int k = 0; k < MEDIA_COUNT; ++k) med.m[k] = media[k];
+    lvec3 o = load_float3(rays, i, 6, 0), d = load_float3(rays, i, 6, 3);
+    lint near = media_near(&med, o, d, (lfloat)(0.0f), (lfloat)(FLT_MAX), on);
+    lint hit = (lint)(0);
+    for (int k = 0; k < MEDIA_COUNT; ++k) {
+        const Medium *m = &med.m[k];
+        lfloat tx;
+        lfloat te = ray_box(to_medium(m, o), to_medium_dir(m, d), vec3(m->bmin), vec3(m->bmax),
+                            &tx);
+        hit = hit | select((lint)(0), (lint)(1 << k), (tx >= te) & (tx >= 0.0f));
+    }
+    store_uint(out, i, 2, 0, as_luint(near), on);
+    store_uint(out, i, 2, 1, as_luint(hit), on);
+}
+"""
+
+#: Media for the near-box tests: a turned and mirrored box, a tiny one far off the frame's
+#: centre, a thin slab, and a plain box (scene units).
+_NEAR_MEDIA = [
+    {"bounds": [[-1, -1, -1], [1, 1, 1]], "density": 1.0,
+     "transform": {"rotate": [[1, 2, 0.5, 37.0]], "scale": [1.2, -0.7, 0.9],
+                   "translate": [0.3, 0.1, -0.2]}},
+    {"bounds": [[40.0, 40.0, 40.0], [40.01, 40.02, 40.01]], "density": 1.0},
+    {"bounds": [[-30, -0.5, -30], [30, -0.49, 30]], "density": 1.0},
+    {"bounds": [[2, -3, 1], [4, -1, 2]], "density": 1.0},
+]
+
+
+def _near_rays(pk, n, rng):
+    """Rays in the scene frame: aimed at random points of each medium's box (placed), and a
+    quarter of them grazing a face, an edge or a corner of it; from near and from 1000 box
+    sizes away; a tenth with one or two direction components exactly 0 (or -0)."""
+    out = np.empty((n, 6))
+    recs = pk.medium
+    for r in range(n):
+        m = recs[r % len(recs)]
+        lo, hi = np.array(m["bmin"], float), np.array(m["bmax"], float)
+        q = lo + rng.random(3) * (hi - lo)
+        if r % 4 == 0:   # onto the surface: some coordinates at a face
+            for a in rng.choice(3, rng.integers(1, 4), replace=False):
+                q[a] = lo[a] if rng.random() < 0.5 else hi[a]
+        if m["transformed"]:   # medium space to the scene frame
+            x = np.array(m["xform"], float).reshape(3, 4)
+            q = np.linalg.solve(x[:, :3], q - x[:, 3])
+        d = rng.normal(size=3)
+        if r % 10 == 3:
+            d[rng.choice(3, rng.integers(1, 3), replace=False)] = 0.0 if r % 20 == 3 else -0.0
+        d /= np.linalg.norm(d)
+        far = 1000.0 if r % 3 == 0 else 3.0
+        out[r, :3] = q - far * rng.random() * d
+        out[r, 3:] = d
+    return out
+
+
+def test_near_boxes_never_miss_a_box_the_exact_test_hits(lanes):
+    """media_near is a cull: every medium whose box the kernels' own slab test finds on a ray
+    (float32, in the medium's space, grazing faces, edges and corners, axis-parallel rays,
+    origins 1000 box sizes away) is in the ray's near set, in the kernels at every lane
+    width and in the reference; and it culls: a ray aimed at one medium is near few others."""
+    from cl_harness import build_source, out_buf, run_kernel, to_dev
+    from volmc.pack import pack_scene
+    from volmc.reference.medium import media_data, media_near, ray_box, to_medium, \
+        to_medium_dir
+    raw = _scene(_NEAR_MEDIA, [{"type": "environment", "radiance": 1.0}])
+    sc = scene_from_dict(raw)
+    n_media = len(_NEAR_MEDIA)
+    pk32, pk64 = pack_scene(sc, np.float32), pack_scene(sc, np.float64)
+    rays = _near_rays(pk64, 4000, np.random.default_rng(3))
+    prg = build_source("t_media_near.cl", _NEAR_SRC, (f"-DMEDIA_COUNT={n_media}",))
+    out, ob = out_buf((len(rays), 2), np.uint32)
+    run_kernel(prg, "t_media_near", len(rays), to_dev(pk32.medium),
+               to_dev(rays.astype(np.float32)), ob, outs=[(out, ob)])
+    near, hit = out[:, 0], out[:, 1]
+    assert np.all(hit & ~near == 0), np.flatnonzero(hit & ~near)[:10]
+    assert (hit != 0).mean() > 0.9   # the rays do reach their media
+    # It culls: of the (ray, medium) pairs that miss, few are near.
+    bits = 1 << np.arange(n_media, dtype=np.uint32)
+    missed = (hit[:, None] & bits) == 0
+    kept = ((near[:, None] & bits) != 0) & missed
+    assert kept.sum() < 0.1 * missed.sum()
+    med = media_data(pk64)[:n_media]
+    for r in range(0, len(rays), 7):   # the reference, float64, against its own exact test
+        o, d = tuple(rays[r, :3]), tuple(rays[r, 3:])
+        bits = media_near(med, o, d, 0.0, math.inf)
+        for i in range(n_media):
+            m = med[i].m
+            te, tx = ray_box(to_medium(m, o), to_medium_dir(m, d), m["bmin"], m["bmax"])
+            if tx >= te and tx >= 0.0:
+                assert (bits >> i) & 1, (r, i)

@@ -127,6 +127,16 @@ def medium_space(lo, hi, m, centre, unit):
     return bmin, bmax, xform
 
 
+def near_box(lo, hi):
+    """The box [lo, hi] of the scene frame grown by 2^-10 of its largest extent plus 2^-20 of
+    its largest coordinate on every side: far more than the rounding of float32 slab tests
+    (a few ulps), so a ray the kernels find missing it misses the box inside
+    (``media_near``, kernels/medium.h)."""
+    pad = 2.0 ** -10 * max(hi[a] - lo[a] for a in range(3)) + 2.0 ** -20 * max(
+        abs(x) for x in (*lo, *hi))
+    return [x - pad for x in lo], [x + pad for x in hi]
+
+
 #: A scene packed for a backend: the parameter record [1], the light array, the medium record
 #: [1], the density grid [nz, ny, nx], the majorant grid's per-cell maxima and minima, the
 #: emission field grid, the blackbody table, a brick grid's index table and pool, and an
@@ -350,6 +360,7 @@ def pack_medium(scene, real, local, unit, maj_res, stored=None, centre=None, who
         lo, hi, m["xform"] = medium_space(*med.bounds, placed, centre, unit)
         m["transformed"] = 1
     m["bmin"], m["bmax"] = lo, hi
+    m["near_min"], m["near_max"] = near_box(local(wlo), local(whi))
     m["inv_extent"] = [1.0 / (hi[i] - lo[i]) for i in range(3)]
     # Extinction is scale * density per channel: the record holds the largest channel's
     # scale (every majorant bounds it) and each channel's share of it.

@@ -70,6 +70,9 @@ MEDIUM_FIELDS = (
     ("xform", "real", 12, "transformed: scene frame to the medium's space, 3x4 row-major"),
     ("bmin", "real", 3, "medium box minimum corner"),
     ("bmax", "real", 3, "medium box maximum corner"),
+    ("near_min", "real", 3, "several media: a box of the scene frame around the placed box, "
+                            "a little larger (pack.py): a ray that misses it misses the medium"),
+    ("near_max", "real", 3, "several media: that box's maximum corner"),
     ("inv_extent", "real", 3, "1 / (bmax - bmin) per axis"),
     ("dims", "i4", 3, "DENSITY_GRID, DENSITY_BRICKS: voxels (nx, ny, nz)"),
     ("density", "real", 1, "DENSITY_CONSTANT: the density"),

@@ -65,7 +65,7 @@ def majorant_pieces(medium, grid, maj, mnr, nodes, rays):
         d = (rays[r, 3], rays[r, 4], rays[r, 5])
         majorant_iter_init(it, med, o, d, rays[r, 6], rays[r, 7])
         while True:
-            ok, ta, tb, s_maj, s_min = majorant_next(it, med)
+            ok, ta, tb, s_maj, s_min, _ = majorant_next(it, med)
             if not ok:
                 break
             ta = float(np.float32(ta))

@@ -119,7 +119,7 @@ def transmittance_by_segments(med, o, d, t0, t1, kind, rng, counters, max_steps)
     k = medium_chroma(med)
     T = ONE3
     while True:
-        ok, ta, tb, s_maj, s_min = majorant_next(it, med)
+        ok, ta, tb, s_maj, s_min, _ = majorant_next(it, med)
         if not ok:
             return T
         alive, T = segment_roulette(T, rng)

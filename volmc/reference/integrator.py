@@ -80,9 +80,9 @@ from .free_flight import free_flight
 from .guards import sample_ok
 from .lights import (is_area_light, nearest_sphere, sample_area_light, spot_falloff,
                      sphere_light_pdf, sun_radiance)
-from .medium import (ZERO, MediumData, extinction, majorant_at, media_emit, medium_chroma,
-                     medium_extinction, medium_pick, ray_box, record_segment, to_medium,
-                     to_medium_dir)
+from .medium import (ZERO, MediumData, extinction, has_medium, majorant_at, media_at,
+                     media_emit, media_near, medium_chroma, medium_extinction, medium_pick,
+                     ray_box, record_segment, to_medium, to_medium_dir)
 from .phase import phase_eval, phase_sample
 from .emitters import sample_emitter
 from .tracking import EMIS_PLAIN, emission_term, mis_weights
@@ -159,7 +159,10 @@ def enter_media(med, o, d):
         return enter_medium(med[0].m, o, d)
     first = math.inf
     j = -1
+    near = media_near(med, o, d, 0.0, math.inf)
     for i in range(len(med)):
+        if not has_medium(near, i):   # (a ray that misses the near box misses the box)
+            continue
         m = med[i].m
         te, tx = ray_box(to_medium(m, o), to_medium_dir(m, d), m.bmin, m.bmax)
         if tx > te and tx > 0.0 and te < first:
@@ -172,6 +175,8 @@ def enter_media(med, o, d):
     if j < 0:
         return o2, t0, t1, shift
     for i in range(len(med)):
+        if not has_medium(near, i):
+            continue
         m = med[i].m
         te, tx = ray_box(to_medium(m, o), to_medium_dir(m, d), m.bmin, m.bmax)
         if tx > te:
@@ -206,8 +211,11 @@ def in_scattering(med, p, cos_theta, counters):
     sigma_s f(cos_theta) over the media, RGB, with a counted lookup per medium present."""
     k = medium_chroma(med)
     out = (0.0, 0.0, 0.0)
+    here = media_at(med, p)
     for i in range(len(med)):
         m = med[i].m
+        if not has_medium(here, i):
+            continue
         mu = medium_extinction(med, i, p, counters)
         f = phase_eval(m.phase_kind, m.g, cos_theta)
         out = add3(out, (m.albedo[0] * (k[0] * mu) * f, m.albedo[1] * (k[1] * mu) * f,
@@ -523,7 +531,7 @@ def sample_emitters(prm, lights, med, k, p, d, rng, counters, rng_s):
         if not dist > 0.0:
             continue
         mu = extinction(med, y, math.inf, counters) if len(med) == 1 else 0.0
-        src = emission_term(med, y, mu, 1.0, (1.0, 1.0, 1.0), counters)
+        src = emission_term(med, media_at(med, y), y, mu, 1.0, (1.0, 1.0, 1.0), counters)
         if not max3(src) > 0.0 or occluded(prm, lights, p, wl, dist, -1):
             continue
         f = medium_phase_eval(med, k, dot(d, wl))

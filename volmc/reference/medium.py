@@ -20,11 +20,13 @@ structured record) plus the arrays it points to, carried together as ``MediumDat
 
   Along the test ray o = 0, d = +x the profile's x is the ray parameter t, so the closed
   forms below (``optical_depth_profile``) give exact transmittances.
-* **Extinction** is ``m.scale * density``, per world unit; ``extinction`` is the one counted
-  query every tracking technique uses (one ``C_LOOKUPS`` per call; a value above the
+* **Extinction** is ``m.scale * density``, per world unit; ``extinction_in`` (the media of a
+  segment) and ``extinction`` (the media whose box holds the point) are the one counted
+  query every technique uses (one ``C_LOOKUPS`` per medium read; a value above the
   segment's majorant is counted in ``C_OVER_MAJORANT``, never silently accepted).
 * **Majorant segments** (``m.majorant_kind``): ``majorant_iter_init`` / ``majorant_next`` walk
-  a ray segment [t0, t1] and yield (t_min, t_max, sigma_maj, sigma_min) pieces that tile it,
+  a ray segment [t0, t1] and yield (t_min, t_max, sigma_maj, sigma_min, media) pieces that
+  tile it (``media``: the set of media that cover the piece, 1 for one medium),
   with sigma_min <= extinction <= sigma_maj on each. ``MAJORANT_GLOBAL`` is one piece with
   the record's ``sigma_maj`` and ``sigma_min``; ``MAJORANT_GRID`` yields one piece per cell of
   the majorant grid crossed by the 3-D DDA (dda.py), scale times the cell's density maximum
@@ -150,29 +152,90 @@ def in_box(m, q):
             and m.bmin[2] <= q[2] <= m.bmax[2])
 
 
+@njit(cache=True, inline="always")
+def has_medium(bits, i):
+    """True if bit i (medium i) is set in ``bits``, a set of media (``media_at``,
+    ``media_near``, a segment's ``media``)."""
+    return (bits >> i) & 1 != 0
+
+
+#: The reciprocal the near test takes for a zero direction component: the largest float
+#: (FLT_MAX in the kernels), so that slab gives +-inf or 0 and never 0 * inf.
+_NEAR_INV_ZERO = float(np.finfo(np.float64).max)
+
+
+@njit(cache=True)
+def media_near(med, o, d, t_lo, t_hi):
+    """The media whose near box (``m.near_min``, ``m.near_max``: a box of the scene frame a
+    little larger than the medium's placed box, pack.near_box) the segment [t_lo, t_hi] of
+    o + t d touches, a bit per medium. A ray that misses a medium's near box misses the
+    medium, so its box test and its walk can be skipped: with many media apart, each costs
+    a ray that passes it by one cheap slab test (no transform, the direction's reciprocal
+    shared) instead of its own ray_box in its space."""
+    inv = (_NEAR_INV_ZERO if d[0] == 0.0 else 1.0 / d[0],
+           _NEAR_INV_ZERO if d[1] == 0.0 else 1.0 / d[1],
+           _NEAR_INV_ZERO if d[2] == 0.0 else 1.0 / d[2])
+    bits = 0
+    for i in range(len(med)):
+        m = med[i].m
+        t0, t1 = t_lo, t_hi
+        for a in range(3):
+            ta = (m.near_min[a] - o[a]) * inv[a]
+            tb = (m.near_max[a] - o[a]) * inv[a]
+            t0 = max(t0, min(ta, tb))
+            t1 = min(t1, max(ta, tb))
+        if t0 <= t1:
+            bits |= 1 << i
+    return bits
+
+
 @njit(cache=True)
 def medium_extinction(med, i, p, counters):
-    """Extinction of medium i alone at p (its largest channel): a counted lookup if p lies
-    in its box, else 0 without one."""
+    """Extinction of medium i alone at p (its largest channel), a counted lookup wherever p
+    is: a point a rounding outside the box reads the box's edge (lookups clamp)."""
     md = med[i]
-    q = to_medium(md.m, p)
-    if len(med) > 1 and not in_box(md.m, q):
-        return 0.0
     counters[C_LOOKUPS] += 1
-    return md.m.scale * density_at(med, i, q)
+    return md.m.scale * density_at(med, i, to_medium(md.m, p))
+
+
+@njit(cache=True)
+def extinction_in(med, media, p, sigma_maj, counters):
+    """Extinction at p (1/world unit) of the media in ``media`` (a bit per medium), summed:
+    one counted lookup each, no box tests. Tracking passes its segment's media (those whose
+    own segments cover it, ``majorant_next``), so a lookup sums exactly the media the
+    segment's majorant sums, and a medium the segment does not cover costs nothing. One
+    medium ignores ``media``. A value above the majorant sigma_maj of the segment being
+    tracked is counted."""
+    if len(med) == 1:
+        mu = medium_extinction(med, ZERO, p, counters)
+    else:
+        mu = 0.0
+        for i in range(len(med)):
+            if has_medium(media, i):
+                mu += medium_extinction(med, i, p, counters)
+    if mu > sigma_maj:
+        counters[C_OVER_MAJORANT] += 1
+    return mu
+
+
+@njit(cache=True)
+def media_at(med, p):
+    """The media whose box holds p, a bit per medium (one medium: 1)."""
+    if len(med) == 1:
+        return 1
+    bits = 0
+    for i in range(len(med)):
+        m = med[i].m
+        if in_box(m, to_medium(m, p)):
+            bits |= 1 << i
+    return bits
 
 
 @njit(cache=True)
 def extinction(med, p, sigma_maj, counters):
-    """Extinction at p (1/world unit), summed over the media: one counted lookup per medium
-    whose box holds p (one medium: one lookup); a value above the majorant sigma_maj of the
-    segment being tracked is counted too."""
-    mu = 0.0
-    for i in range(len(med)):
-        mu += medium_extinction(med, i, p, counters)
-    if mu > sigma_maj:
-        counters[C_OVER_MAJORANT] += 1
-    return mu
+    """Extinction at a point of no segment: ``extinction_in`` of every medium whose box holds
+    p (one medium: one lookup)."""
+    return extinction_in(med, media_at(med, p), p, sigma_maj, counters)
 
 
 @njit(cache=True, inline="always")
@@ -270,18 +333,20 @@ def medium_pick(med, p, rng, counters):
         return ZERO
     boxes = 0
     only = ZERO
+    bits = 0
     for i in range(n):
         m = med[i].m
         if in_box(m, to_medium(m, p)):
             boxes += 1
             only = i
+            bits |= 1 << i
     if boxes < 2:   # one box holds p (none, by rounding: medium 0): no lookup
         return only
     mu = np.empty(n)
     total = 0.0
     present = 0
     for i in range(n):
-        mu[i] = medium_extinction(med, i, p, counters)
+        mu[i] = medium_extinction(med, i, p, counters) if has_medium(bits, i) else 0.0
         total += mu[i]
         if mu[i] > 0.0:
             present += 1
@@ -376,24 +441,30 @@ def majorant_iter_init(it, med, o, d, t0, t1):
         medium_iter_init(it, med, ZERO, o, d, t0, t1)
         return
     w = ITER_STATE_SIZE + _PENDING
+    near = media_near(med, o, d, t0, t1)
     for i in range(n):
-        medium_iter_init(it[i * w:i * w + ITER_STATE_SIZE], med, i, o, d, t0, t1)
         it[i * w + ITER_STATE_SIZE] = 0.0
+        if has_medium(near, i):
+            medium_iter_init(it[i * w:i * w + ITER_STATE_SIZE], med, i, o, d, t0, t1)
+        else:   # a medium the ray passes by: its walk is over before it starts
+            it[i * w] = 1.0
     it[n * w] = t0
 
 
 @njit(cache=True, inline="always")
 def majorant_next(it, med):
-    """Next non-empty segment of the media: (ok, t_min, t_max, sigma_maj, sigma_min); ok is
-    False at the end. One medium: its own segments. Several: each medium's segments merged
-    into pieces from the nearest point at or after the merge's position where some medium
-    has a segment to the nearest point where one begins or ends, with the sums of the
-    majorants and minorants of the media whose segment covers the piece (outside its box a
-    medium adds nothing). Tracking then sees one ordinary walk, and the extinction it looks
-    up is the sum too (``extinction``)."""
+    """Next non-empty segment of the media: (ok, t_min, t_max, sigma_maj, sigma_min, media);
+    ok is False at the end. One medium: its own segments, media 1. Several: each medium's
+    segments merged into pieces from the nearest point at or after the merge's position
+    where some medium has a segment to the nearest point where one begins or ends, with the
+    sums of the majorants and minorants of the media whose segment covers the piece (outside
+    its box, or in an empty cell of its own, a medium adds nothing) and those media as
+    ``media``, a bit each. Tracking then sees one ordinary walk, and the extinction it looks
+    up is the sum over ``media`` (``extinction_in``): exactly what the majorant bounds."""
     n = len(med)
     if n == 1:
-        return medium_iter_next(it, med, ZERO)
+        ok, ta, tb, s_maj, s_min = medium_iter_next(it, med, ZERO)
+        return ok, ta, tb, s_maj, s_min, 1
     w = ITER_STATE_SIZE + _PENDING
     t = it[n * w]
     start = math.inf
@@ -413,10 +484,11 @@ def majorant_next(it, med):
         if it[b] != 0.0:
             start = min(start, max(it[b + 1], t))
     if start == math.inf:
-        return False, 0.0, 0.0, 0.0, 0.0
+        return False, 0.0, 0.0, 0.0, 0.0, 0
     end = math.inf
     s_maj = 0.0
     s_min = 0.0
+    media = 0
     for i in range(n):
         b = i * w + ITER_STATE_SIZE
         if it[b] != 0.0:
@@ -424,10 +496,11 @@ def majorant_next(it, med):
                 end = min(end, it[b + 2])
                 s_maj += it[b + 3]
                 s_min += it[b + 4]
+                media |= 1 << i
             else:
                 end = min(end, it[b + 1])
     it[n * w] = end
-    return True, start, end, s_maj, s_min
+    return True, start, end, s_maj, s_min, media
 
 
 @njit(cache=True, inline="always")
@@ -557,6 +630,7 @@ def absent_medium(like):
     m = np.zeros(1, like.m.dtype)
     m[0] = new_medium()
     m[0]["bmin"] = m[0]["bmax"] = (1e30, 1e30, 1e30)
+    m[0]["near_min"] = m[0]["near_max"] = (1e30, 1e30, 1e30)
     m[0]["chroma"] = like.m["chroma"]
     z = [np.zeros((1,) * a.ndim, a.dtype) for a in like[1:-1]]
     return MediumData(m[0], *z, like.rec)

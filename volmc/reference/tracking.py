@@ -98,9 +98,9 @@ from ..constants import (AUTO_THIN_DEPTH, EMISSION_NONE, EVENT_CAPPED, EVENT_ESC
                          TRACK_FREE_FLIGHT, TRACK_LENGTH, TRACK_NEXT_FLIGHT,
                          TRACK_RESIDUAL_RATIO)
 from ..params import C_CAPPED, C_LOOKUPS, N_COUNTERS
-from .medium import (MediumData, emitted_radiance, extinction, majorant_iter_init,
-                     majorant_next, media_emit, medium_chroma, medium_extinction, new_iter,
-                     no_field_arrays)
+from .medium import (MediumData, emitted_radiance, extinction_in, has_medium,
+                     majorant_iter_init, majorant_next, media_emit, medium_chroma,
+                     medium_extinction, new_iter, no_field_arrays)
 from .rng import rng_new, rng_next
 from .emitters import emitter_pdf
 from .sampling import mis_weight, sample_exponential
@@ -142,18 +142,19 @@ def spec_roulette(T, rng):
 
 
 @njit(cache=True)
-def emission_term(med, p, mu, s_maj, W, counters):
+def emission_term(med, media, p, mu, s_maj, W, counters):
     """What one tentative collision at p adds to the emission estimate: W sigma_a(p) Le(p) /
     sigma_maj per channel, sigma_a = (1 - albedo) x chroma x mu the absorption coefficient,
     W the weight so far. Summed over every tentative collision of a walk at rate sigma_maj
     it estimates the integral of T sigma_a Le along the ray without bias (the collision
     estimator of pbrt-v4 and Cycles). Several media: the sum of every emitting medium's
-    sigma_a Le, each from its own counted lookup (mu, the sum, does not split)."""
+    sigma_a Le, each from its own counted lookup (mu, the sum, does not split), over the
+    media in ``media`` (a bit each: the segment's, ``majorant_next``)."""
     k = medium_chroma(med)
     out = ZERO3
     for i in range(len(med)):
         m = med[i].m
-        if m.emission_kind == EMISSION_NONE:
+        if m.emission_kind == EMISSION_NONE or not has_medium(media, i):
             continue
         s = (mu if len(med) == 1 else medium_extinction(med, i, p, counters)) / s_maj
         Le = emitted_radiance(med, i, p)
@@ -267,7 +268,7 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, emis, rng, coun
     E = ZERO3
     steps = 0
     while True:
-        ok, ta, tb, s_maj, s_min = majorant_next(it, med)
+        ok, ta, tb, s_maj, s_min, media = majorant_next(it, med)
         if not ok:
             return EVENT_ESCAPE, t1, T, E
         homogeneous = s_min == s_maj
@@ -315,20 +316,20 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, emis, rng, coun
             p = madd3(o, d, t)
             if flight and spectral:
                 # Spectral tracking: the density of a homogeneous segment needs no lookup.
-                mu = s_maj if homogeneous else extinction(med, p, s_maj, counters)
+                mu = s_maj if homogeneous else extinction_in(med, media, p, s_maj, counters)
                 if hero >= 0:
                     # The hero's one-hot weights make spectral_choice the hero's delta
                     # tracking, its factors each channel's probability over the hero's.
                     W = (1.0 if hero == 0 else 0.0, 1.0 if hero == 1 else 0.0,
                          1.0 if hero == 2 else 0.0)
                     if emissive:
-                        E = add3(E, emission_term(med, p, mu, s_maj, scale3(
+                        E = add3(E, emission_term(med, media, p, mu, s_maj, scale3(
                             mis_weights(mul3(T, beta)), weight_at(weigh, emis, med, p, s_maj, t0 + t)),
                             counters))
                 else:
                     W = mul3(T, beta) if technique == TRACK_FREE_FLIGHT else T
                     if emissive:
-                        E = add3(E, emission_term(med, p, mu, s_maj, scale3(
+                        E = add3(E, emission_term(med, media, p, mu, s_maj, scale3(
                             T, weight_at(weigh, emis, med, p, s_maj, t0 + t)), counters))
                 real, f = spectral_choice(W, k, mu, s_maj, rng_next(rng))
                 if real:
@@ -349,25 +350,25 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, emis, rng, coun
                     um = rng_next(rng) * s_maj
                     real = um < control
                     if not real:
-                        mu = extinction(med, p, s_maj, counters)
+                        mu = extinction_in(med, media, p, s_maj, counters)
                         real = um < mu
                 if emissive:
                     if mu < 0.0:
-                        mu = extinction(med, p, s_maj, counters)
+                        mu = extinction_in(med, media, p, s_maj, counters)
                     w_e = weight_at(weigh, emis, med, p, s_maj, t0 + t)
-                    E = add3(E, emission_term(med, p, mu, s_maj, (w_e, w_e, w_e), counters))
+                    E = add3(E, emission_term(med, media, p, mu, s_maj, (w_e, w_e, w_e), counters))
                 if real:
                     return EVENT_SCATTER, t0 + t, ONE3 if technique == TRACK_FREE_FLIGHT \
                         else ZERO3, E
             elif technique == TRACK_NEXT_FLIGHT:
-                w = mul3(w, one_minus3(k, extinction(med, p, s_maj, counters) / s_maj))
+                w = mul3(w, one_minus3(k, extinction_in(med, media, p, s_maj, counters) / s_maj))
                 alive, w = spec_roulette(w, rng)
                 if not alive:
                     budget = -1.0   # the next segment draws afresh
                     break   # the rest of this segment adds nothing; its estimate is acc
                 acc = add3(acc, scale3(w, math.exp(-s_maj * (tb - t))))
             else:
-                T = mul3(T, one_minus3(k, (extinction(med, p, s_maj, counters) - control)
+                T = mul3(T, one_minus3(k, (extinction_in(med, media, p, s_maj, counters) - control)
                                        / rate))
                 alive, T = spec_roulette(T, rng)
                 if not alive:
