@@ -157,6 +157,28 @@ static inline int lane_count(lmask m) {
 /* Active lanes: 1 per lane of m (to add to a per-lane counter). */
 static inline lulong lane_ones(lmask m) { return to_lulong(m & 1); }
 
+/* The bitwise or of v over the lanes of m: a set every lane shares, so that code can branch
+ * on it once instead of testing a lane mask per bit (halving the vector each step). */
+static inline int lane_or(lint v, lmask m) {
+    v = select((lint)(0), v, m);
+#if LANES == 1
+    return v;
+#else
+#if LANES == 16
+    int8 v8 = v.lo | v.hi;
+#elif LANES == 8
+    int8 v8 = v;
+#endif
+#if LANES >= 8
+    int4 v4 = v8.lo | v8.hi;
+#else
+    int4 v4 = v;
+#endif
+    int2 v2 = v4.lo | v4.hi;
+    return v2.x | v2.y;
+#endif
+}
+
 /* Gathers load lane by lane. LLVM turns that loop into a vector gather instruction, which
  * on the Zen 5 of docs/lanes.md is slower than the scalar loads: volatile keeps them scalar
  * (1.07x samples/s on the default cloud at W = 16, 1.06x at W = 8, 1.10x on an fbm cloud).

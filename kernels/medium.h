@@ -187,10 +187,10 @@ static inline __attribute__((always_inline)) lfloat extinction_in(const MediumDa
     counters[C_LOOKUPS] += lane_ones(active);
 #else
     lfloat mu = (lfloat)(0.0f);
-    for (int i = 0; i < MEDIA_COUNT; ++i) {
-        lmask on = has_medium(media, i, active);
-        if (ANY(on)) mu += medium_extinction(med, i, p, counters, on);
-    }
+    int some = lane_or(media, active); /* the media some lane reads: one test per medium */
+    for (int i = 0; i < MEDIA_COUNT; ++i)
+        if ((some >> i) & 1)
+            mu += medium_extinction(med, i, p, counters, has_medium(media, i, active));
 #endif
     counters[C_OVER_MAJORANT] += lane_ones(active & (mu > sigma_maj));
     return mu;
@@ -503,12 +503,14 @@ typedef struct {
     MediumIter one[MEDIA_COUNT];
     Segment cur[MEDIA_COUNT];
     lmask has[MEDIA_COUNT];
+    lint open; /* the media whose walk may still yield a segment: a bit each */
     lfloat t; /* where the merged segments have reached */
 } MajorantIter;
 
 static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, lvec3 o, lvec3 d,
                                       lfloat t0, lfloat t1, lmask active) {
     lint near = media_near(med, o, d, t0, t1, active);
+    it->open = select(it->open, near, active);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
         it->has[i] = it->has[i] & !active;
         /* a medium near no lane's ray: its walk is over before it starts */
@@ -527,12 +529,13 @@ static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segme
                                   lmask active) {
     lfloat t = it->t;
     lfloat start = (lfloat)(FLT_MAX);
+    /* The media open in some lane asked: the others have no segment pending and their walk
+     * is over (most media, when a scene has many apart), and cost one test each. */
+    int some = lane_or(it->open, active);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
+        if (!((some >> i) & 1)) continue;
         /* A medium whose segment the merge has passed takes its next one, unless its walk
          * is over (done: no segment, or none left). */
-        /* (a medium with no segment pending and its walk over in every lane asked: nothing
-         * to do, the case of most media when a scene has many apart) */
-        if (!ANY(active & (it->has[i] | !it->one[i].done))) continue;
         lmask passed = active & !(it->has[i] & (it->cur[i].t_max > t));
         it->has[i] = it->has[i] & !passed;
         lmask need = passed & !it->one[i].done;
@@ -546,14 +549,16 @@ static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segme
             it->cur[i].sigma_min = select(it->cur[i].sigma_min, s.sigma_min, got);
             it->has[i] = select(it->has[i], got, need);
         }
+        it->open = select(it->open, it->open & (lint)(~(1 << i)),
+                          active & !it->has[i] & it->one[i].done);
         start = select(start, fmin(start, fmax(it->cur[i].t_min, t)), active & it->has[i]);
     }
     lmask found = active & (start < FLT_MAX);
     lfloat end = (lfloat)(FLT_MAX), s_maj = (lfloat)(0.0f), s_min = (lfloat)(0.0f);
     lint media = (lint)(0);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
+        if (!((some >> i) & 1)) continue;
         lmask h = found & it->has[i];
-        if (!ANY(h)) continue;
         lmask covers = h & (it->cur[i].t_min <= start);
         end = select(end, fmin(end, select(it->cur[i].t_min, it->cur[i].t_max, covers)), h);
         s_maj += select((lfloat)(0.0f), it->cur[i].sigma_maj, covers);
