@@ -9,8 +9,9 @@
  * Functions that take (med, i) are medium i's; the others (extinction_in, extinction,
  * media_at, media_near, majorant_iter_init, majorant_next, medium_chroma) are the scene's:
  * where media overlap their coefficients add, the majorant segments are the sums of each
- * medium's, and a segment's lookups read the media that cover it (Segment.media). A one-medium build compiles the
- * code it compiled before several media existed (the same image bit for bit). */
+ * medium's, and a segment's lookups read the media that cover it (Segment.media). A
+ * one-medium build compiles the code it compiled before several media existed (the same
+ * image bit for bit). */
 #ifndef VOLMC_MEDIUM_H
 #define VOLMC_MEDIUM_H
 
