@@ -80,10 +80,12 @@ static inline lvec3 enter_medium(const Medium *m, lvec3 o, lvec3 d, lfloat *t0, 
 
 /* enter_medium for the scene's media (twin in integrator.py): the segment of o + t d from
  * where it enters the first box it meets to where it leaves the last; the origin moves (and
- * snaps) onto the box it enters first. */
-static inline lvec3 enter_media(const MediumData *med, lvec3 o, lvec3 d, lfloat *t0,
-                                lfloat *t1, lfloat *shift) {
+ * snaps) onto the box it enters first. Writes the media the ray comes near (media_near,
+ * for the walk that follows: majorant_iter_init_near). */
+static inline lvec3 enter_media_near(const MediumData *med, lvec3 o, lvec3 d, lfloat *t0,
+                                     lfloat *t1, lfloat *shift, lint *near_out) {
 #if MEDIA_COUNT == 1
+    *near_out = (lint)(1);
     return enter_medium(&med->m[0], o, d, t0, t1, shift);
 #else
     /* Each box's span on the ray, and the medium met first. */
@@ -91,6 +93,7 @@ static inline lvec3 enter_media(const MediumData *med, lvec3 o, lvec3 d, lfloat 
     lfloat first = (lfloat)(FLT_MAX);
     lint j = (lint)(-1);
     lint near = media_near(med, o, d, (lfloat)(0.0f), (lfloat)(FLT_MAX), LANES_ALL);
+    *near_out = near;
     for (int i = 0; i < MEDIA_COUNT; ++i) {
         const Medium *m = &med->m[i];
         if (!ANY(has_medium(near, i, LANES_ALL))) { /* missed in every lane */
@@ -122,6 +125,12 @@ static inline lvec3 enter_media(const MediumData *med, lvec3 o, lvec3 d, lfloat 
         *t1 = select(*t1, fmax(*t1, tx[i] - *shift), (j >= 0) & (tx[i] > te[i]));
     return out;
 #endif
+}
+
+static inline lvec3 enter_media(const MediumData *med, lvec3 o, lvec3 d, lfloat *t0,
+                                lfloat *t1, lfloat *shift) {
+    lint near;
+    return enter_media_near(med, o, d, t0, t1, shift, &near);
 }
 
 /* x with the components where beta is 0 set to 0 (twin in integrator.py). */
@@ -646,7 +655,8 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
         path->pdf_hit = select(path->pdf_hit, pdf_hit, m);
         path->hit = select(path->hit, hit, m);
     }
-    lvec3 o = enter_media(med, path->o, path->d, &t0, &t1, &shift);
+    lint near;
+    lvec3 o = enter_media_near(med, path->o, path->d, &t0, &t1, &shift, &near);
     if (prm->spheres) t1 = fmin(t1, t_hit - shift);
     path->o = sel3(path->o, o, m);
     path->t0 = select(path->t0, t0, m);
@@ -690,8 +700,9 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
         emis.n = (float)prm->light_samples;
         emis.heuristic = prm->mis;
     }
-    walk_begin(wk, med, o, d, t0, t1, (lint)(TRACK_FREE_FLIGHT), lanes_if(prm->decomposition),
-               sel3(path->beta, path->R, heroic), path->hero, emis, inside);
+    walk_begin(wk, med, o, d, t0, t1, near, (lint)(TRACK_FREE_FLIGHT),
+               lanes_if(prm->decomposition), sel3(path->beta, path->R, heroic), path->hero, emis,
+               inside);
 }
 
 /* The lanes of m have ended their free flight: its weight and emission, then escape,
@@ -929,7 +940,8 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
         if (!ANY(ray)) continue;
         /* shadow_transmittance's clip, then the walk (or the estimate) of each ray. */
         lfloat t0, t1, shift;
-        lvec3 o = enter_media(med, p, wl, &t0, &t1, &shift);
+        lint near;
+        lvec3 o = enter_media_near(med, p, wl, &t0, &t1, &shift, &near);
         t1 = fmin(t1, dist - shift);
         lmask go = ray & (t1 > t0);
         shadow_add(path, spec_s((lfloat)(1.0f)), ray & !go);
@@ -938,8 +950,8 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
         counters[C_SHADOW] += lane_ones(go);
 #ifdef SHADOW_TECHNIQUE
         rng_swap(rng, rng_s, go); /* the walk loop draws from `rng` */
-        walk_begin(wk, med, o, wl, t0, t1, (lint)(SHADOW_TECHNIQUE), lanes_if(SHADOW_CONTROL),
-                   v3s(1.0f), (lint)(-1), emis_plain(), go);
+        walk_begin(wk, med, o, wl, t0, t1, near, (lint)(SHADOW_TECHNIQUE),
+                   lanes_if(SHADOW_CONTROL), v3s(1.0f), (lint)(-1), emis_plain(), go);
         path->state = select(path->state, (lint)(PATH_SHADOW), go);
         choosing = choosing & !go;
 #else

@@ -77,7 +77,6 @@ static inline lmask has_medium(lint bits, int i, lmask active) {
     return active & (((bits >> i) & 1) != 0);
 }
 
-#if MEDIA_COUNT > 1
 /* The media whose near box (params.py: a box of the scene frame a little larger than the
  * medium's placed box) the segment [t_lo, t_hi] of o + t d touches, a bit per medium in
  * each lane of `active` (twin in medium.py). A ray that misses a near box misses the medium,
@@ -89,6 +88,9 @@ static inline lmask has_medium(lint bits, int i, lmask active) {
  * FLT_MAX, a miss where the near box's margin can tell). */
 static inline lint media_near(const MediumData *med, lvec3 o, lvec3 d, lfloat t_lo,
                               lfloat t_hi, lmask active) {
+#if MEDIA_COUNT == 1
+    return (lint)(1);
+#else
     lfloat oa[3] = {o.x, o.y, o.z}, da[3] = {d.x, d.y, d.z}, inv[3];
     LANE_UNROLL for (int a = 0; a < 3; ++a)
         inv[a] = select(1.0f / da[a], (lfloat)(FLT_MAX), da[a] == 0.0f);
@@ -105,8 +107,8 @@ static inline lint media_near(const MediumData *med, lvec3 o, lvec3 d, lfloat t_
         bits = bits | select((lint)(0), (lint)(1 << i), active & (t0 <= t1));
     }
     return bits;
-}
 #endif
+}
 
 static inline lfloat profile_density(int kind, const float prof[5], lfloat x) {
     float a = prof[0], b = prof[1], c = prof[2], s = prof[3], L = prof[4];
@@ -487,8 +489,9 @@ static inline lmask medium_iter_next(MediumIter *it, const MediumData *med, int 
 #if MEDIA_COUNT == 1
 typedef MediumIter MajorantIter;
 
-static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, lvec3 o, lvec3 d,
-                                      lfloat t0, lfloat t1, lmask active) {
+static inline void majorant_iter_init_near(MajorantIter *it, const MediumData *med, lvec3 o,
+                                           lvec3 d, lfloat t0, lfloat t1, lint near,
+                                           lmask active) {
     medium_iter_init(it, med, 0, o, d, t0, t1, active);
 }
 
@@ -508,9 +511,10 @@ typedef struct {
     lfloat t; /* where the merged segments have reached */
 } MajorantIter;
 
-static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, lvec3 o, lvec3 d,
-                                      lfloat t0, lfloat t1, lmask active) {
-    lint near = media_near(med, o, d, t0, t1, active);
+/* near: media_near of the segment, or a superset (a medium outside it starts no walk). */
+static inline void majorant_iter_init_near(MajorantIter *it, const MediumData *med, lvec3 o,
+                                           lvec3 d, lfloat t0, lfloat t1, lint near,
+                                           lmask active) {
     it->open = select(it->open, near, active);
     for (int i = 0; i < MEDIA_COUNT; ++i) {
         it->has[i] = it->has[i] & !active;
@@ -575,5 +579,12 @@ static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segme
     return found;
 }
 #endif
+
+/* Starts the walk of o + t d over [t0, t1] through the media (twin in medium.py). */
+static inline void majorant_iter_init(MajorantIter *it, const MediumData *med, lvec3 o, lvec3 d,
+                                      lfloat t0, lfloat t1, lmask active) {
+    majorant_iter_init_near(it, med, o, d, t0, t1, media_near(med, o, d, t0, t1, active),
+                            active);
+}
 
 #endif

@@ -171,10 +171,11 @@ typedef struct {
 
 /* Starts a walk of o + t d over [t0, t1] in the active lanes, with technique tech (per lane)
  * and, for free flight and track length, use_control (decomposition tracking: the minorant
- * decides where it covers the majorant). */
+ * decides where it covers the majorant); near: media_near of the segment (or a superset, as
+ * enter_media_near gives it for the whole ray). */
 static inline void walk_begin(Walk *wk, const MediumData *med, lvec3 o, lvec3 d, lfloat t0,
-                              lfloat t1, lint tech, lmask use_control, lvec3 beta, lint hero,
-                              EmisMis emis, lmask active) {
+                              lfloat t1, lint near, lint tech, lmask use_control, lvec3 beta,
+                              lint hero, EmisMis emis, lmask active) {
     wk->o = sel3(wk->o, madd3(o, d, t0), active);
     wk->d = sel3(wk->d, d, active);
     wk->t0 = select(wk->t0, t0, active);
@@ -192,7 +193,7 @@ static inline void walk_begin(Walk *wk, const MediumData *med, lvec3 o, lvec3 d,
             wk->emis.heuristic = emis.heuristic;
         }
     }
-    majorant_iter_init(&wk->it, med, wk->o, d, (lfloat)(0.0f), t1 - t0, active);
+    majorant_iter_init_near(&wk->it, med, wk->o, d, (lfloat)(0.0f), t1 - t0, near, active);
     wk->in_seg = wk->in_seg & !active;
     wk->budget = select(wk->budget, (lfloat)(-1.0f), active);
     wk->steps = select(wk->steps, (lint)(0), active);
@@ -444,8 +445,8 @@ static inline __attribute__((always_inline)) lint track(
     Walk wk;
     wk.live = (lmask)(0);
     wk.in_seg = (lmask)(0);
-    walk_begin(&wk, med, o, d, t0, t1, (lint)(technique), lanes_if(use_control), beta, hero,
-               emis, active);
+    walk_begin(&wk, med, o, d, t0, t1, media_near(med, o, d, t0, t1, active), (lint)(technique),
+               lanes_if(use_control), beta, hero, emis, active);
     while (ANY(wk.live)) walk_step(&wk, med, TRACK_BIT(technique), rng, counters, max_steps);
     *t_out = wk.t_end;
     *T_out = wk.T;

@@ -151,12 +151,15 @@ def enter_medium(m, o, d):
 
 
 @njit(cache=True, inline="always")
-def enter_media(med, o, d):
-    """enter_medium for the scene's media: (origin, t0, t1, shift) of the segment of
+def enter_media_near(med, o, d):
+    """enter_medium for the scene's media: (origin, t0, t1, shift, near) of the segment of
     o + t d from where it enters the first box it meets to where it leaves the last; the
-    origin moves (and snaps) onto the box it enters first, as enter_medium moves it."""
+    origin moves (and snaps) onto the box it enters first, as enter_medium moves it. near:
+    the media the ray comes near (media_near of the whole ray), for the walk that follows
+    (majorant_iter_init_near)."""
     if len(med) == 1:
-        return enter_medium(med[0].m, o, d)
+        o2, t0, t1, shift = enter_medium(med[0].m, o, d)
+        return o2, t0, t1, shift, 1
     first = math.inf
     j = -1
     near = media_near(med, o, d, 0.0, math.inf)
@@ -173,7 +176,7 @@ def enter_media(med, o, d):
         if i == j:
             o2, t0, _, shift = enter_medium(med[i].m, o, d)
     if j < 0:
-        return o2, t0, t1, shift
+        return o2, t0, t1, shift, near
     for i in range(len(med)):
         if not has_medium(near, i):
             continue
@@ -181,6 +184,13 @@ def enter_media(med, o, d):
         te, tx = ray_box(to_medium(m, o), to_medium_dir(m, d), m.bmin, m.bmax)
         if tx > te:
             t1 = max(t1, tx - shift)
+    return o2, t0, t1, shift, near
+
+
+@njit(cache=True, inline="always")
+def enter_media(med, o, d):
+    """enter_media_near without the near set: (origin, t0, t1, shift)."""
+    o2, t0, t1, shift, _ = enter_media_near(med, o, d)
     return o2, t0, t1, shift
 
 

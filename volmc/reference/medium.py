@@ -436,12 +436,20 @@ def new_iter(med):
 def majorant_iter_init(it, med, o, d, t0, t1):
     """Start walking the majorant segments of ray o + t d over [t0, t1] through every medium
     (state ``it``: ``new_iter(med)``)."""
+    majorant_iter_init_near(it, med, o, d, t0, t1,
+                            1 if len(med) == 1 else media_near(med, o, d, t0, t1))
+
+
+@njit(cache=True, inline="always")
+def majorant_iter_init_near(it, med, o, d, t0, t1, near):
+    """majorant_iter_init given the media the segment comes near (``media_near``, or a
+    superset: enter_media_near's, of the whole ray); a medium outside ``near`` starts no
+    walk."""
     n = len(med)
     if n == 1:
         medium_iter_init(it, med, ZERO, o, d, t0, t1)
         return
     w = ITER_STATE_SIZE + _PENDING
-    near = media_near(med, o, d, t0, t1)
     for i in range(n):
         it[i * w + ITER_STATE_SIZE] = 0.0
         if has_medium(near, i):
