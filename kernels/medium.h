@@ -314,14 +314,10 @@ static inline lint medium_pick(const MediumData *med, lvec3 p, Rng *rng, lulong 
     return (lint)(0);
 #else
     /* A point in one box alone: that medium, without a lookup. */
-    lint boxes = (lint)(0), only = (lint)(0), bits = (lint)(0);
-    for (int i = 0; i < MEDIA_COUNT; ++i) {
-        lmask in = in_box(&med->m[i], to_medium(&med->m[i], p), active);
-        boxes = boxes + (in & 1);
-        only = select(only, (lint)(i), in);
-        bits = bits | select((lint)(0), (lint)(1 << i), in);
-    }
-    active = active & (boxes >= 2);
+    lint bits = media_at(med, p, active), only = (lint)(0);
+    for (int i = 0; i < MEDIA_COUNT; ++i)
+        only = select(only, (lint)(i), has_medium(bits, i, active));
+    active = active & (popcount(bits) >= 2);
     if (!ANY(active)) return only;
     lfloat mu[MEDIA_COUNT];
     lfloat total = (lfloat)(0.0f);

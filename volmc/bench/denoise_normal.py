@@ -79,5 +79,6 @@ def main(argv=None):
         b = rmse(denoise(img.image, img.albedo, normal=normal))
         print(f"{spp} | {rmse(img.image):.4g} | {a:.4g} | {b:.4g} | {b / a:.3f}")
 
+
 if __name__ == "__main__":
     main()

@@ -171,7 +171,10 @@ def media_near(med, o, d, t_lo, t_hi):
     o + t d touches, a bit per medium. A ray that misses a medium's near box misses the
     medium, so its box test and its walk can be skipped: with many media apart, each costs
     a ray that passes it by one cheap slab test (no transform, the direction's reciprocal
-    shared) instead of its own ray_box in its space."""
+    shared) instead of its own ray_box in its space. One medium: 1, as in the kernels, whose
+    one-medium build has no near test."""
+    if len(med) == 1:
+        return 1
     inv = (_NEAR_INV_ZERO if d[0] == 0.0 else 1.0 / d[0],
            _NEAR_INV_ZERO if d[1] == 0.0 else 1.0 / d[1],
            _NEAR_INV_ZERO if d[2] == 0.0 else 1.0 / d[2])
@@ -331,15 +334,13 @@ def medium_pick(med, p, rng, counters):
     n = len(med)
     if n == 1:
         return ZERO
+    bits = media_at(med, p)
     boxes = 0
     only = ZERO
-    bits = 0
     for i in range(n):
-        m = med[i].m
-        if in_box(m, to_medium(m, p)):
+        if has_medium(bits, i):
             boxes += 1
             only = i
-            bits |= 1 << i
     if boxes < 2:   # one box holds p (none, by rounding: medium 0): no lookup
         return only
     mu = np.empty(n)
@@ -436,8 +437,7 @@ def new_iter(med):
 def majorant_iter_init(it, med, o, d, t0, t1):
     """Start walking the majorant segments of ray o + t d over [t0, t1] through every medium
     (state ``it``: ``new_iter(med)``)."""
-    majorant_iter_init_near(it, med, o, d, t0, t1,
-                            1 if len(med) == 1 else media_near(med, o, d, t0, t1))
+    majorant_iter_init_near(it, med, o, d, t0, t1, media_near(med, o, d, t0, t1))
 
 
 @njit(cache=True, inline="always")
