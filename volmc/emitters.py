@@ -45,7 +45,7 @@ MAX_LATTICE = 160
 SUPPORT_SHARE = 0.01
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _push(i, scaled, small, large, ns, nl):
     """Cell i onto the stack of cells below (small) or at least (large) the mean weight;
     returns the stacks' new sizes."""

@@ -177,7 +177,7 @@ def jackknife_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
             jackknife_channel(xs, k[2]))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def jackknife_channel(xs, k):
     """The jackknife estimate of one channel, whose combs are k xs (k its chroma)."""
     g = JACKKNIFE_GROUPS
@@ -197,7 +197,7 @@ def jackknife_channel(xs, k):
     return est
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def finite_or_zero3(v):
     """Each channel of v, or 0 where it is not finite (absurd optical depths)."""
     return (v[0] if finite_bits(v[0]) else 0.0, v[1] if finite_bits(v[1]) else 0.0,

@@ -20,7 +20,7 @@ from numba import njit
 from .medium import in_box, to_medium
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def emitter_cell(m, q):
     """Cell index of point q (medium space) in medium m's distribution, clamped into it."""
     cx, cy, cz = m.emitter_res[0], m.emitter_res[1], m.emitter_res[2]

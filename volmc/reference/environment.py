@@ -76,7 +76,7 @@ def environment_distribution(texels, compensate=False, real=np.float64):
                   np.ascontiguousarray(marginal, real), np.ascontiguousarray(conditional, real))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def env_direction(u, v):
     """The map-frame direction of texture coordinates (u, v)."""
     phi = TWO_PI * u
@@ -85,7 +85,7 @@ def env_direction(u, v):
     return (math.sin(phi) * s, math.cos(theta), -math.cos(phi) * s)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def env_uv(w):
     """Texture coordinates (u, v) in [0, 1] of map-frame unit direction w (inverse of
     env_direction; at the poles u is 0)."""
@@ -96,7 +96,7 @@ def env_uv(w):
     return phi / TWO_PI, v
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def env_to_map(prm, w):
     """Scene direction w in the map's frame (prm.env_rot)."""
     r = prm.env_rot
@@ -104,7 +104,7 @@ def env_to_map(prm, w):
             r[6] * w[0] + r[7] * w[1] + r[8] * w[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def env_from_map(prm, m):
     """Map-frame direction m in the scene (the transpose of prm.env_rot)."""
     r = prm.env_rot
@@ -112,7 +112,7 @@ def env_from_map(prm, m):
             r[2] * m[0] + r[5] * m[1] + r[8] * m[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def env_texel(env, u, v):
     """(row, column) of the texel holding (u, v); coordinates at 1 go to the last (clamped on
     both sides, as the kernels' lanes need)."""
@@ -129,7 +129,7 @@ def env_radiance(prm, env, w):
     return (prm.env[0] * t[0], prm.env[1] * t[1], prm.env[2] * t[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def cdf_find(cdf, x):
     """The largest i in [0, len(cdf) - 2] with cdf[i] <= x, by bisection: for a CDF that
     starts at 0 and ends at 1 and x in [0, 1), the interval [cdf[i], cdf[i + 1]) holding x,

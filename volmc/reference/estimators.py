@@ -71,7 +71,7 @@ def biased_raymarch_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_st
                     optical_depth_comb(med, o, d, t0, L, n, rng_next(rng), mbar, counters))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def segment_estimate(kind, med, o, d, t0, t1, s_maj, s_min, rng, counters, max_steps):
     """One per-segment estimate of kind SEGMENT_* over [t0, t1] with bounds s_maj, s_min:
     RGB (the power series' grey estimate in every channel)."""
@@ -92,7 +92,7 @@ def segment_estimate(kind, med, o, d, t0, t1, s_maj, s_min, rng, counters, max_s
     return exp_neg3(medium_chroma(med), s_maj * (t1 - t0))   # SEGMENT_ANALYTIC
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def segment_roulette(T, rng):
     """``transmittance_roulette`` on an RGB weight by its largest |channel| a (the decision
     and the random numbers of the grey roulette on a): a survivor's channels are scaled by
@@ -140,7 +140,7 @@ def transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps):
                                      max_steps)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, technique):
     """The transmittance estimate of the tracking loop with ``technique``. Track length uses
     each segment's minorant as control (decomposition tracking): the same 0/1 decisions as
@@ -183,7 +183,7 @@ def transmittance_next_flight(med, o, d, t0, t1, rng, counters, max_steps):
     return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_NEXT_FLIGHT)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def auto_alone_kind(med):
     """The per-segment estimator ``transmittance_auto`` runs on every varying segment:
     unbiased ray marching in a grey medium, telescoping in a colour-dependent one (the power

@@ -96,7 +96,7 @@ from .vec import add3, div3, madd3, max3, mul3, scale3
 ZERO3 = (0.0, 0.0, 0.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def enter_box(o, d, bmin, bmax):
     """Guard "entry re-basing" (robustness case 10, 11, 13): clip ray o + t d to the box and, when
     the box is entered from outside (t_enter > 0), move the origin to the entry point, snapped
@@ -134,7 +134,7 @@ def enter_box(o, d, bmin, bmax):
     return p, 0.0, t1, te
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def enter_medium(m, o, d):
     """enter_box for the medium's box, in its own space (to_medium): (origin, t0, t1, shift)
     as enter_box returns them, with the origin in the scene frame. A placed medium's origin
@@ -150,7 +150,7 @@ def enter_medium(m, o, d):
     return o, t0, t1, shift
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def enter_media_near(med, o, d):
     """enter_medium for the scene's media: (origin, t0, t1, shift, near) of the segment of
     o + t d from where it enters the first box it meets to where it leaves the last; the
@@ -187,35 +187,35 @@ def enter_media_near(med, o, d):
     return o2, t0, t1, shift, near
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def enter_media(med, o, d):
     """enter_media_near without the near set: (origin, t0, t1, shift)."""
     o2, t0, t1, shift, _ = enter_media_near(med, o, d)
     return o2, t0, t1, shift
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def medium_albedo(med, i):
     """Medium i's single-scattering albedo, RGB."""
     a = med[i].m.albedo
     return (a[0], a[1], a[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def medium_phase_eval(med, i, cos_theta):
     """Medium i's phase function at cos_theta."""
     m = med[i].m
     return phase_eval(m.phase_kind, m.g, cos_theta)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def medium_phase_sample(med, i, u1, u2, d_in):
     """A direction from medium i's phase function about d_in, and its pdf."""
     m = med[i].m
     return phase_sample(m.phase_kind, m.g, u1, u2, d_in)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def in_scattering(med, p, cos_theta, counters):
     """Light scattered at p towards cos_theta off the ray by every medium there: the sum of
     sigma_s f(cos_theta) over the media, RGB, with a counted lookup per medium present."""
@@ -233,7 +233,7 @@ def in_scattering(med, p, cos_theta, counters):
     return out
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def keep_carried(beta, x):
     """x with the components where beta is 0 set to 0 (RGB)."""
     return (x[0] if beta[0] != 0.0 else 0.0, x[1] if beta[1] != 0.0 else 0.0,
@@ -257,7 +257,7 @@ def shadow_transmittance(prm, med, o, d, t_max, view, rng_s, counters):
                          t1, rng_s, counters, prm.max_steps)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def bounce_pair(b, offset):
     """The sample pair ``offset`` (SAMPLER_FLIGHT, ...) of bounce b, or -1 past
     SAMPLER_BOUNCES (those bounces use the counter RNG)."""
@@ -275,7 +275,7 @@ def path_pair_u24(prm, pix, s, pair, j, count):
                         (s * count + j) & 0xFFFFFFFF, pair, (prm.spp * count) & 0xFFFFFFFF)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def path_u2(prm, pix, s, pair, j, count, rng):
     """Two uniforms of pair ``pair`` (see path_pair_u24): from the counter RNG when the
     sampler is independent or pair < 0."""
@@ -286,7 +286,7 @@ def path_u2(prm, pix, s, pair, j, count, rng):
     return float(a) * UNIFORM_SCALE, float(b) * UNIFORM_SCALE
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def path_u1(prm, pix, s, pair, axis, j, count, rng):
     """One uniform: coordinate ``axis`` (0: x, 1: y) of pair ``pair``, or one draw of the
     counter RNG."""
@@ -296,7 +296,7 @@ def path_u1(prm, pix, s, pair, axis, j, count, rng):
     return float(b if axis == 1 else a) * UNIFORM_SCALE
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def equiangular_mode(prm, med):
     """EQUIANGULAR_OFF, _ALONE or _MIS for the scene (see the constants): MIS needs free
     flight's density in closed form, so one homogeneous grey medium."""
@@ -308,7 +308,7 @@ def equiangular_mode(prm, med):
     return EQUIANGULAR_ALONE
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def direction_to(p, c):
     """(unit direction from p to c, distance |c - p|); the distance is 0 when p = c."""
     v = (c[0] - p[0], c[1] - p[1], c[2] - p[2])
@@ -318,7 +318,7 @@ def direction_to(p, c):
     return (v[0] / dist, v[1] / dist, v[2] / dist), dist
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def foot_on_ray(c, o, d):
     """(h, D): ray parameter of point c's foot on the ray o + t d (unit d), and c's distance
     from the ray's line (world units)."""
@@ -328,7 +328,7 @@ def foot_on_ray(c, o, d):
     return h, math.sqrt(dot(w, w))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def free_flight_pdf(m, t0, t):
     """Density of free flight's first real collision at t in a homogeneous grey medium
     entered at t0: sigma e^{-sigma (t - t0)} per world unit."""
@@ -336,7 +336,7 @@ def free_flight_pdf(m, t0, t):
     return s * math.exp(-s * (t - t0))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t):
     """MIS weight of next-event estimation towards point light c at the free-flight vertex
     o + t d of segment [t0, t1]: 1 without equiangular sampling, and also when c lies on the
@@ -352,7 +352,7 @@ def point_light_nee_weight(prm, m, ea, c, o, d, t0, t1, t):
     return mis_weight(prm.mis, free_flight_pdf(m, t0, t), equiangular_pdf(t, h, D, t0, t1))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def light_ray(prm, m, ea, lt, o, d, t0, t1, t):
     """The ray of next-event estimation towards delta light lt (a parallel directional
     light, a point or a spot) from the vertex p = o + t d of segment [t0, t1]. Returns (wl,
@@ -372,7 +372,7 @@ def light_ray(prm, m, ea, lt, o, d, t0, t1, t):
     return wl, dist, f
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def light_point(prm, i, j):
     """(index, count) for path_u2 of the j-th of the N = render.light_samples directions
     light i samples (i = n_lights: the environment) from the light pair: the environment's
@@ -384,7 +384,7 @@ def light_point(prm, i, j):
     return i * n + j, (prm.n_lights + 1) * n
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def occluded(prm, lights, p, w, dist, target):
     """True when a sphere light other than ``target`` (-1: none) blocks the ray from p along
     w before distance dist (inf: the sky)."""
@@ -394,7 +394,7 @@ def occluded(prm, lights, p, w, dist, target):
     return i >= 0 and i != target and t < dist
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def escape_weight(prm, depth, pdf_phase, n_pdf_light):
     """Weight of light a ray sees where light sampling could also have found it: 1 for a
     camera ray (0 for the sky with render.transparent_background), the heuristic
@@ -609,7 +609,7 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
     return L
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def survival_probability(prm, beta_w, albedo):
     """Russian roulette's survival probability q (render.rr): the largest channel of the
     throughput ("throughput"), or of the throughput the path will carry after its next

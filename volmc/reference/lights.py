@@ -29,21 +29,21 @@ from ..constants import INV_4PI, LIGHT_DIRECTIONAL, LIGHT_SPHERE, PI
 from .sampling import cone_pdf, dot, sample_cone, sample_uniform_sphere
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def is_area_light(lt):
     """True for a light next-event estimation samples a direction of: a sun disc or a
     sphere (their shadow rays take uniforms; delta lights take none)."""
     return lt.type == LIGHT_SPHERE or (lt.type == LIGHT_DIRECTIONAL and lt.size > 0.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sun_radiance(lt):
     """Radiance of sun disc lt per unit of its irradiance: 1 / (pi omc (2 - omc))."""
     omc = lt.size
     return 1.0 / (PI * omc * (2.0 - omc))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def spot_falloff(lt, wl):
     """Spot lt's intensity factor towards a point that sees it in unit direction wl:
     smoothstep of cos theta = -wl . axis between cos(angle) (0) and ``inner`` (1)."""
@@ -56,7 +56,7 @@ def spot_falloff(lt, wl):
     return x * x * (3.0 - 2.0 * x)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sphere_hit(lt, o, d):
     """Distance t > 0 along the ray o + t d (unit d) where it first meets sphere light lt;
     inf if it does not. The discriminant is r^2 - |v - (v.d) d|^2 (v = o - c), which keeps
@@ -78,7 +78,7 @@ def sphere_hit(lt, o, d):
     return t if t > 0.0 else math.inf
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sphere_cone(lt, p):
     """(axis, omc, inside) of sphere light lt seen from p: the unit direction to its centre
     and 1 - cos theta_max of the cone it fills, written s2 / (1 + sqrt(1 - s2)) with

@@ -86,7 +86,7 @@ ZERO = np.intp(0)
 ITER_STATE_SIZE = 4 + max(DDA_STATE_SIZE, OCTREE_STATE_SIZE)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def profile_density(kind, prof, x):
     """Density of a 1-D test profile at coordinate x (parameters prof = a, b, c, s, L)."""
     a, b, c, s, L = prof[0], prof[1], prof[2], prof[3], prof[4]
@@ -101,7 +101,7 @@ def profile_density(kind, prof, x):
     return a * (1.0 + b * math.cos(TWO_PI * c * x / L + s))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def to_medium(m, p):
     """Point p of the scene frame in the medium's own space, where its box, grids and
     majorants live: p itself unless a transform places the medium (``m.transformed``; the
@@ -114,7 +114,7 @@ def to_medium(m, p):
             x[8] * p[0] + x[9] * p[1] + x[10] * p[2] + x[11])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def to_medium_dir(m, d):
     """Direction d of the scene frame in the medium's space, not renormalised: o + t d maps
     to to_medium(o) + t to_medium_dir(d), so t stays a distance of the scene frame and
@@ -127,7 +127,7 @@ def to_medium_dir(m, d):
             x[8] * d[0] + x[9] * d[1] + x[10] * d[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def density_at(med, i, q):
     """Density of medium i at q, a point of its own space (no box test)."""
     md = med[i]
@@ -145,14 +145,14 @@ def density_at(med, i, q):
     return profile_density(kind, m.profile, q[0])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def in_box(m, q):
     """True if q (the medium's space) lies in the medium's box, faces included."""
     return (m.bmin[0] <= q[0] <= m.bmax[0] and m.bmin[1] <= q[1] <= m.bmax[1]
             and m.bmin[2] <= q[2] <= m.bmax[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def has_medium(bits, i):
     """True if bit i (medium i) is set in ``bits``, a set of media (``media_at``,
     ``media_near``, a segment's ``media``)."""
@@ -241,7 +241,7 @@ def extinction(med, p, sigma_maj, counters):
     return extinction_in(med, media_at(med, p), p, sigma_maj, counters)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def medium_chroma(med):
     """Extinction per channel relative to ``extinction`` (the largest channel's): RGB. Several
     media share it (schema.py requires it)."""
@@ -272,7 +272,7 @@ def emitted_radiance(med, i, p):
             e[2] * (tb[i0, 2] * (1.0 - w) + tb[i0 + 1, 2] * w))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def majorant_cell(q, bmin, inv_extent, n):
     """The cell, of n along this axis, that coordinate q of the medium's space falls in."""
     return min(max(int(math.floor((q - bmin) * inv_extent * n)), 0), n - 1)
@@ -314,7 +314,7 @@ def majorant_at(med, p):
     return s
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def media_emit(med):
     """True if some medium emits."""
     for i in range(len(med)):
@@ -421,26 +421,26 @@ def medium_iter_next(it, med, i):
 _PENDING = 5
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def iter_state_size(n):
     """Floats of the state of majorant_iter_init / majorant_next for n media."""
     return ITER_STATE_SIZE if n == 1 else n * (ITER_STATE_SIZE + _PENDING) + 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def new_iter(med):
     """An uninitialised iterator state for the media ``med``."""
     return np.empty(iter_state_size(len(med)))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def majorant_iter_init(it, med, o, d, t0, t1):
     """Start walking the majorant segments of ray o + t d over [t0, t1] through every medium
     (state ``it``: ``new_iter(med)``)."""
     majorant_iter_init_near(it, med, o, d, t0, t1, media_near(med, o, d, t0, t1))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def majorant_iter_init_near(it, med, o, d, t0, t1, near):
     """majorant_iter_init given the media the segment comes near (``media_near``, or a
     superset: enter_media_near's, of the whole ray); a medium outside ``near`` starts no
@@ -459,7 +459,7 @@ def majorant_iter_init_near(it, med, o, d, t0, t1, near):
     it[n * w] = t0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def majorant_next(it, med):
     """Next non-empty segment of the media: (ok, t_min, t_max, sigma_maj, sigma_min, media);
     ok is False at the end. One medium: its own segments, media 1. Several: each medium's
@@ -511,7 +511,7 @@ def majorant_next(it, med):
     return True, start, end, s_maj, s_min, media
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def comb_count(x):
     """The points of a comb asked for x of them: ceil(x), at least 1, and at most
     COMB_COUNT_LIMIT (the largest float32 below 2^31: float-to-int conversion past it is
@@ -519,7 +519,7 @@ def comb_count(x):
     return max(1, int(math.ceil(min(x, COMB_COUNT_LIMIT))))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def optical_depth_comb(med, o, d, t0, L, n, u, sigma_maj, counters):
     """Jittered equidistant estimate of the optical depth over [t0, t0 + L] along o + t d:
     (L / n) sum_j mu(t0 + (j + u) L / n), n counted lookups. Unbiased for any n, and exact
@@ -532,7 +532,7 @@ def optical_depth_comb(med, o, d, t0, L, n, u, sigma_maj, counters):
     return s * h
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def segment_degenerate(L, mbar, counters, max_steps, min_steps):
     """True if a per-segment estimator returns 1 without a lookup: an empty segment (L or
     mbar not > 0), or max_steps below the min_steps it needs (counted in C_CAPPED)."""
@@ -544,7 +544,7 @@ def segment_degenerate(L, mbar, counters, max_steps, min_steps):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def ray_box(o, d, bmin, bmax):
     """Slab test of ray o + t d against the box. Returns (t_enter, t_exit); no hit when
     t_enter >= t_exit. Axis-parallel rays (d component 0 or -0) are handled without 0 * inf."""
@@ -565,7 +565,7 @@ def ray_box(o, d, bmin, bmax):
     return t0, t1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def record_segment(med, o, d, t0, t1, kind):
     """Append the transmittance segment (o, d, t0, t1) of kind ``kind`` (RECORD_CAMERA,
     RECORD_SHADOW) to the pixel's record ``med.rec`` [K + 1, 9]: row 0 holds the count so far

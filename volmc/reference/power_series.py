@@ -75,7 +75,7 @@ def cmf_deterministic_terms(lam, limit):
     return q + 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def urm_order_ratio(k):
     """P(N >= k) / P(N >= k - 1) of the aggressive roulette, k >= 1: 1 - p_Z to leave order 0,
     then 1 up to order K, then min(1, c / k). Sampling and weights both use it."""

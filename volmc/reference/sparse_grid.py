@@ -72,7 +72,7 @@ from .majorant import influence_ranges
 BRICK = 8
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sparse_lookup(table, pool, dims, bmin, inv_extent, p):
     """Trilinearly interpolated density at world point p in a brick grid (no scale applied):
     the value grid_lookup gives on the dense grid, bit for bit.

@@ -110,7 +110,7 @@ ZERO3 = (0.0, 0.0, 0.0)
 ONE3 = (1.0, 1.0, 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def transmittance_roulette(T, rng):
     """Russian roulette on a running transmittance weight. Returns (alive, T).
 
@@ -127,7 +127,7 @@ def transmittance_roulette(T, rng):
     return True, TR_RR_THRESHOLD if T > 0.0 else -TR_RR_THRESHOLD
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def spec_roulette(T, rng):
     """``transmittance_roulette`` on an RGB weight, by its largest |component| a: below the
     threshold the walk survives with probability a / TR_RR_THRESHOLD and every component is
@@ -168,7 +168,7 @@ def emission_term(med, media, p, mu, s_maj, W, counters):
 EMIS_PLAIN = (-1.0, 0.0, 0.0, 0.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def emission_weight(emis, med, p, s_maj, dist):
     """MIS weight of the emission a free flight gathers at a tentative collision p against
     emission sampling (render.emission_sampling; integrator.py ``sample_emitters``).
@@ -196,7 +196,7 @@ def emission_weight(emis, med, p, s_maj, dist):
     return mis_weight(int(emis[3]), emis[0] * s_maj / (dist * dist), pl)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def spectral_choice(W, k, mu, s_maj, u):
     """Spectral tracking's choice at a tentative collision (Kutz et al. 2017, the
     history-aware maximum rule): with weights W (RGB), per-channel extinction k mu and null
@@ -217,7 +217,7 @@ def spectral_choice(W, k, mu, s_maj, u):
     return False, scale3(n, (a + b) / (s_maj * b))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def mis_weights(R):
     """Hero MIS: R (RGB) holds each channel's probability of the path's decisions relative
     to any common factor; the balance heuristic over the three channels as hero (each chosen
@@ -228,7 +228,7 @@ def mis_weights(R):
     return (R[0] / s, R[1] / s, R[2] / s)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def auto_segment_technique(s_maj, s_min, L):
     """The technique ``TRACK_AUTO`` uses on one majorant segment of extinction bounds
     [s_min, s_maj] (1/unit) and length L (units): residual ratio tracking if the segment's
@@ -386,7 +386,7 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, emis, rng, coun
             T = mul3(T, acc)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def weight_at(weigh, emis, med, p, s_maj, t):
     """``emission_weight`` at distance t of a walk from o (1 when not weighing); the vertex
     lies emis[1] before o."""
