@@ -133,7 +133,7 @@ def test_sigkill_after_a_checkpoint_then_resume(tmp_path):
     seed or scene key fails with one line and exit status 2, before rendering."""
     scene = str(default_scene())
     common = [scene, "-D", "medium.density.resolution=32", "-D", "camera.resolution=[48, 40]",
-              "--spp", "6000", "--quiet"]
+              "--spp", "2000", "--quiet"]
     ck = tmp_path / "ck.npz"
     p = _cli(["render", *common, "-o", "killed.exr", "--checkpoint", str(ck),
               "--checkpoint-every", "0"], tmp_path)
@@ -146,7 +146,7 @@ def test_sigkill_after_a_checkpoint_then_resume(tmp_path):
     p.send_signal(signal.SIGKILL)
     p.wait()
     done = _header(ck)["spp"]
-    assert 64 <= done < 6000, done   # killed mid-render, after some checkpoints
+    assert 64 <= done < 2000, done   # killed mid-render, after some checkpoints
     assert not (tmp_path / "killed.exr").exists()
     r = _cli(["render", *common, "-o", "resumed.exr", "--resume", str(ck)], tmp_path)
     assert r.wait() == 0, r.stderr.read()
@@ -154,7 +154,7 @@ def test_sigkill_after_a_checkpoint_then_resume(tmp_path):
     assert u.wait() == 0, u.stderr.read()
     a, meta = read_exr(tmp_path / "resumed.exr")
     b, _ = read_exr(tmp_path / "whole.exr")
-    assert meta["spp"] == 6000
+    assert meta["spp"] == 2000
     np.testing.assert_array_equal(a, b)
     for extra, word in [(["--seed", "3"], "seed"), (["-D", "medium.albedo=0.5"], "scene")]:
         bad = _cli(["render", *common, *extra, "-o", "bad.exr", "--resume", str(ck)], tmp_path)
