@@ -52,6 +52,11 @@ from .rng import rng_new, rng_next
 from .tracking import EMIS_PLAIN, ONE3, track, transmittance_roulette
 from .vec import exp_neg3, madd3, max3, mul3
 
+# The estimators pass their technique as int(TRACK_*) and int(SEGMENT_*): Numba types a global
+# constant as a literal and compiles a callee once per literal value it is called with, so
+# track, tracked_transmittance, transmittance_by_segments and segment_estimate compiled 5 to
+# 7 times each; as plain integers they compile once and branch at run time.
+
 
 @njit(cache=True)
 def biased_raymarch_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps):
@@ -136,7 +141,7 @@ def transmittance_by_segments(med, o, d, t0, t1, kind, rng, counters, max_steps)
 def transmittance_analytic(med, o, d, t0, t1, rng, counters, max_steps):
     """exp(-sigma_maj L) on every segment: exact where the segments are homogeneous
     (sigma_maj is the extinction there), no lookups; not an estimator for varying media."""
-    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_ANALYTIC, rng, counters,
+    return transmittance_by_segments(med, o, d, t0, t1, int(SEGMENT_ANALYTIC), rng, counters,
                                      max_steps)
 
 
@@ -155,7 +160,7 @@ def transmittance_track_length(med, o, d, t0, t1, rng, counters, max_steps):
     """Track-length estimator: the free-flight walk (decomposition tracking, the same decisions
     as delta tracking), 1 if it escapes past t1, 0 at its first real collision; homogeneous
     segments contribute exp(-sigma L). Variance at most T (1 - T)."""
-    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_LENGTH)
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, int(TRACK_LENGTH))
 
 
 @njit(cache=True)
@@ -163,7 +168,7 @@ def transmittance_ratio_tracking(med, o, d, t0, t1, rng, counters, max_steps):
     """Ratio tracking: T = prod (1 - mu(x_i) / sigma_maj) over tentative collisions at each
     segment's majorant rate. Mean lookups = majorant optical depth (less with roulette).
     Homogeneous variance (extinction s, majorant m, length L): e^{-2 s L}(e^{s^2 L / m} - 1)."""
-    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_RATIO)
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, int(TRACK_RATIO))
 
 
 @njit(cache=True)
@@ -171,7 +176,8 @@ def transmittance_residual_ratio(med, o, d, t0, t1, rng, counters, max_steps):
     """Residual ratio tracking with each segment's minorant mu_c as control:
     exp(-mu_c L) prod (1 - (mu(x_i) - mu_c) / (sigma_maj - mu_c)), collisions at the residual
     rate; the control's share of tau costs no lookup."""
-    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_RESIDUAL_RATIO)
+    return tracked_transmittance(med, o, d, t0, t1,
+                                 rng, counters, max_steps, int(TRACK_RESIDUAL_RATIO))
 
 
 @njit(cache=True)
@@ -180,7 +186,8 @@ def transmittance_next_flight(med, o, d, t0, t1, rng, counters, max_steps):
     the walk's vertices (the same lookups as ratio tracking, the final 0/1 escape replaced by
     its expectation). In empty space under a majorant m its variance is (1 - e^{-2 m L}) / 2:
     it needs a tight majorant."""
-    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_NEXT_FLIGHT)
+    return tracked_transmittance(med, o, d, t0, t1,
+                                 rng, counters, max_steps, int(TRACK_NEXT_FLIGHT))
 
 
 @njit(cache=True)
@@ -210,13 +217,13 @@ def transmittance_auto_shadow(med, o, d, t0, t1, rng, counters, max_steps):
     """render.transmittance = "auto" on the shadow rays of scattering paths: per segment,
     residual ratio tracking where it is optically thin, track length where it is thick
     (tracking.auto_segment_technique, where the rule and its measurements are)."""
-    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, TRACK_AUTO)
+    return tracked_transmittance(med, o, d, t0, t1, rng, counters, max_steps, int(TRACK_AUTO))
 
 
 @njit(cache=True)
 def transmittance_biased_raymarch(med, o, d, t0, t1, rng, counters, max_steps):
     """Biased ray marching on every segment (``biased_raymarch_segment``). Biased."""
-    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_BIASED_RAYMARCH, rng,
+    return transmittance_by_segments(med, o, d, t0, t1, int(SEGMENT_BIASED_RAYMARCH), rng,
                                      counters, max_steps)
 
 
@@ -224,7 +231,7 @@ def transmittance_biased_raymarch(med, o, d, t0, t1, rng, counters, max_steps):
 def transmittance_power_series(med, o, d, t0, t1, rng, counters, max_steps):
     """The p-series CMF power series (Georgiev et al. 2019) on every segment, with the
     segment's minorant as control (power_series.power_series_segment)."""
-    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_POWER_SERIES, rng, counters,
+    return transmittance_by_segments(med, o, d, t0, t1, int(SEGMENT_POWER_SERIES), rng, counters,
                                      max_steps)
 
 
@@ -232,7 +239,7 @@ def transmittance_power_series(med, o, d, t0, t1, rng, counters, max_steps):
 def transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps):
     """Unbiased ray marching (Kettunen et al. 2021) on every segment
     (power_series.unbiased_raymarch_segment). Single estimates can be negative."""
-    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_UNBIASED_RAYMARCH, rng,
+    return transmittance_by_segments(med, o, d, t0, t1, int(SEGMENT_UNBIASED_RAYMARCH), rng,
                                      counters, max_steps)
 
 
@@ -240,7 +247,7 @@ def transmittance_unbiased_raymarch(med, o, d, t0, t1, rng, counters, max_steps)
 def transmittance_telescoping(med, o, d, t0, t1, rng, counters, max_steps):
     """The telescoping estimator over nested jittered ray marching (Misso et al. 2022) on
     every segment (debiasing.telescoping_segment). Unbiased; single estimates can be < 0."""
-    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_TELESCOPING, rng, counters,
+    return transmittance_by_segments(med, o, d, t0, t1, int(SEGMENT_TELESCOPING), rng, counters,
                                      max_steps)
 
 
@@ -248,7 +255,7 @@ def transmittance_telescoping(med, o, d, t0, t1, rng, counters, max_steps):
 def transmittance_jackknife(med, o, d, t0, t1, rng, counters, max_steps):
     """Jackknife-corrected ray marching on every segment (debiasing.jackknife_segment).
     Biased (second order in the step); single estimates can be < 0."""
-    return transmittance_by_segments(med, o, d, t0, t1, SEGMENT_JACKKNIFE, rng, counters,
+    return transmittance_by_segments(med, o, d, t0, t1, int(SEGMENT_JACKKNIFE), rng, counters,
                                      max_steps)
 
 

@@ -270,7 +270,8 @@ def bounce_pair(b, offset):
 def path_pair_u24(prm, pix, s, pair, j, count):
     """The render.sampler's pair ``pair`` of sample s of pixel pix as two 24-bit integers;
     the j-th of ``count`` points the sample takes from it (index s count + j, stratified over
-    spp count points)."""
+    spp count points). Callers pass int(...) of constants: Numba compiles a callee once per
+    literal argument value, and the sampler's inlined maths made each compile cost seconds."""
     return sampler_pair(prm.sampler, prm.seed_lo, prm.seed_hi, pix,
                         (s * count + j) & 0xFFFFFFFF, pair, (prm.spp * count) & 0xFFFFFFFF)
 
@@ -282,7 +283,7 @@ def path_u2(prm, pix, s, pair, j, count, rng):
     if prm.sampler == SAMPLER_INDEPENDENT or pair < 0:
         u1 = rng_next(rng)
         return u1, rng_next(rng)
-    a, b = path_pair_u24(prm, pix, s, pair, j, count)
+    a, b = path_pair_u24(prm, pix, s, int(pair), int(j), int(count))
     return float(a) * UNIFORM_SCALE, float(b) * UNIFORM_SCALE
 
 
@@ -292,7 +293,7 @@ def path_u1(prm, pix, s, pair, axis, j, count, rng):
     counter RNG."""
     if prm.sampler == SAMPLER_INDEPENDENT or pair < 0:
         return rng_next(rng)
-    a, b = path_pair_u24(prm, pix, s, pair, j, count)
+    a, b = path_pair_u24(prm, pix, s, int(pair), int(j), int(count))
     return float(b if axis == 1 else a) * UNIFORM_SCALE
 
 
@@ -700,7 +701,7 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
                     prm, lights, med, ea, o, d, t0, t1, pix, s, depth, rng, rng_s, counters)))
             pair = bounce_pair(depth, SAMPLER_FLIGHT)
             if prm.sampler != SAMPLER_INDEPENDENT and pair >= 0:
-                rng_preset(rng, path_pair_u24(prm, pix, s, pair, 0, 1)[0])
+                rng_preset(rng, path_pair_u24(prm, pix, s, pair, int(0), int(1))[0])
             emis = EMIS_PLAIN
             if prm.emission_sampling != EMISSION_SAMPLING_COLLISION and depth > 0:
                 emis = (pdf_phase if prm.emission_sampling == EMISSION_SAMPLING_MIS else 0.0,
