@@ -13,8 +13,9 @@ targets:
 Each compile runs the full code generator to target assembly (``-S``: PTX, GCN), not just
 the front end, so back-end diagnostics (stack frames) and the code the driver would see are
 covered (for AMD, the builds at W = 16 and the test kernels at W > 1 stop at optimised LLVM
-IR: its code generator takes minutes there, see to_assembly); ``-nogpulib`` only leaves the device library (ocml) unlinked, so OpenCL builtins
-stay external calls, which a driver resolves. The sources are those ``volmc.cl.build.assemble``
+IR: its code generator takes minutes there, see to_assembly); ``-nogpulib`` only leaves the
+device library (ocml) unlinked, so OpenCL builtins stay external calls, which a driver
+resolves. The sources are those ``volmc.cl.build.assemble``
 gives, with the generated params.h and features.h, written to a temporary folder.
 
 What is checked, per program and target:
@@ -267,6 +268,8 @@ def test_every_kernel_program_is_covered():
 
 #: AMD's widest lane width, compiled to optimised LLVM IR for the target and not to assembly.
 AMD_IR_ONLY_LANES = 16
+#: clang's arguments for optimised LLVM IR instead of assembly (to_assembly).
+TO_IR = ["-O2", "-emit-llvm", "-S"]
 
 
 def to_assembly(target, program):
@@ -295,7 +298,7 @@ def compile_problems(target, program, sources):
     item."""
     label, name, opts, lanes = program
     if not to_assembly(target, program):
-        rc, diag, _ = clang(TARGETS[target] + opts + ["-O2", "-emit-llvm", "-S"], sources[name])
+        rc, diag, _ = clang(TARGETS[target] + opts + TO_IR, sources[name])
         return [f"{label}: clang exit {rc} (to IR)\n{diag[:4000]}"] if rc != 0 or diag else []
     rc, diag, asm = clang(TARGETS[target] + opts + ["-S"], sources[name])
     if rc != 0 or diag:
@@ -372,7 +375,7 @@ def test_the_checks_catch_what_they_claim(tmp_path):
     assert rc == 0 and "double precision constant" in diag
     rc, diag, _ = compile_snippet("literal", "kernel void k(global float *o) {\n"
                                   "    o[0] = o[0] * 2.5; }\n",
-                                  TARGETS["amdgcn"] + ["-O2", "-emit-llvm", "-S"])
+                                  TARGETS["amdgcn"] + TO_IR)
     assert rc == 0 and "double precision constant" in diag   # the IR-only builds too
     n = FRAME_LIMIT // 4 + 16
     big = (f"kernel void k(global float *o, int i) {{\n    float a[{n}];\n"

@@ -27,7 +27,6 @@ exp(-sigma_maj L), with no lookup and no random number: a homogeneous medium alw
 analytic transmittance, whichever estimator is chosen.
 """
 
-
 import numpy as np
 from numba import njit, prange
 
