@@ -94,3 +94,27 @@ def test_batch_schedule_is_fixed_and_complete():
     assert max(s) <= BATCH_SAMPLES // 100
     assert batch_schedule(10**6, 5) == [1, 1, 1, 1, 1]
     assert batch_schedule(100, 1000) == s      # depends on nothing but its arguments
+
+
+@pytest.mark.parametrize("n_samples", [1, 2, 7])
+def test_launch_accumulation_is_float64_in_sample_order(n_samples):
+    """The OpenCL backend's per-launch sums equal a plain float64 loop over the samples in
+    order, bit for bit (so a pixel's sums do not depend on how the launch was cut), and
+    differ from float32 arithmetic; the pad channels beyond ``channels`` are not summed."""
+    from volmc.backends.opencl import accumulate_samples
+    rng = np.random.default_rng(7)
+    x = (rng.random((5, n_samples, 8)) * 10.0 ** rng.integers(-8, 8, (5, n_samples, 8)))
+    x = x.astype(np.float32)
+    total, total_sq = accumulate_samples(x, 7)
+    want = np.zeros((5, 7))
+    want_sq = np.zeros((5, 7))
+    for k in range(n_samples):
+        v = x[:, k, :7].astype(np.float64)
+        want = want + v
+        want_sq = want_sq + v * v
+    assert total.dtype == total_sq.dtype == np.float64
+    assert np.array_equal(total, want) and np.array_equal(total_sq, want_sq)
+    assert total.shape == (5, 7)
+    if n_samples > 1:
+        f32 = x[:, :, :7].sum(axis=1, dtype=np.float32)
+        assert not np.array_equal(total, f32.astype(np.float64))

@@ -11,7 +11,7 @@ import pytest
 from volmc import memory
 from volmc.cli import main
 from volmc.film import Film, write_exr, write_png
-from volmc.params import sample_counts
+from volmc.params import launch_spp, sample_counts
 from volmc.resources import default_scene
 from volmc.scene import load_scene, scene_from_dict
 from volmc.scene.errors import SceneError
@@ -293,24 +293,27 @@ def test_film_estimate_matches_what_numpy_allocates(tmp_path):
 
 
 def test_band_rows_follow_the_memory(monkeypatch):
-    # OpenCL at 256x256: one sample per pixel per launch (params.launch_spp), 16 bytes (RGBA)
-    # on the device and its copy, 64 of float64 temporaries, 1 of counters: 97 bytes a pixel.
-    assert memory.launch_bytes_per_pixel("opencl", 256, 256) == (80, 17, 16)
+    # OpenCL at 256x256: four samples per pixel per launch (params.launch_spp), 16 bytes
+    # (RGBA) each on the device and its copy, 1 each of counters, and 3 x 4 float64
+    # temporaries a pixel (the sum, the sum of squares, one sample): 228 bytes a pixel.
+    assert launch_spp(256 * 256) == 4
+    assert memory.launch_bytes_per_pixel("opencl", 256, 256) == (160, 68, 64)
     assert memory.band_rows(256, 256, "opencl", available=16 << 30) == 256
-    # 1/8 of 8 MiB over 97 bytes a pixel: 10810 pixels, 42 rows of 256.
-    assert memory.band_rows(256, 256, "opencl", available=8 << 20) == 42
+    # 1/8 of 8 MiB over 228 bytes a pixel: 4599 pixels, 17 rows of 256.
+    assert memory.band_rows(256, 256, "opencl", available=8 << 20) == 17
     # Numba: the counters, 8 x 8 bytes a pixel.
     assert memory.band_rows(256, 256, "numba", available=8 << 20) == 256 // 4
+    # One sample per pixel: 16 + 96 on the host, 17 on the device.
     assert memory.band_rows(40000, 40000, "opencl", available=64 << 30) == \
-        memory.LAUNCH_BUDGET // 97 // 40000
+        memory.LAUNCH_BUDGET // 129 // 40000
     assert memory.band_rows(10, 10, "opencl", available=1) == 1
-    # A small image keeps up to launch_spp samples of each pixel per launch: 655 at 10x10.
-    assert memory.launch_bytes_per_pixel("opencl", 10, 10)[0] == 655 * 80
-    # One sample buffer never exceeds max_mem_alloc_size.
+    # A small image keeps up to launch_spp samples of each pixel per launch: 2621 at 10x10.
+    assert memory.launch_bytes_per_pixel("opencl", 10, 10)[0] == 2621 * 16 + 96
+    # One sample buffer never exceeds max_mem_alloc_size (2 samples a pixel at 100x1000).
     assert memory.band_rows(100, 1000, "opencl", available=1 << 40,
-                            max_alloc=16 * 100 * 5) == 5
+                            max_alloc=16 * 2 * 100 * 5) == 5
     monkeypatch.setenv(memory.ENV_VAR, "8M")
-    assert memory.band_rows(256, 256, "opencl") == 42
+    assert memory.band_rows(256, 256, "opencl") == 17
 
 
 @pytest.mark.parametrize("backend", ["opencl", "numba"])

@@ -48,14 +48,15 @@ OUTPUT_BYTES_PER_PIXEL = 80
 #: Numba, per pixel of a launch: the per-pixel counters (int64).
 COUNTER_BYTES_PER_PIXEL = N_COUNTERS * 8
 #: OpenCL, per sample of a launch (the kernel writes every sample, kernels/integrator.cl):
-#: float32 RGBA on the device and its host copy, and the host's float64 temporaries of the
-#: accumulation (the samples and their squares). The per-work-item counters are a few bytes
+#: float32 RGBA on the device and its host copy. The per-work-item counters are a few bytes
 #: per sample more, counted with the samples.
 CL_SAMPLE_BYTES = CHANNELS * 4
-CL_TEMP_BYTES_PER_SAMPLE = 2 * CHANNELS * 8
 #: With the albedo AOV a sample is 8 floats (RGBA, the AOV and a pad), 7 of them summed.
 CL_ALBEDO_SAMPLE_BYTES = 8 * 4
-CL_ALBEDO_TEMP_BYTES_PER_SAMPLE = 2 * (CHANNELS + ALBEDO_CHANNELS) * 8
+#: OpenCL, per pixel of a launch and summed channel: the host's float64 temporaries of the
+#: accumulation (backends/opencl.py, accumulate_samples: the sum, the sum of squares and one
+#: sample column).
+CL_TEMP_BYTES_PER_CHANNEL = 3 * 8
 CL_COUNTER_BYTES_PER_SAMPLE = 1
 
 
@@ -121,8 +122,8 @@ def launch_bytes_per_pixel(backend, width, height, albedo=False):
         return COUNTER_BYTES_PER_PIXEL, 0, 0
     spp = launch_spp(width * height)
     sample = CL_ALBEDO_SAMPLE_BYTES if albedo else CL_SAMPLE_BYTES
-    temp = CL_ALBEDO_TEMP_BYTES_PER_SAMPLE if albedo else CL_TEMP_BYTES_PER_SAMPLE
-    return (spp * (sample + temp), spp * (sample + CL_COUNTER_BYTES_PER_SAMPLE), spp * sample)
+    temp = CL_TEMP_BYTES_PER_CHANNEL * (CHANNELS + (ALBEDO_CHANNELS if albedo else 0))
+    return (spp * sample + temp, spp * (sample + CL_COUNTER_BYTES_PER_SAMPLE), spp * sample)
 
 
 def band_rows(width, height, backend, available=None, max_alloc=None, albedo=False):

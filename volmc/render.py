@@ -7,7 +7,7 @@ batches are grouped into chunks of about CHUNK_SAMPLES samples, each summed into
 film and then added to the render's film. So the floating-point summation order, and
 therefore the image, is bit-for-bit reproducible, whether the chunks run here, on a Dask
 cluster (distributed.py) or after a resume from a checkpoint. The progress bar moves, and
-Ctrl-C and checkpoints act, between chunks (about half a second of work at the default
+Ctrl-C and checkpoints act, between chunks (about a second of work at the default
 scene's speed).
 """
 
