@@ -270,3 +270,25 @@ def test_lookup_ceiling_kernels_are_twins():
     b = lookup_sums(np.asarray(scene.grid, np.float64), bmin, bmax, segs, 33, 3, 7)
     assert np.allclose(a, b, rtol=2e-5, atol=1e-4)
     assert np.all(b > 0)
+
+
+def test_bench_lanes_reports_without_a_ceiling_for_several_media():
+    """`volmc bench lanes` runs over every shipped scene, placed media among them: a scene of
+    several media gets its widths compared and no fraction of the lookup ceiling (which
+    reads one grid), instead of stopping the run; a one-grid scene gets its fraction."""
+    from volmc.bench.lanes import run_scene
+    from volmc.resources import scenes_dir
+    from volmc.scene import load_scene
+    small = ["camera.resolution=[8,8]"]
+    lines = []
+    scene = load_scene(scenes_dir() / "tests" / "media.toml", small)
+    assert len(scene.spec.media) > 1 and scene.grid is not None
+    report = run_scene(scene, widths=(1,), spp_levels=(1,), reference_spp=4, repeats=1,
+                       log=lines.append)
+    assert any("lookup ceiling: none" in x for x in lines)
+    assert report["summary"][0]["fraction_of_lookup_ceiling"] is None
+    assert report["summary"][0]["samples_per_second"] > 0
+    one = load_scene(scenes_dir() / "tests" / "white_furnace.toml", small)
+    report = run_scene(one, widths=(1,), spp_levels=(1,), reference_spp=4, repeats=1,
+                       log=lines.append)
+    assert report["summary"][0]["fraction_of_lookup_ceiling"] > 0
