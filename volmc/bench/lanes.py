@@ -35,15 +35,16 @@ def run_scene(scene, widths=LANE_WIDTHS, spp_levels=(4, 16), reference_spp=256, 
     configs = [cv.Config("opencl", own.majorant, own.free_flight, own.transmittance, lanes=w)
                for w in widths]
     ceil = {}
-    if ceiling and scene.grid is not None and len(scene.spec.media) > 1:
-        # The ceiling reads one grid along camera rays (lookups.py); several placed media
-        # have no single grid to read, so such a scene gets no fraction of the ceiling.
-        log(f"lookup ceiling: none for a scene of {len(scene.spec.media)} media")
-    elif ceiling and scene.grid is not None:
-        from .lookups import lookup_ceiling
-        for w in widths:
-            ceil[f"opencl W{w}"] = lookup_ceiling(scene, ("opencl",), device=device,
-                                                  lanes=w)["opencl"]
+    if ceiling and scene.grid is not None:
+        if len(scene.spec.media) > 1:
+            # The ceiling reads one grid along camera rays (lookups.py); several placed
+            # media have no single grid to read, so such a scene gets no fraction of it.
+            log(f"lookup ceiling: none for a scene of {len(scene.spec.media)} media")
+        else:
+            from .lookups import lookup_ceiling
+            for w in widths:
+                ceil[f"opencl W{w}"] = lookup_ceiling(scene, ("opencl",), device=device,
+                                                      lanes=w)["opencl"]
     report = cv.run(scene, configs, spp_levels, reference_spp, repeats, device, ceil, log=log)
     rows = {r["lanes"]: r for r in report["results"]}
     base = rows[widths[0]]
