@@ -1015,13 +1015,15 @@ static inline STAGE void path_write(const Params *prm, const Path *path, global 
 #endif
 }
 
-/* Work-item i renders the jobs [i J, (i + 1) J) of the launch (J = launch.jobs_per_item): job
- * j is sample launch.sample_start + j % n_samples of pixel launch.pix_start + j / n_samples
- * (row-major pixel indices: a band of rows, or every pixel), and writes its value to out[j]
- * (RGBA). A lane whose path ends takes the work-item's next job. A pixel's samples depend on
- * its index and the sample's alone, so any split into bands, launches, work-items or lanes
- * gives the same values. A NaN, infinite or negative sample is written as 0 and counted as
- * dropped, exactly as in the reference. Counters: one row per work-item. */
+/* Work-item i renders the jobs [b J, (b + 1) J) of the launch (J = launch.jobs_per_item):
+ * block b is dealt to it in runs of launch.item_group blocks with launch.item_stride (the
+ * host's item_deal in volmc/backends/opencl.py says how and why). Job j is sample
+ * launch.sample_start + j % n_samples of pixel launch.pix_start + j / n_samples (row-major
+ * pixel indices: a band of rows, or every pixel), and writes its value to out[j] (RGBA). A
+ * lane whose path ends takes the work-item's next job. A pixel's samples depend on its index
+ * and the sample's alone, so any split into bands, launches, work-items or lanes gives the
+ * same values. A NaN, infinite or negative sample is written as 0 and counted as dropped,
+ * exactly as in the reference. Counters: one row per work-item. */
 kernel void render_batch(const Params prm, global const Medium *media, const Launch launch,
                          global const Light *lights, global const float *env,
                          global const float *grid,
@@ -1032,8 +1034,14 @@ kernel void render_batch(const Params prm, global const Medium *media, const Lau
                          global ulong *counters_out) {
     uint item = get_global_id(0);
     uint n_jobs = launch.n_pix * launch.n_samples;
-    uint next = item * launch.jobs_per_item;
-    if (next >= n_jobs) return;
+    uint n_items = (n_jobs + launch.jobs_per_item - 1) / launch.jobs_per_item;
+    if (item >= n_items) return;
+    uint runs = n_items / launch.item_group, run = item / launch.item_group;
+    uint block = run < runs
+        ? (uint)((ulong)run * launch.item_stride % runs) * launch.item_group
+          + item % launch.item_group
+        : item;
+    uint next = block * launch.jobs_per_item;
     uint last = min(next + launch.jobs_per_item, n_jobs);
     /* Each pixel's record is [K + 1][RECORD_COLUMNS] (K = rec_capacity); without recording,
      * rec is a 1-float dummy that nothing may index. */

@@ -18,6 +18,7 @@ Where vector and scalar arithmetic can differ, and what is tested here:
   ``test_every_width_traces_the_same_paths``.
 """
 
+import math
 import os
 import subprocess
 import sys
@@ -202,6 +203,35 @@ def test_samples_per_work_item_do_not_change_the_samples():
     assert be.launch_jobs_per_item(10**8) == opencl.JOB_ROUNDS * 16
     n = opencl.ITEMS_PER_UNIT * units * 16 * 8     # 8 rounds give ITEMS_PER_UNIT per unit
     assert be.launch_jobs_per_item(n) == 8 * 16
+
+
+def test_work_items_dealt_out_of_order_render_every_job_once(monkeypatch):
+    """The launch's blocks of jobs dealt to work-items in runs with a stride (item_deal):
+    with whole and partial runs, every sample is written once (the output buffer is first
+    filled with NaN) and equals the sample rendered with the blocks in order."""
+    from volmc.backends import opencl
+    scene = load_scene(SCENES / "cloud.toml", ["camera.resolution=[12, 12]"])
+    n = 12 * 12 * 6
+    for jobs in (5, 7, 16):
+        items = -(-n // jobs)
+        stride, group = opencl.item_deal(items, jobs)
+        runs = items // group
+        assert runs >= 3 and items % group and math.gcd(stride, runs) == 1 and stride > 1
+    outs = {}
+    for deal in ("dealt", "in order"):
+        if deal == "in order":
+            monkeypatch.setattr(opencl, "item_deal", lambda items, jobs: (1, 1))
+        for jobs in (5, 7, 16):
+            be = OpenCLBackend(scene, lanes=1, jobs_per_item=jobs)
+            be._reserve(n)
+            be.clc.cl.enqueue_copy(be.clc.queue, be.out_buf,
+                                   np.full(be.out_host.shape, np.nan, np.float32))
+            be.render(0, 6, Film(12, 12))
+            outs[deal, jobs] = be.out_host[:n].copy()
+    for jobs in (5, 7, 16):
+        assert np.isfinite(outs["dealt", jobs]).all()
+        np.testing.assert_array_equal(outs["dealt", jobs], outs["in order", jobs])
+        np.testing.assert_array_equal(outs["dealt", jobs], outs["dealt", 16])
 
 
 def test_lane_width_choice(monkeypatch):

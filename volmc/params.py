@@ -142,6 +142,9 @@ LAUNCH_FIELDS = (
     ("sample_start", "u4", 1, "first sample index of every pixel"),
     ("n_samples", "u4", 1, "samples per pixel of the launch"),
     ("jobs_per_item", "u4", 1, "samples (pixel, sample) each work-item renders"),
+    ("item_stride", "u4", 1, "stride of the deal of runs of blocks to work-items "
+                             "(volmc.backends.opencl.item_deal)"),
+    ("item_group", "u4", 1, "blocks of jobs_per_item jobs in a run of the deal"),
     ("rec_capacity", "i4", 1, "segments recorded per pixel (0: not recording)"),
 )
 
