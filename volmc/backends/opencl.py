@@ -59,9 +59,10 @@ def item_deal(n_items, jobs_per_item):
     near its count / phi (the golden ratio), so consecutive runs come from all over the
     launch (Fibonacci hashing).
 
-    Why: PoCL's CPU driver hands its threads runs of consecutive work-groups, up to 512 at a
-    time for 2 threads. At W = 8 a work-item holds 128 samples, so one run can be a quarter
-    of a launch, and in row order a run over the costly middle of a cloud kept one core busy
+    Why: PoCL's CPU driver hands its threads runs of consecutive work-groups, hundreds at a
+    time (up to 512 for 2 threads in the PoCL 3.1 scheduler, as far as its source and the
+    measured tails tell). At W = 8 a work-item holds 128 samples, so one run can be a
+    quarter of a launch, and in row order a run over the costly middle of a cloud kept one core busy
     while the other idled: 1.67-1.82 of 2 cores busy on 96x96 fbm clouds at W = 8. Dealt
     this way 1.92-1.93, and 0.90x the time (alternating, 256 spp). Single work-items dealt
     apart lost cache locality at W = 1 (1.08x the time); runs of 256 jobs keep it (0.98-1.0x
