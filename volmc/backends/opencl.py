@@ -62,17 +62,19 @@ def item_deal(n_items, jobs_per_item):
     Why: PoCL's CPU driver hands its threads runs of consecutive work-groups, hundreds at a
     time (up to 512 for 2 threads in the PoCL 3.1 scheduler, as far as its source and the
     measured tails tell). At W = 8 a work-item holds 128 samples, so one run can be a
-    quarter of a launch, and in row order a run over the costly middle of a cloud kept one core busy
-    while the other idled: 1.67-1.82 of 2 cores busy on 96x96 fbm clouds at W = 8. Dealt
-    this way 1.92-1.93, and 0.90x the time (alternating, 256 spp). Single work-items dealt
-    apart lost cache locality at W = 1 (1.08x the time); runs of 256 jobs keep it (0.98-1.0x
-    the time at W = 1). The image does not depend on the deal."""
+    quarter of a launch, and in row order a run over the costly middle of a cloud kept one
+    core busy while the other idled: 1.67-1.82 of 2 cores busy on 96x96 fbm clouds at
+    W = 8. Dealt this way 1.92-1.93, and 0.90x the time (alternating, 256 spp). Single
+    work-items dealt apart lost cache locality at W = 1 (1.08x the time); runs of 256 jobs
+    keep it (0.98-1.0x the time at W = 1). The image does not depend on the deal."""
     group = max(1, DEAL_JOBS // max(int(jobs_per_item), 1))
     runs = max(int(n_items) // group, 1)
+    # Starts at most runs - 1 (or at 1), and runs - 1 is coprime with runs: the search ends
+    # below runs.
     stride = max(1, round(runs * 0.6180339887498949))
     while math.gcd(stride, runs) != 1:
         stride += 1
-    return stride % runs if runs > 1 else 1, group
+    return stride, group
 
 
 def render_options(feature_set, transmittance, options=()):
