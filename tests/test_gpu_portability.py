@@ -285,9 +285,10 @@ def to_assembly(target, program):
     estimator benchmark took 28 s at W = 16. GPUs run W = 1 (what their drivers report), and
     NVIDIA's code generator still compiles every program at every W. The test kernels hold
     entry points around the library the render kernel compiles (they took 200 s for AMD at
-    W > 1)."""
+    W > 1). ``VOLMC_GPU_FULL=1`` sends every program to assembly (about 15 minutes more on
+    2 cores), for a check by hand when the kernels change."""
     _, name, _, lanes = program
-    if target != "amdgcn":
+    if target != "amdgcn" or os.environ.get("VOLMC_GPU_FULL") == "1":
         return True
     return lanes < AMD_IR_ONLY_LANES and not (name == "testing.cl" and lanes > 1)
 
