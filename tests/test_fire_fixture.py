@@ -1,8 +1,10 @@
-"""Fire data as users have it: the Mantaflow cache, Houdini Pyro and EmberGen layouts of
-tests/data/fire (several grids a file, half floats, vector and integer grids; written by
-OpenVDB 12.0 with make_fixtures.py there). Every float grid reads equal to OpenVDB's own
-reading of it (truth.npz, recorded when the files were written), every grid is listed,
-vector and integer grids are skipped with a note, and `volmc info FILE.vdb` prints them."""
+"""Fire data as users have it: two Mantaflow caches baked by Blender with
+tests/data/fire/bake_mantaflow.py (the gallery fire's frames in scenes/data/fire, Blender's
+default cache; a resumable one's frame, with every grid Mantaflow saves, in tests/data/fire),
+and the Houdini Pyro and EmberGen layouts of tests/data/fire (written by OpenVDB 12.0 with
+make_fixtures.py there): several grids a file, half floats, vector and integer grids. Every float grid reads equal to OpenVDB's own reading
+of it (truth.npz, recorded when the files were written), every grid is listed, vector and
+integer grids are skipped with a note, and `volmc info FILE.vdb` prints them."""
 
 import struct
 import subprocess
@@ -27,9 +29,13 @@ def fixture(rel):
 
 
 TRUTH = np.load(FIRE / "truth.npz")
-FRAMES = [f"cache_fluid/data/fluid_data_{i:04d}.vdb" for i in range(1, 5)]
-FILES = FRAMES + ["houdini_pyro.vdb", "embergen.vdb", "double.vdb"]
+FRAMES = [f"cache_fluid/data/fluid_data_{i:04d}.vdb" for i in range(13, 17)]
+RESUMABLE = "resumable/cache_fluid/data/fluid_data_0016.vdb"
+FILES = FRAMES + [RESUMABLE, "houdini_pyro.vdb", "embergen.vdb", "double.vdb"]
 FLOAT_GRIDS = sorted({tuple(k.split(":")[:2]) for k in TRUTH.files if k.endswith(":values")})
+#: The grids of Blender's default cache (not resumable), and of a resumable one.
+MANTAFLOW_RENDER = ["velocity", "density", "shadow", "temperature", "flame", "color_r",
+                    "color_g", "color_b"]
 MANTAFLOW = ["velocity", "phi_obstacle", "phi_inflow", "phi_out", "flags", "velocity_previous",
              "density", "shadow", "temperature", "flame", "color_r", "color_g", "color_b",
              "density_inflow", "emission", "temperature_inflow", "fuel", "react", "fuel_inflow",
@@ -42,7 +48,7 @@ def test_truth_covers_every_grid_of_every_file():
     for rel in FILES:
         recorded = {k.split(":")[1] for k in TRUTH.files if k.startswith(rel + ":")}
         assert recorded == {g.name for g in list_grids(fixture(rel))}, rel
-    assert len(FLOAT_GRIDS) == 4 * 20 + 3 + 2 + 2
+    assert len(FLOAT_GRIDS) == 4 * 7 + 20 + 3 + 2 + 2
 
 
 @pytest.mark.parametrize("rel,name", FLOAT_GRIDS, ids=[f"{r}:{n}" for r, n in FLOAT_GRIDS])
@@ -60,20 +66,24 @@ def test_every_float_grid_reads_as_openvdb_reads_it(rel, name):
 def test_mantaflow_frames_are_half_floats_with_mantaflows_names():
     """Every float grid of a Mantaflow frame is stored as halves (the values are exactly
     float16 values), and the grids come in Mantaflow's order with its types."""
-    for rel in FRAMES:
+    for rel in FRAMES + [RESUMABLE]:
         infos = list_grids(fixture(rel))
-        assert [g.name for g in infos] == MANTAFLOW
+        names = MANTAFLOW if rel == RESUMABLE else MANTAFLOW_RENDER
+        assert [g.name for g in infos] == names
         kinds = {g.name: g.kind for g in infos}
-        assert kinds["velocity"] == kinds["velocity_previous"] == "Vec3s"
-        assert kinds["flags"] == "int32"
-        assert {kinds[n] for n in MANTAFLOW if n not in ("velocity", "velocity_previous",
-                                                         "flags")} == {"half float"}
+        vectors = {"velocity", "velocity_previous"} & set(names)
+        assert {kinds[n] for n in vectors} == {"Vec3s"}
+        assert kinds.get("flags", "int32") == "int32"
+        assert {kinds[n] for n in names if n not in vectors | {"flags"}} == {"half float"}
         d = read_vdb(fixture(rel), "flame").to_dense()
         assert d.max() > 0.5
         np.testing.assert_array_equal(d, d.astype(np.float16).astype(np.float32))
-    # A rising plume: the smoke's top climbs frame by frame.
-    tops = [read_vdb(fixture(rel)).bbox[1][2] for rel in FRAMES]
-    assert tops == sorted(tops) and tops[-1] > tops[0] + 6, tops
+    # A burning inflow: the smoke grows and its top climbs frame by frame.
+    smoke = [read_vdb(fixture(rel)) for rel in FRAMES]
+    tops = [g.bbox[1][2] for g in smoke]
+    assert tops == sorted(tops) and tops[-1] > tops[0], tops
+    mass = [float(g.to_dense().sum()) for g in smoke]
+    assert mass == sorted(mass) and mass[-1] > 1.1 * mass[0], mass
 
 
 def test_listing_notes_why_grids_are_skipped():
@@ -83,7 +93,7 @@ def test_listing_notes_why_grids_are_skipped():
     assert "vector grid" in infos["vel"].note
     assert infos["vel"].text() == ("'vel' (Vec3s) -- skipped: vector grid; volmc reads "
                                    "scalar grids")
-    flags = next(g for g in list_grids(fixture(FRAMES[0])) if g.name == "flags")
+    flags = next(g for g in list_grids(fixture(RESUMABLE)) if g.name == "flags")
     assert not flags.readable and "integer grid" in flags.note
     assert [g.kind for g in list_grids(FIRE / "embergen.vdb")] == ["half float"] * 2
     assert [g.kind for g in list_grids(FIRE / "double.vdb")] == ["double",
@@ -129,18 +139,18 @@ def test_file_format_225_reads_as_224(tmp_path):
 
 
 def test_volmc_info_lists_the_grids_of_a_file():
-    out = subprocess.run([sys.executable, "-m", "volmc.cli", "info", str(fixture(FRAMES[0]))],
+    out = subprocess.run([sys.executable, "-m", "volmc.cli", "info", str(fixture(RESUMABLE))],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     lines = out.stdout.splitlines()
-    assert lines[0] == f"{fixture(FRAMES[0])}: OpenVDB, 23 grids (20 read by volmc)"
+    assert lines[0] == f"{fixture(RESUMABLE)}: OpenVDB, 23 grids (20 read by volmc)"
     assert "  'velocity' (Vec3s) -- skipped: vector grid; volmc reads scalar grids" in lines
     assert "  'flame' (half float)" in lines
 
 
 def test_volmc_info_refuses_a_bad_file_with_one_line(tmp_path):
     bad = tmp_path / "cut.vdb"
-    bad.write_bytes((fixture(FRAMES[0])).read_bytes()[:300])
+    bad.write_bytes((fixture(RESUMABLE)).read_bytes()[:300])
     out = subprocess.run([sys.executable, "-m", "volmc.cli", "info", str(bad)],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and out.stdout == ""

@@ -42,7 +42,8 @@ MEMORY_LIMIT = 64 << 20
 #: The test fixtures of a checkout (the tests pass their own folder: an installed volmc has
 #: no tests/ beside it).
 DATA = Path(__file__).resolve().parents[2] / "tests" / "data"
-VDB_FIXTURES = ["fire/cache_fluid/data/fluid_data_0002.vdb", "fire/houdini_pyro.vdb",
+VDB_FIXTURES = ["fire/cache_fluid/data/fluid_data_0013.vdb",
+                "fire/resumable/cache_fluid/data/fluid_data_0016.vdb", "fire/houdini_pyro.vdb",
                 "fire/embergen.vdb", "fire/double.vdb", "vdb/quirks.vdb", "vdb/quirks_zip.vdb",
                 "vdb/quirks_mask.vdb", "vdb/half_zip.vdb", "vdb/blobs_zip.vdb",
                 "vdb/quirks.nvdb", "vdb/blobs_zip.nvdb", "vdb/blobs_blosc.nvdb",

@@ -1,62 +1,36 @@
-"""Write the fire fixtures of this folder (tests/data/fire): a Mantaflow smoke-and-fire cache and the grid
-layouts of Houdini Pyro and EmberGen, from a small simulation of our own, with OpenVDB.
+"""Write the fire fixtures of other applications in this folder (tests/data/fire): the grid
+layouts of Houdini Pyro and EmberGen, and 64-bit grids, from a small simulation of our own,
+with OpenVDB. The Mantaflow cache is a real bake: bake_mantaflow.py.
 
-Run with Blender as a Python module (bpy 5.0, whose OpenVDB 12.0 Python module comes with
-it; /tmp/bpyvenv is where it was installed):
+Run with Blender as a Python module, whose OpenVDB Python module comes with it (bpy 5.0 with
+OpenVDB 12.0 wrote the files; bake_mantaflow.py says how to install bpy):
 
-    /tmp/bpyvenv/bin/python tests/data/fire/make_fixtures.py
-
-Why not a real Mantaflow bake: with bpy 5.0.1, a minimal gas domain (resolution 16, cache
-type All, OpenVDB) and a Fire + Smoke inflow sphere, ``bpy.ops.fluid.bake_all()`` stops
-inside Mantaflow with "AttributeError: 'LevelsetGrid' object has no attribute 'setConst'"
-and the process aborts ("can't clean grid cache, some grids are still in use"); no cache
-file is written. So this script writes the files OpenVDB-side exactly as Mantaflow's
-``writeObjectsVDB`` (extern/mantaflow/preprocessed/fileio/iovdb.cpp, Blender 3.x-5.x) does
-for a resumable smoke cache with fire, heat and colours
-(intern/mantaflow/intern/strings/{fluid,smoke}_script.h, MANTA_main.h):
-
-* one file per frame, ``cache_fluid/data/fluid_data_####.vdb``;
-* grids in the order of the save dictionaries: velocity (the MAC grid, Vec3s, class
-  staggered), phi_obstacle, phi_inflow, phi_out (level sets), flags (int32), velocity_previous,
-  density, shadow, temperature (Mantaflow's heat grid is named "temperature"), flame, color_r,
-  color_g, color_b, density_inflow, emission, temperature_inflow, fuel, react, fuel_inflow,
-  react_inflow, color_r_inflow, color_g_inflow, color_b_inflow;
-* every grid saved as half floats (Blender's default precision: the tree type gets the
-  ``_HalfFloat`` suffix, the int32 flags grid included), blosc + active-mask compression
-  (Blender's default), the transform ``createLinearTransform(voxel size)`` (a
-  UniformScaleMap; index (0, 0, 0) at the domain's corner), grid class fog volume / level
-  set / staggered / unknown, and the metadata Mantaflow adds: file_base_resolution (vec3i)
-  and file_voxel_size (float);
-* sparse grids copied from dense with the clip value 1e-6 as tolerance and then clipped to
-  the density's active voxels (``copyFromDense`` + ``tools::clip``), dense ones (shadow,
-  flags, the level sets) with tolerance 0, as ``exportVDB`` does.
+    /tmp/bpy45/bin/python tests/data/fire/make_fixtures.py
 
 The simulation is a 16 x 16 x 24 semi-Lagrangian smoke with buoyancy, a fuel inflow sphere
 that burns (react decays at the burning rate, flame = react above the ignition point, the
-burn heats and adds smoke), four frames. Houdini Pyro's layout is density, temperature,
-flame (float) with vel and Cd (Vec3s) and a centred (scale + translate) transform;
-EmberGen's is half-float density and temperature. double.vdb holds 64-bit grids (full and
-saved as halves).
+burn heats and adds smoke); its last frame is written. Houdini Pyro's layout is density,
+temperature, flame (float) with vel and Cd (Vec3s) and a centred (scale + translate)
+transform; EmberGen's is half-float density and temperature. double.vdb holds 64-bit grids
+(full and saved as halves).
 
-Beside the files it writes ``truth.npz``: for every float grid of every file, OpenVDB's own
-reading of it (``openvdb.readAll``): the active bbox, the background and every voxel of the
-bbox (``copyToArray``), which tests/test_fire_fixture.py compares volmc's reader with (bpy
-is not installed in CI).
+Both scripts keep ``truth.npz`` up to date for the files they write: for every float grid
+of every file, OpenVDB's own reading of it (``openvdb.readAll``): the active bbox, the
+background and every voxel of the bbox (``copyToArray``), which tests/test_fire_fixture.py
+compares volmc's reader with (bpy is not installed in CI).
 """
 
 import os
-import struct
 import sys
 
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 OUT = HERE
-#: The Mantaflow cache goes with the scenes (the gallery fire renders it).
-CACHE_OUT = os.path.join(HERE, "..", "..", "..", "scenes", "data", "fire")
+#: The files this script writes.
+OWNED = ("houdini_pyro.vdb", "embergen.vdb", "double.vdb")
 RES = (16, 16, 24)            # x, y, z (z up)
 DOMAIN = 2.4                  # longest side, metres: voxel size DOMAIN / 24 = 0.1
-CLIP = 1e-6                   # Blender's default OpenVDB clip value
 FRAMES = 4
 STEPS_PER_FRAME = 5
 
@@ -157,93 +131,6 @@ def simulate():
     return frames
 
 
-# ------------------------------------------------------------------------- Mantaflow files
-
-# (name, Mantaflow grid type, saveSparse) in the save dictionaries' order.
-MANTAFLOW_GRIDS = [
-    ("velocity", "mac", True), ("phi_obstacle", "levelset", False),
-    ("phi_inflow", "levelset", False), ("phi_out", "levelset", False),
-    ("flags", "int", False), ("velocity_previous", "mac", True),
-    ("density", "real", True), ("shadow", "real", False), ("temperature", "real", True),
-    ("flame", "real", True), ("color_r", "real", True), ("color_g", "real", True),
-    ("color_b", "real", True), ("density_inflow", "real", True), ("emission", "real", True),
-    ("temperature_inflow", "real", True), ("fuel", "real", True), ("react", "real", True),
-    ("fuel_inflow", "real", True), ("react_inflow", "real", True),
-    ("color_r_inflow", "real", True), ("color_g_inflow", "real", True),
-    ("color_b_inflow", "real", True),
-]
-
-
-def mantaflow_grids(vdb, fields):
-    voxel = DOMAIN / max(RES)
-    clip_mask = fields["density"] > CLIP    # copyFromDense(density, clip) topology
-    grids = []
-    for name, kind, sparse in MANTAFLOW_GRIDS:
-        a = fields[name].copy()
-        if kind == "int":
-            g = vdb.Int32Grid(0)
-            g.copyFromArray(a, (0, 0, 0), 0)
-        elif kind == "mac":
-            g = vdb.Vec3SGrid((0.0, 0.0, 0.0))
-            a[~clip_mask] = 0.0             # tools::clip to the density's active voxels
-            g.copyFromArray(a, (0, 0, 0), (CLIP, CLIP, CLIP))
-        else:
-            g = vdb.FloatGrid(0.0)
-            if sparse and name != "density":
-                a[~clip_mask] = 0.0
-            g.copyFromArray(a, (0, 0, 0), CLIP if sparse else 0.0)
-        g.name = name
-        g.transform = vdb.createLinearTransform(voxel)
-        g.gridClass = {"levelset": vdb.GridClass.LEVEL_SET, "real": vdb.GridClass.FOG_VOLUME,
-                       "mac": vdb.GridClass.STAGGERED}.get(kind, vdb.GridClass.UNKNOWN)
-        g.saveFloatAsHalf = True
-        g["file_base_resolution"] = RES     # written as vec3d; fix_vec3i makes it vec3i
-        g["file_voxel_size"] = voxel
-        grids.append(g)
-    return grids
-
-
-def fix_vec3i(path, key=b"file_base_resolution"):
-    """Rewrite every ``key`` metadata entry from vec3d to vec3i (Mantaflow's
-    Vec3IMetadata; the Python binding writes a tuple as vec3d) and move the grid offsets of
-    the descriptors that follow by the bytes saved."""
-    data = bytearray(open(path, "rb").read())
-    old = (struct.pack("<I", len(key)) + key + struct.pack("<I", 5) + b"vec3d"
-           + struct.pack("<I", 24))
-    out, pos, starts = bytearray(), 0, []
-    while True:
-        at = data.find(old, pos)
-        if at < 0:
-            break
-        x, y, z = struct.unpack_from("<3d", data, at + len(old))
-        out += data[pos:at] + old[:-9] + b"vec3i" + struct.pack("<I3i", 12, int(x), int(y),
-                                                                 int(z))
-        starts.append(at)
-        pos = at + len(old) + 24
-    out += data[pos:]
-
-    def shift(offset):   # bytes removed before ``offset`` of the old file
-        return offset - 12 * sum(1 for s in starts if s < offset)
-
-    def skip_strings(p, n):   # n length-prefixed strings (a metadata value is one too)
-        for _ in range(n):
-            p += 4 + struct.unpack_from("<I", out, p)[0]
-        return p
-
-    # Walk the descriptors (header 57 bytes, file metadata, grid count) of the new file.
-    p = 8 + 4 + 8 + 1 + 36
-    n_meta, = struct.unpack_from("<i", out, p)
-    p = skip_strings(p + 4, 3 * n_meta)
-    count, = struct.unpack_from("<i", out, p)
-    p += 4
-    for _ in range(count):
-        p = skip_strings(p, 3)   # name, type, instance parent
-        offs = [shift(v) for v in struct.unpack_from("<3q", out, p)]
-        struct.pack_into("<3q", out, p, *offs)
-        p = offs[2]
-    open(path, "wb").write(bytes(out))
-
-
 # --------------------------------------------------------------------- other applications
 
 def houdini_grids(vdb, fields):
@@ -311,6 +198,8 @@ def record_truth(vdb, path, rel, truth):
         dense = np.empty(shape, np.float32 if g.valueTypeName == "float" else np.float64)
         g.copyToArray(dense, lo)
         dense = dense.astype(np.float32)   # volmc holds every grid as float32
+        if np.array_equal(dense.astype(np.float16).astype(np.float32), dense):
+            dense = dense.astype(np.float16)   # a half grid's values, in half the bytes
         truth[f"{rel}:{g.name}:bbox"] = np.array([lo, hi], np.int64)
         truth[f"{rel}:{g.name}:background"] = np.float32(g.background)
         # [x, y, z] from copyToArray; volmc's to_dense is [z, y, x].
@@ -320,27 +209,29 @@ def record_truth(vdb, path, rel, truth):
                                                    np.float64)
 
 
+def update_truth(truth, owned):
+    """Replace in truth.npz the entries of the files whose names start with ``owned`` by
+    ``truth`` (each script records the files it writes; bake_mantaflow.py the frames)."""
+    path = os.path.join(OUT, "truth.npz")
+    kept = {}
+    if os.path.exists(path):
+        with np.load(path) as old:
+            kept = {k: old[k] for k in old.files if not k.startswith(owned)}
+    np.savez_compressed(path, **kept, **truth)
+
+
 def main():
     vdb = openvdb_module()
-    frames = simulate()
-    data = os.path.join(CACHE_OUT, "cache_fluid", "data")
-    os.makedirs(data, exist_ok=True)
+    last = simulate()[-1]
     truth = {}
-    for i, fields in enumerate(frames, start=1):
-        rel = f"cache_fluid/data/fluid_data_{i:04d}.vdb"
-        path = os.path.join(CACHE_OUT, rel)
-        vdb.write(path, grids=mantaflow_grids(vdb, fields))
-        fix_vec3i(path)
-        record_truth(vdb, path, rel, truth)
-    for rel, grids in (("houdini_pyro.vdb", houdini_grids(vdb, frames[-1])),
-                       ("embergen.vdb", embergen_grids(vdb, frames[-1])),
-                       ("double.vdb", double_grids(vdb, frames[-1]))):
+    for rel, grids in (("houdini_pyro.vdb", houdini_grids(vdb, last)),
+                       ("embergen.vdb", embergen_grids(vdb, last)),
+                       ("double.vdb", double_grids(vdb, last))):
         path = os.path.join(OUT, rel)
         vdb.write(path, grids=grids)
         record_truth(vdb, path, rel, truth)
-    np.savez_compressed(os.path.join(OUT, "truth.npz"), **truth)
-    total = sum(os.path.getsize(os.path.join(r, f)) for r, _, fs in os.walk(OUT) for f in fs
-                if f.endswith((".vdb", ".npz")))
+    update_truth(truth, OWNED)
+    total = sum(os.path.getsize(os.path.join(OUT, rel)) for rel in OWNED)
     print(f"wrote {OUT}: {total} bytes, OpenVDB {vdb.LIBRARY_VERSION}, file format "
           f"{vdb.FILE_FORMAT_VERSION}")
 
