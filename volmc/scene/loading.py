@@ -230,27 +230,28 @@ def _dense(vg, path, key):
 
 
 def _align_vdb(vg, density, path, key):
-    """Grid ``vg`` resampled onto the voxels of the VDB density grid (same voxel size and
-    voxel-centre lattice required): the overlap is copied, the rest is vg's background."""
+    """Grid ``vg`` on the voxels of the VDB density grid, over the density's active box.
+    Where the two share their voxel size and lattice (the grids of one simulation cache),
+    the overlap is copied exactly and the rest is vg's background. Otherwise (another
+    resolution, a shifted or turned lattice: Mantaflow's upres noise grids beside its
+    base-resolution ones, a Pyro field at half resolution) vg is resampled at the density's
+    voxel centres by trilinear interpolation in world space, as a renderer that samples each
+    grid in world space sees it; a finer vg is point-sampled there, not filtered."""
     lin = np.asarray(density.linear)
-    if not np.allclose(vg.linear, lin, rtol=1e-6, atol=1e-6 * float(np.abs(lin).max())):
-        raise SceneError(path, key, f"grid '{vg.name}' has voxel size {tuple(vg.voxel_size)}, "
-                                    f"the density {tuple(density.voxel_size)} (index-to-world "
-                                    "maps): they must match")
     shift = np.linalg.solve(lin, np.subtract(vg.index_to_world, density.index_to_world))
-    if not np.allclose(shift, np.round(shift), atol=1e-4):
-        raise SceneError(path, key, f"grid '{vg.name}' is offset from the density by a "
-                                    "fraction of a voxel; the voxels must line up")
     lo_d = np.asarray(density.bbox[0])
     hi_d = np.asarray(density.bbox[1])
-    lo_v = np.asarray(vg.bbox[0]) + np.round(shift).astype(int)
     shape = tuple(int(x) for x in (hi_d - lo_d + 1)[::-1])
-    # vg expanded over its own box, and the array over the density's box with its
-    # validation (an upper bound: vg's array is gone by the time that is validated).
-    require_host(4 * math.prod(vg.shape) + load_peak_bytes(math.prod(shape)), path, key,
+    # vg expanded over its own box (and a padded copy to resample), and the array over the
+    # density's box with its validation (an upper bound: vg's arrays are gone by then).
+    require_host(8 * math.prod(vg.shape) + load_peak_bytes(math.prod(shape)), path, key,
                  f"placing grid '{vg.name}' on the density's {shape_text(shape)} voxels")
     dense = vg.to_dense()
+    same = np.allclose(vg.linear, lin, rtol=1e-6, atol=1e-6 * float(np.abs(lin).max()))
+    if not (same and np.allclose(shift, np.round(shift), atol=1e-4)):
+        return _resample(dense, vg, density, shape)
     out = np.full(shape, np.float32(vg.background), np.float32)
+    lo_v = np.asarray(vg.bbox[0]) + np.round(shift).astype(int)
     a = np.maximum(lo_d, lo_v)
     b = np.minimum(hi_d, lo_v + np.array(dense.shape[::-1]) - 1)
     if np.all(b >= a):
@@ -259,6 +260,42 @@ def _align_vdb(vg, density, path, key):
         n = (b - a + 1)[::-1]
         out[so[0]:so[0] + n[0], so[1]:so[1] + n[1], so[2]:so[2] + n[2]] = \
             dense[si[0]:si[0] + n[0], si[1]:si[1] + n[1], si[2]:si[2] + n[2]]
+    return out
+
+
+def _resample(dense, vg, density, shape):
+    """vg's values (``dense``, [z, y, x] over its active box) trilinearly interpolated at
+    the centres of the density's voxels (``shape``, [z, y, x] over its active box), one
+    z-slab at a time; vg's background outside its box."""
+    to_vg = np.linalg.inv(np.asarray(vg.linear, np.float64))
+    lin_d = np.asarray(density.linear, np.float64)
+    # vg's index of density index j: A j + c, as an offset from vg's box corner.
+    A = to_vg @ lin_d
+    c = to_vg @ (np.asarray(density.index_to_world, np.float64)
+                 - np.asarray(vg.index_to_world, np.float64)) - np.asarray(vg.bbox[0])
+    n_vg = np.array(dense.shape[::-1])               # x, y, z
+    padded = np.pad(dense, 1, constant_values=np.float32(vg.background))
+    out = np.empty(shape, np.float32)
+    nz, ny, nx = shape
+    lo = np.asarray(density.bbox[0], np.float64)
+    y, x = np.mgrid[0:ny, 0:nx].astype(np.float64)
+    for k in range(nz):
+        j = np.stack([x + lo[0], y + lo[1], np.full_like(x, lo[2] + k)], axis=-1)
+        u = j @ A.T + c                                # [ny, nx, 3] in vg's box, x y z
+        # One voxel of background all round: indices clipped into the padding read it.
+        u = np.clip(u, -1.0, n_vg.astype(np.float64))
+        i0 = np.floor(u).astype(np.int64)
+        t = u - i0
+        i0 += 1                                        # into the padded array
+        acc = np.zeros((ny, nx))
+        for corner in range(8):
+            d = [(corner >> axis) & 1 for axis in range(3)]
+            w = np.ones((ny, nx))
+            for axis in range(3):
+                w = w * (t[..., axis] if d[axis] else 1.0 - t[..., axis])
+            idx = [np.minimum(i0[..., axis] + d[axis], n_vg[axis] + 1) for axis in range(3)]
+            acc += w * padded[idx[2], idx[1], idx[0]]
+        out[k] = acc
     return out
 
 
