@@ -1,7 +1,8 @@
 """Bake the Mantaflow fire of scenes/data/fire with Blender as a Python module, and record
 OpenVDB's own reading of its grids for tests/test_fire_fixture.py.
 
-Run it in a virtual environment with bpy (tested with bpy 4.5.15 LTS, Python 3.11):
+Run it in a virtual environment with bpy (Python 3.11). The committed files are bpy 4.5.15
+LTS's; bpy 5.0.1 bakes too, with the repair below, a slightly different simulation:
 
     python3.11 -m venv /tmp/bpy45 && /tmp/bpy45/bin/pip install bpy==4.5.15
     /tmp/bpy45/bin/python tests/data/fire/bake_mantaflow.py
