@@ -2,9 +2,10 @@
 tests/data/fire/bake_mantaflow.py (the gallery fire's frames in scenes/data/fire, Blender's
 default cache; a resumable one's frame, with every grid Mantaflow saves, in tests/data/fire),
 and the Houdini Pyro and EmberGen layouts of tests/data/fire (written by OpenVDB 12.0 with
-make_fixtures.py there): several grids a file, half floats, vector and integer grids. Every float grid reads equal to OpenVDB's own reading
-of it (truth.npz, recorded when the files were written), every grid is listed, vector and
-integer grids are skipped with a note, and `volmc info FILE.vdb` prints them."""
+make_fixtures.py there): several grids a file, half floats, vector and integer grids. Every
+float grid reads equal to OpenVDB's own reading of it (truth.npz, recorded when the files
+were written), every grid is listed, vector and integer grids are skipped with a note, and
+`volmc info FILE.vdb` prints them."""
 
 import struct
 import subprocess
