@@ -48,7 +48,7 @@ BAKES = [
      range(13, 17)),
     (os.path.join(HERE, "resumable"), "resumable/cache_fluid/", 24, True, [16]),
 ]
-LAST_FRAME = 16
+LAST_FRAME = max(max(frames) for *_, frames in BAKES)
 
 #: Mantaflow's class hierarchy (extern/mantaflow/preprocessed: grid.h, levelset.h,
 #: shapes.h, particle.h, mesh.h), by the names the manta module gives the classes.

@@ -27,8 +27,6 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 OUT = HERE
-#: The files this script writes.
-OWNED = ("houdini_pyro.vdb", "embergen.vdb", "double.vdb")
 RES = (16, 16, 24)            # x, y, z (z up)
 DOMAIN = 2.4                  # longest side, metres: voxel size DOMAIN / 24 = 0.1
 FRAMES = 4
@@ -224,14 +222,14 @@ def main():
     vdb = openvdb_module()
     last = simulate()[-1]
     truth = {}
-    for rel, grids in (("houdini_pyro.vdb", houdini_grids(vdb, last)),
-                       ("embergen.vdb", embergen_grids(vdb, last)),
-                       ("double.vdb", double_grids(vdb, last))):
+    writers = {"houdini_pyro.vdb": houdini_grids, "embergen.vdb": embergen_grids,
+               "double.vdb": double_grids}
+    for rel, grids in writers.items():
         path = os.path.join(OUT, rel)
-        vdb.write(path, grids=grids)
+        vdb.write(path, grids=grids(vdb, last))
         record_truth(vdb, path, rel, truth)
-    update_truth(truth, OWNED)
-    total = sum(os.path.getsize(os.path.join(OUT, rel)) for rel in OWNED)
+    update_truth(truth, tuple(writers))
+    total = sum(os.path.getsize(os.path.join(OUT, rel)) for rel in writers)
     print(f"wrote {OUT}: {total} bytes, OpenVDB {vdb.LIBRARY_VERSION}, file format "
           f"{vdb.FILE_FORMAT_VERSION}")
 
