@@ -45,6 +45,7 @@ class Agreement:
     per_test_alpha: float
     frac_rejected: float
     n_tests: int
+    n_untested: int = 0
 
     @property
     def passed(self):
@@ -58,29 +59,41 @@ class Agreement:
         return (f"{verdict}: image mean volmc - {peer} (R, G, B): {rel}, in standard errors "
                 f"{mz}; max |z| per pixel {self.max_abs_z:.2f}, smallest p {self.min_p:.2e} "
                 f"(Sidak per-test level {self.per_test_alpha:.2e} over {self.n_tests} pixel "
-                f"channels); {100 * self.frac_rejected:.3f} % rejected")
+                f"channels); {100 * self.frac_rejected:.3f} % rejected" +
+                (f"; {self.n_untested} pixel channels untested (the peer's passes all alike)"
+                 if self.n_untested else ""))
 
 
-def agreement(mean_v, var_v, mean_p, var_p, pass_means_p, spp_p=None):
+def agreement(mean_v, var_v, mean_p, var_p, pass_means_p):
     """Compare volmc (mean, variance of the mean) with a peer rendered in K passes.
 
-    pass_means_p: [K, 3] image means of the peer's passes (for the image-mean test);
-    spp_p: the peer's samples per pixel in all (for the rule-of-three variance floor)."""
-    from scipy import stats
+    pass_means_p: [K, 3] image means of the peer's passes (for the image-mean test)."""
     mean_v, var_v = np.asarray(mean_v, np.float64), np.asarray(var_v, np.float64)
     mean_p, var_p = np.asarray(mean_p, np.float64), np.asarray(var_p, np.float64)
     k = len(pass_means_p)
-    # Rule of three: when the peer's samples in a pixel all came out alike (a rare event, such
-    # as a real collision in thin medium, was never drawn), its sample variance is 0 but the
-    # true one is not. Zero events in n samples bound the event rate below 3 / n at 95 %, so
-    # a peer whose samples jump by up to the pixel value with that rate has variance of the
-    # mean up to 3 * value^2 / n^2; the peer's variance is floored there.
-    n_p = spp_p if spp_p else k
-    floor = 3.0 * np.maximum(np.abs(mean_v), np.abs(mean_p)) ** 2 / float(n_p) ** 2
-    var_p = np.maximum(var_p, floor)
-    # Float32 rounding in either renderer (as in volmc check) is not a statistical difference.
+    # A pixel channel whose peer passes came out alike while volmc's samples vary is one where
+    # a rare event (a real collision in thin medium, a shadow ray getting through a dense
+    # one, a phase-sampled ray meeting a small light) was never drawn by the peer. Its
+    # sample variance is then 0 though the true one is not, and nothing in the data bounds
+    # it: one event can move the pixel far beyond its mean (a track-length transmittance
+    # jumps from 0 to the full light). The same holds where one pass alone drew such events:
+    # the spread of K values of which K - 1 are alike says nothing about the next pass.
+    # With non-negative pass values, "how many passes carry the pixel" is
+    #     n = K mean^2 / (mean^2 + (K - 1) var),  var the variance of the mean,
+    # exact for n passes of equal value and the rest 0 (n = 0 when all are 0). Where n < 2
+    # the pixel channel is left out of the per-pixel test and counted; the image-mean test
+    # below still includes it. Where both renderers came out constant (a background seen
+    # directly), they are compared up to float32 rounding.
+    # Float32 rounding in either renderer (as in volmc check) is not a statistical difference,
+    # and passes that differ by no more than it came out alike.
     rounding = ROUNDING_REL * np.maximum(np.abs(mean_v), np.abs(mean_p)) + ROUNDING_ABS
+    varies = var_v > (ROUNDING_REL * np.maximum(np.abs(mean_v), np.abs(mean_p))) ** 2
+    alike = var_p * k <= rounding ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        carried = k * mean_p ** 2 / (mean_p ** 2 + (k - 1) * var_p)
+    untested = varies & (alike | ((mean_p >= 0.0) & ~(carried >= 2.0)))
     p, z = welch_pvalues(mean_v - mean_p, var_v + rounding ** 2, var_p, k - 1)
+    p, z = np.where(untested, 1.0, p), np.where(untested, 0.0, z)
     per = 1.0 - (1.0 - ALPHA) ** (1.0 / p.size)
     n_pix = mean_v.shape[0] * mean_v.shape[1]
     mz, mp = [], []
@@ -94,7 +107,7 @@ def agreement(mean_v, var_v, mean_p, var_p, pass_means_p, spp_p=None):
         mp.append(float(pc))
     return Agreement(tuple(mean_v.mean(axis=(0, 1))), tuple(mean_p.mean(axis=(0, 1))),
                      tuple(mz), min(mp), float(np.abs(z).max()), float(p.min()), per,
-                     float(np.mean(p < per)), int(p.size))
+                     float(np.mean(p < per)), int(p.size), int(untested.sum()))
 
 
 def rmse_to_reference(image, ref_mean, ref_var):

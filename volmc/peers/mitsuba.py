@@ -11,7 +11,10 @@ or by the cross-check of docs/peers.md):
   Both sample the pixel uniformly (Mitsuba: ``box`` reconstruction filter, radius half a pixel).
   A thin lens (``aperture`` > 0) becomes Mitsuba's ``thinlens`` with ``aperture_radius`` =
   aperture and the same ``focus_distance``: both sample the lens disc uniformly and focus
-  on the plane at that distance along the view axis. Mitsuba has no orthographic thin lens
+  on the plane at that distance along the view axis. Mitsuba's rays start at ``near_clip``
+  along the view axis (default 0.01), volmc's at the eye: ``near_clip`` is set far below a
+  voxel (NEAR_CLIP), or a camera inside a medium would skip its first centimetre.
+  Mitsuba has no orthographic thin lens
   and no equirectangular sensor, so an orthographic camera with an aperture and a
   panoramic camera raise PeerUnavailable, as does a lens reaching across the medium box's
   surface (the sensor's medium is one for all its rays).
@@ -330,6 +333,11 @@ def _grey(scene):
     return all(len(set(medium_scale(p.spec.medium))) == 1 for p in scene.media_scenes)
 
 
+#: Mitsuba's near clip distance, in units of the distance from the eye to the target (at least
+#: 1): far below a voxel, far above float32's resolution of the eye's position.
+NEAR_CLIP = 1e-5
+
+
 def scene_dict(scene, mi=None):
     """The Mitsuba 3 scene dictionary of a volmc Scene (see the module docstring).
 
@@ -353,6 +361,10 @@ def scene_dict(scene, mi=None):
     else:
         s = cam.size * (w / h) / 2.0
         sensor = {"type": "orthographic", "to_world": look @ T().scale([s, s, 1.0])}
+    # Mitsuba's cameras start their rays at near_clip (default 0.01) along the view axis: the
+    # medium of a camera inside it would lose its first centimetre. volmc's rays start at
+    # the eye (the lens).
+    sensor["near_clip"] = NEAR_CLIP * max(1.0, math.dist(cam.eye, cam.target))
     sensor["film"] = {"type": "hdrfilm", "width": int(w), "height": int(h),
                       "rfilter": {"type": "box"}, "pixel_format": "rgb"}
     sensor["sampler"] = {"type": "independent", "sample_count": int(ren.spp)}
