@@ -129,7 +129,7 @@ def _compare(scene, spp=256):
     finally:
         peer.close()
     return compare.agreement(rv.film.mean(), rv.film.variance_of_mean(), mean_p, var_p,
-                             pass_means)
+                             pass_means, peer.last_low)
 
 
 @needs_cycles

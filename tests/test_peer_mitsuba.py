@@ -154,7 +154,7 @@ def _compare(scene, mi_scene=None, spp=None, passes=16):
     peer = MitsubaRenderer(mi_scene or scene)
     mean_p, var_p, _, pass_means = peer.render(spp, seed=11, passes=passes)
     return compare.agreement(rv.film.mean(), rv.film.variance_of_mean(), mean_p, var_p,
-                             pass_means)
+                             pass_means, peer.last_low)
 
 
 @needs_mitsuba
@@ -448,18 +448,21 @@ def test_rare_event_pixels_are_left_out_but_constant_ones_compared():
     passes[:, 5, 5, :] = 0.75                     # a background seen directly
     passes[:, 6, 1, :] = 0.0
     passes[4, 6, 1, :] = 0.02                     # one pass alone drew the rare event
+    passes[:, 1, 6, :] = 0.5
+    passes[9, 1, 6, :] = 0.52                     # ... on top of a background
     mean_p, var_p = passes.mean(axis=0), passes.var(axis=0, ddof=1) / k
     a = rng.normal(1.0, 0.02, (8, 8, 3))
     var_a = np.full_like(a, 0.02 ** 2)
     a[2, 3, :], var_a[2, 3, :] = 1e-3, 1e-10      # z = 1e5 against a variance of 0
     a[5, 5, :], var_a[5, 5, :] = 0.75, 0.0
     a[6, 1, :], var_a[6, 1, :] = 0.05, 1e-8       # the pass spread says 0.00125 +- 0.00125
-    pm = passes.mean(axis=(1, 2))
-    agr = compare.agreement(a, var_a, mean_p, var_p, pm)
-    assert agr.passed and agr.n_untested == 6, agr.summary()
+    a[1, 6, :], var_a[1, 6, :] = 0.51, 1e-8
+    pm, low = passes.mean(axis=(1, 2)), passes.min(axis=0)
+    agr = compare.agreement(a, var_a, mean_p, var_p, pm, low)
+    assert agr.passed and agr.n_untested == 9, agr.summary()
     a[5, 5, :] = 0.7499                           # off by 1.3e-4, far above float32 rounding
-    agr = compare.agreement(a, var_a, mean_p, var_p, pm)
-    assert not agr.passed and agr.n_untested == 6
+    agr = compare.agreement(a, var_a, mean_p, var_p, pm, low)
+    assert not agr.passed and agr.n_untested == 9
 
 
 @pytest.mark.parametrize("light, words", [

@@ -79,7 +79,7 @@ def compare_with_peer(name, scene, spp=None, passes=16, reference_spp=None, devi
         sync = getattr(peer, "last_sync_seconds", None)
         log(f"  {title}: {sec_p:8.2f} s" + ("" if sync is None else
                                             f" tracing, {sync:.2f} s scene sync"))
-        agr = compare.agreement(mean_v, var_v, mean_p, var_p, pass_means)
+        agr = compare.agreement(mean_v, var_v, mean_p, var_p, pass_means, peer.last_low)
         log("  " + agr.summary(title))
         report = {"peer": name, "peer_version": version, f"{name}_version": version,
                   "peer_mode": peer.mode, f"{name}_mode": peer.mode, "spp": spp,

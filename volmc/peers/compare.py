@@ -22,6 +22,10 @@ import numpy as np
 from ..check import ALPHA, ROUNDING_ABS, ROUNDING_REL
 
 
+#: Relative standard error below which volmc's pixel counts as constant (see agreement).
+SPREAD_REL = 1e-7
+
+
 def welch_pvalues(diff, var_a, var_b, dof_b):
     """Two-sided p-values of diff / sqrt(var_a + var_b); var_b has dof_b degrees of freedom."""
     from scipy import stats
@@ -64,10 +68,11 @@ class Agreement:
                  if self.n_untested else ""))
 
 
-def agreement(mean_v, var_v, mean_p, var_p, pass_means_p):
+def agreement(mean_v, var_v, mean_p, var_p, pass_means_p, low_p=None):
     """Compare volmc (mean, variance of the mean) with a peer rendered in K passes.
 
-    pass_means_p: [K, 3] image means of the peer's passes (for the image-mean test)."""
+    pass_means_p: [K, 3] image means of the peer's passes (for the image-mean test); low_p:
+    each pixel channel's least pass value (default 0: every pass value is >= 0)."""
     mean_v, var_v = np.asarray(mean_v, np.float64), np.asarray(var_v, np.float64)
     mean_p, var_p = np.asarray(mean_p, np.float64), np.asarray(var_p, np.float64)
     k = len(pass_means_p)
@@ -78,20 +83,24 @@ def agreement(mean_v, var_v, mean_p, var_p, pass_means_p):
     # it: one event can move the pixel far beyond its mean (a track-length transmittance
     # jumps from 0 to the full light). The same holds where one pass alone drew such events:
     # the spread of K values of which K - 1 are alike says nothing about the next pass.
-    # With non-negative pass values, "how many passes carry the pixel" is
-    #     n = K mean^2 / (mean^2 + (K - 1) var),  var the variance of the mean,
-    # exact for n passes of equal value and the rest 0 (n = 0 when all are 0). Where n < 2
-    # the pixel channel is left out of the per-pixel test and counted; the image-mean test
-    # below still includes it. Where both renderers came out constant (a background seen
-    # directly), they are compared up to float32 rounding.
+    # How many passes carry the pixel's excess e = mean - (its least pass value) is
+    #     n = K e^2 / (e^2 + (K - 1) var),  var the variance of the mean,
+    # exact for n passes of equal value above the rest (n = 0 when all are alike). Where
+    # n < 2 the pixel channel is left out of the per-pixel test and counted; the image-mean
+    # test below still includes it. Where both renderers came out constant (a background
+    # seen directly), they are compared up to float32 rounding.
     # Float32 rounding in either renderer (as in volmc check) is not a statistical difference,
     # and passes that differ by no more than it came out alike.
     rounding = ROUNDING_REL * np.maximum(np.abs(mean_v), np.abs(mean_p)) + ROUNDING_ABS
-    varies = var_v > (ROUNDING_REL * np.maximum(np.abs(mean_v), np.abs(mean_p))) ** 2
+    # volmc's samples vary where its standard error exceeds what float64 sums of identical
+    # float32 samples leave (far below float32 rounding: a smooth estimate, such as
+    # equiangular samples along a camera ray through thin medium, can vary less than that).
+    varies = var_v > (SPREAD_REL * np.maximum(np.abs(mean_v), np.abs(mean_p))) ** 2
     alike = var_p * k <= rounding ** 2
+    excess = mean_p - (0.0 if low_p is None else np.asarray(low_p, np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
-        carried = k * mean_p ** 2 / (mean_p ** 2 + (k - 1) * var_p)
-    untested = varies & (alike | ((mean_p >= 0.0) & ~(carried >= 2.0)))
+        carried = k * excess ** 2 / (excess ** 2 + (k - 1) * var_p)
+    untested = varies & (alike | ~(carried >= 2.0))
     p, z = welch_pvalues(mean_v - mean_p, var_v + rounding ** 2, var_p, k - 1)
     p, z = np.where(untested, 1.0, p), np.where(untested, 0.0, z)
     per = 1.0 - (1.0 - ALPHA) ** (1.0 / p.size)
@@ -99,9 +108,13 @@ def agreement(mean_v, var_v, mean_p, var_p, pass_means_p):
     mz, mp = [], []
     pm = np.asarray(pass_means_p, np.float64)
     for c in range(3):
-        va = float(var_v[..., c].sum()) / n_pix ** 2
-        vb = float(pm[:, c].var(ddof=1)) / k
         d = float(mean_v[..., c].mean() - mean_p[..., c].mean())
+        # Rounding again: an image without noise (a background seen through nothing) has
+        # variance 0 on both sides.
+        va = float(var_v[..., c].sum()) / n_pix ** 2 + float(
+            (ROUNDING_REL * max(abs(mean_v[..., c].mean()), abs(mean_p[..., c].mean())) +
+             ROUNDING_ABS) ** 2)
+        vb = float(pm[:, c].var(ddof=1)) / k
         pc, zc = welch_pvalues(np.array(d), np.array(va), np.array(vb), k - 1)
         mz.append(float(zc))
         mp.append(float(pc))

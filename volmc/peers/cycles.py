@@ -354,7 +354,8 @@ class CyclesRenderer:
         The image is the sample-weighted mean of ``passes`` renders (default 1) with seeds
         derived from ``seed``; the spread of the passes gives the variance of the mean (NaN
         for one pass). Tracing seconds are Cycles' own, summed over the passes;
-        ``last_sync_seconds`` holds the rest of Cycles' time (scene sync, output)."""
+        ``last_sync_seconds`` holds the rest of Cycles' time (scene sync, output), and
+        ``last_low`` each pixel channel's least pass value (for compare.agreement)."""
         passes = max(1, min(passes or 1, spp))
         sizes = [spp // passes + (1 if i < spp % passes else 0) for i in range(passes)]
         seeds = [(seed * 100_003 + i) % (2**31 - 1) for i in range(passes)]
@@ -364,4 +365,5 @@ class CyclesRenderer:
         mean = np.tensordot(np.array(sizes, np.float64) / spp, stack, axes=1)
         var = (stack.var(axis=0, ddof=1) / passes if passes > 1
                else np.full_like(mean, np.nan))
+        self.last_low = stack.min(axis=0)
         return mean, var, float(np.sum(r["tracing"])), stack.mean(axis=(1, 2))

@@ -538,7 +538,8 @@ class MitsubaRenderer:
         The image is the sample-weighted mean of ``passes`` launches with independent seeds
         (default: as few as memory allows). The spread of the nearly equal-size passes
         estimates the variance of one pass's mean; the overall mean's variance is that over
-        the number of passes (NaN for a single pass)."""
+        the number of passes (NaN for a single pass). ``last_low`` holds each pixel
+        channel's least pass value (for compare.agreement)."""
         if passes is None:
             passes = max(1, math.ceil(spp * self.pixels / MAX_LANES))
         passes = max(1, min(passes, spp))
@@ -549,4 +550,5 @@ class MitsubaRenderer:
         mean = np.tensordot(np.array(sizes, np.float64) / spp, stack, axes=1)
         var = (stack.var(axis=0, ddof=1) / passes if passes > 1
                else np.full_like(mean, np.nan))
+        self.last_low = stack.min(axis=0)
         return mean, var, seconds, stack.mean(axis=(1, 2))
