@@ -114,6 +114,13 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["render", "{tiny}", "-D", "medium.transform={scale=[1, 0, 1]}"], "medium.transform"),
     (["render", "missing.toml"], "missing.toml"),
     (["render", "{tiny}", "--exposure", "nan"], "--exposure"),
+    # An unbounded count started worker processes until memory ran out.
+    (["render", "{tiny}", "--workers", "99999999999999999999"], "--workers"),
+    (["render", "{tiny}", "--spp", "4294967296"], "--spp"),
+    (["bench", "lanes", "{tiny}", "--spp-levels", "4,4294967296"], "--spp-levels"),
+    # These allocated a 100000^3 grid and 2^40 / 64 sums: numpy's MemoryError traceback.
+    (["bench", "sparse", "--size", "100000"], "--size"),
+    (["bench", "sparse", "--lookups", str(2**50)], "--lookups"),
     (["frobnicate"], "invalid choice"),
     (["convert", "missing.npy", "x.vol"], "missing.npy"),
 ])

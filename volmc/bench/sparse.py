@@ -238,6 +238,17 @@ def _timed_both(fn):
     return time.perf_counter() - t, time.process_time() - c
 
 
+def least_bytes(size, lookups, backends, per_item=64):
+    """Host bytes ``run`` allocates whatever the fill: the float32 grid, its copy padded into
+    8^3 blocks, the float64 grid of the Numba runs, and every configuration's sums (one
+    float64 per work item, kept for the bit-for-bit check). The brick pools come on top,
+    in proportion to the bricks the blobs touch."""
+    voxels = size ** 3
+    per_voxel = 4 + 4 + (8 if "numba" in backends else 0)
+    n_items = max(1, lookups // per_item)
+    return voxels * per_voxel + n_items * 8 * len(MODES) * len(LOOKUPS) * len(backends)
+
+
 def run(size=512, fill=0.03, lookups=1 << 22, per_item=64, repeats=5, backends=("opencl",
         "numba"), device=None, seed=1, log=print):
     """The benchmark's figures as a dict (see the module docstring)."""

@@ -6,10 +6,11 @@ import sys
 import time
 
 from ..scene.errors import SceneError
+from ..scene.hostmem import require_host
 from .common import (Parser, add_cluster_options, add_defines_option, add_device_option,
                      add_ladder_arguments, add_lanes_option, add_scene_argument,
                      check_directory, check_writable, comma_list, dask_session, finite_float,
-                     positive_int, scene_path, spp_levels)
+                     positive_int, scene_path, spp_count, spp_levels)
 
 
 def add_bench_transmittance_parser(sub):
@@ -273,7 +274,7 @@ def cmd_bench_variance(args):
 def _add_batch_arguments(p, default_scenes):
     """The arguments of the samples/s benchmarks (specialise, workgroup)."""
     p.add_argument("scenes", nargs="*", help=f"scene files (default: {default_scenes})")
-    p.add_argument("--spp", type=positive_int, default=4,
+    p.add_argument("--spp", type=spp_count, default=4,
                    help="samples per pixel per timed batch (default 4)")
     p.add_argument("--repeats", type=positive_int, default=3,
                    help="timed batches per configuration; the median is reported")
@@ -385,6 +386,11 @@ def cmd_bench_sparse(args):
     backends = comma_list(args.backends, "--backends", BACKENDS)
     if args.json:
         check_writable(args.json, "--json")
+    need = sparse.least_bytes(args.size, args.lookups, backends)
+    key = "--size" if need - sparse.least_bytes(args.size, 1, backends) < need // 2 \
+        else "--lookups"
+    require_host(need, "command line", key,
+                 f"a {args.size}^3 grid and {args.lookups} lookups per launch")
     argv = ["--size", str(args.size), "--fill", str(args.fill), "--lookups",
             str(args.lookups), "--repeats", str(args.repeats), "--backends",
             ",".join(backends)] + (["--device", args.device] if args.device else []) + \
@@ -400,7 +406,7 @@ def add_bench_denoise_parser(sub):
                     help="image width; the height keeps the scene's aspect (default 160)")
     bd.add_argument("--spp-levels", default="4,16,64",
                     help="comma-separated spp of the noisy renders (default 4,16,64)")
-    bd.add_argument("--reference-spp", type=positive_int, default=2048,
+    bd.add_argument("--reference-spp", type=spp_count, default=2048,
                     help="spp of the reference (default 2048)")
     add_lanes_option(bd)
     bd.add_argument("--json", help="also write the report to this JSON file")

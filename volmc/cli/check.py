@@ -1,15 +1,15 @@
 """``volmc check``: a scene rendered by two backends, the images compared per pixel."""
 
 from ..scene.errors import SceneError
-from .common import (add_defines_option, add_device_option, add_scene_argument, positive_int,
-                     scene_path)
+from .common import (add_defines_option, add_device_option, add_scene_argument,
+                     scene_path, spp_count)
 
 
 def add_check_parser(sub):
     k = sub.add_parser("check", help="render a scene with two backends and compare the images "
                                      "(per-pixel z-test)")
     add_scene_argument(k)
-    k.add_argument("--spp", type=positive_int, help="samples per pixel for both renders")
+    k.add_argument("--spp", type=spp_count, help="samples per pixel for both renders")
     k.add_argument("--backends", default="opencl,numba", help="two backends (default "
                                                                "opencl,numba)")
     add_device_option(k)

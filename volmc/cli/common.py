@@ -42,6 +42,34 @@ def nonnegative_seconds(text):
     return v
 
 
+def spp_count(text):
+    """Samples per pixel: a positive integer of at most MAX_SPP (as render.spp)."""
+    from ..scene.schema import MAX_SPP
+    v = positive_int(text)
+    if v > MAX_SPP:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_SPP} samples per pixel, "
+                                         f"got {v}")
+    return v
+
+
+WORKERS_PER_CPU = 4
+
+
+def local_workers(text):
+    """--workers: a positive integer of at most WORKERS_PER_CPU per CPU of this machine.
+    Each worker is a process holding the scene and its own compiled kernels, and more of
+    them than the CPUs only share those CPUs, so a larger count is a typing error (an
+    unbounded one would start processes until memory ran out)."""
+    v = positive_int(text)
+    cpus = os.cpu_count() or 1
+    if v > WORKERS_PER_CPU * cpus:
+        raise argparse.ArgumentTypeError(
+            f"{v} worker processes on a machine with {cpus} CPUs: at most "
+            f"{WORKERS_PER_CPU * cpus} ({WORKERS_PER_CPU} per CPU); for more, start a "
+            "cluster and pass --scheduler")
+    return v
+
+
 def seed(text):
     v = _convert(text, int, "an integer in [0, 2^64)")
     if not 0 <= v < 2**64:
@@ -85,7 +113,7 @@ def add_defines_option(parser, help="override a scene key (repeatable)"):
 def add_cluster_options(parser, what):
     """--workers N | --scheduler ADDRESS (rendering on Dask; see dask_session)."""
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=positive_int, metavar="N",
+    where.add_argument("--workers", type=local_workers, metavar="N",
                        help=f"{what} on a new local Dask cluster of N worker processes "
                             "(needs volmc[dask])")
     where.add_argument("--scheduler", metavar="ADDRESS",
@@ -104,7 +132,7 @@ def add_ladder_arguments(p, repeats, levels="4,16,64", reference_spp=1024):
     p.add_argument("--spp-levels", default=levels,
                    help=f"comma-separated samples per pixel of the timed renders (default "
                         f"{levels})")
-    p.add_argument("--reference-spp", type=positive_int, default=reference_spp,
+    p.add_argument("--reference-spp", type=spp_count, default=reference_spp,
                    help=f"samples per pixel of the reference (default {reference_spp})")
     p.add_argument("--repeats", type=positive_int, default=repeats,
                    help=f"passes over the spp ladder (default {repeats})")
@@ -148,9 +176,11 @@ def spp_levels(text):
     """The ``--spp-levels`` list: positive integers separated by commas."""
     levels = []
     for x in text.split(","):
-        if not (x.strip().isascii() and x.strip().isdigit()) or int(x) < 1:
+        from ..scene.schema import MAX_SPP
+        if not (x.strip().isascii() and x.strip().isdigit()) or not 1 <= int(x) <= MAX_SPP:
             raise SceneError("command line", "--spp-levels",
-                             f"expected positive integers separated by commas, got {text!r}")
+                             f"expected integers from 1 to {MAX_SPP} separated by commas, "
+                             f"got {text!r}")
         levels.append(int(x))
     return levels
 

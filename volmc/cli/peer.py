@@ -5,7 +5,8 @@ import os
 
 from ..scene.errors import SceneError
 from .common import (add_defines_option, add_device_option, add_scene_argument,
-                     check_directory, check_writable, positive_int, scene_path)
+                     check_directory, check_writable, positive_int, scene_path,
+                     spp_count)
 
 
 def add_peer_parser(sub):
@@ -14,7 +15,7 @@ def add_peer_parser(sub):
                                      "against error")
     pe.add_argument("peer", choices=["mitsuba", "cycles"], help="the peer renderer")
     add_scene_argument(pe)
-    pe.add_argument("--spp", type=positive_int, help="samples per pixel of both renders "
+    pe.add_argument("--spp", type=spp_count, help="samples per pixel of both renders "
                                                      "(default: the scene's)")
     pe.add_argument("--passes", type=positive_int, default=16,
                     help="the peer renders in this many independent launches, whose spread "

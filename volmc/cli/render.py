@@ -7,7 +7,7 @@ import time
 from ..scene.errors import SceneError
 from .common import (EXIT_INTERRUPTED, add_cluster_options, add_defines_option,
                      add_lanes_option, add_scene_argument, check_writable, dask_session,
-                     exposure, nonnegative_seconds, positive_int, seed)
+                     exposure, nonnegative_seconds, seed, spp_count)
 
 
 def add_render_parser(sub):
@@ -15,7 +15,7 @@ def add_render_parser(sub):
     r = sub.add_parser("render", help="render a scene to EXR (and PNG)")
     add_scene_argument(r)
     r.add_argument("-o", "--output", help="EXR path (default: <scene name>.exr here)")
-    r.add_argument("--spp", type=positive_int, help="samples per pixel (overrides render.spp)")
+    r.add_argument("--spp", type=spp_count, help="samples per pixel (overrides render.spp)")
     r.add_argument("--seed", type=seed, help="random seed (overrides render.seed)")
     r.add_argument("--backend", choices=BACKENDS, default=BACKENDS[0],
                    help="render backend (default opencl; numba is the float64 reference)")

@@ -26,6 +26,8 @@ CAMERA_TYPES = ("perspective", "orthographic", "panoramic")
 PHASE_TYPES = ("isotropic", "hg")
 #: Procedural sources and the fields each returns, in order (``channel``; generators.py
 #: returns a tuple when there are several).
+#: Samples per pixel: the kernels index a pixel's samples with a uint32.
+MAX_SPP = 2**32 - 1
 GENERATORS = {"cloud": ("density",), "plume": ("density", "temperature")}
 #: Formats that hold several named grids (``grid`` picks one).
 NAMED_GRID_SUFFIXES = (".npz", ".vdb", ".nvdb")
@@ -680,7 +682,7 @@ def _render(c, raw):
     c.known(raw, RENDER_KEYS, p)
     d = Render()
     return Render(
-        spp=c.integer(raw.get("spp", d.spp), p + "spp", lo=1, hi=2**32 - 1),  # uint32 sample
+        spp=c.integer(raw.get("spp", d.spp), p + "spp", lo=1, hi=MAX_SPP),  # uint32 sample
         max_depth=c.integer(raw.get("max_depth", d.max_depth), p + "max_depth", lo=-1,
                             hi=2**31 - 1),
         rr_depth=c.integer(raw.get("rr_depth", d.rr_depth), p + "rr_depth", lo=0, hi=2**31 - 1),
