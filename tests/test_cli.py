@@ -113,6 +113,12 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
      "nope.vdb"),
     (["render", "{tiny}", "-D", "medium.transform={scale=[1, 0, 1]}"], "medium.transform"),
     (["render", "missing.toml"], "missing.toml"),
+    # An empty value read as "not given": no checkpoint, no JSON report, the default name.
+    (["render", "{tiny}", "--checkpoint", ""], "--checkpoint"),
+    (["render", "{tiny}", "-o", ""], "--output"),
+    (["bench", "transmittance", "--quick", "--json", ""], "--json"),
+    # Before the "rendering" line, so that the error is the only line.
+    (["render", "{tiny}", "--resume", "missing.ckpt"], "no such checkpoint file"),
     (["render", "{tiny}", "--exposure", "nan"], "--exposure"),
     # An unbounded count started worker processes until memory ran out.
     (["render", "{tiny}", "--workers", "99999999999999999999"], "--workers"),

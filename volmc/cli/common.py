@@ -14,10 +14,21 @@ SCENE_HELP = "scene .toml (default: the bundled cloud scene)"
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with a one-line error (no usage dump) and exit status 2."""
+    """argparse with a one-line error (no usage dump) and exit status 2. An option given an
+    empty value (``-o ""``, ``--json ""``) is an error too: otherwise it reads as "not
+    given", and a JSON report or checkpoint the user asked for would silently not be
+    written."""
 
     def error(self, message):
         raise SceneError("command line", "", message)
+
+    def parse_known_args(self, args=None, namespace=None):
+        ns, rest = super().parse_known_args(args, namespace)
+        for a in self._actions:
+            v = getattr(ns, a.dest, None) if a.option_strings else None
+            if v == "" or (isinstance(v, list) and "" in v):
+                self.error(f"argument {a.option_strings[-1]}: expected a value, got ''")
+        return ns, rest
 
 
 def _convert(text, kind, expected):

@@ -23,7 +23,7 @@ def add_render_parser(sub):
                                     "substring; default: $VOLMC_CL_DEVICE, else PoCL)")
     add_lanes_option(r)
     add_defines_option(r, "override a scene key (repeatable), e.g. -D medium.albedo=0.9")
-    r.add_argument("--png", nargs="?", const="", default=None, metavar="PATH",
+    r.add_argument("--png", nargs="?", const=True, default=None, metavar="PATH",
                    help="also write a tonemapped sRGB PNG preview (default path: EXR name with "
                         ".png); on by default when no scene is given")
     r.add_argument("--exposure", type=exposure, default=0.0,
@@ -79,6 +79,8 @@ def cmd_render(args):
     scene = load_scene(scene_path, defines)
 
     _check_render_device(args)
+    if args.resume and not os.path.isfile(args.resume):   # before the "rendering" line
+        raise SceneError(args.resume, "--resume", "no such checkpoint file")
     from ..memory import check_memory
     # A render that cannot fit fails now.
     check_memory(scene, args.backend, args.device, albedo=args.denoise)
@@ -129,10 +131,10 @@ def _render_paths(args):
     scene_path = str(default_scene()) if use_default else args.scene
     stem = os.path.splitext(os.path.basename(scene_path))[0]
     out = args.output or f"{stem}.exr"
-    png = args.png
+    png = args.png   # None, True (--png alone: beside the EXR) or a path
     if png is None and use_default:
-        png = ""
-    if png == "":
+        png = True
+    if png is True:
         png = os.path.splitext(out)[0] + ".png"
     if not out.lower().endswith(".exr"):   # the render is float: an EXR, a PNG beside it
         raise SceneError("command line", "-o", f"expected a path ending in .exr, got {out!r} "
