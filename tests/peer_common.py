@@ -155,6 +155,11 @@ def run_peer_cli(name, tmp_path, *extra):
     assert rep["volmc"]["rmse"] > 0 and rep[name]["rmse"] > 0
     assert rep["equal_error_time_ratio"] > 0
     assert (tmp_path / f"{name}.exr").is_file() and (tmp_path / "reference.exr").is_file()
+    # The variances the per-pixel test weighed: non-negative, and not all zero on either side.
+    from volmc.film import read_exr
+    for who in ("volmc", name):
+        var, _ = read_exr(tmp_path / f"{who}.var.exr")
+        assert np.all(var >= 0) and np.any(var > 0), who
     return rep
 
 

@@ -61,6 +61,56 @@ def test_peer_scenes_are_translatable(peer):
     assert refused <= 0.1 * len(SEEDS)
 
 
+def _world_corners(spec_medium):
+    lo, hi = np.asarray(spec_medium.bounds, float)
+    corners = np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
+    m = np.eye(4) if spec_medium.transform is None else np.asarray(spec_medium.transform,
+                                                                    float).reshape(4, 4)
+    return corners @ m[:3, :3].T + m[:3, 3], m
+
+
+@pytest.mark.parametrize("target", sorted(sweep.TARGETS))
+def test_point_lights_stay_out_of_the_media(target):
+    """A point, spot or sphere light inside a scattering medium makes distance-sampled
+    next-event estimates heavy-tailed (unbounded variance), which no per-pixel test can
+    judge: every such light lies outside every medium's world box (tested in each medium's
+    own space, through its transform), and a turned medium keeps its box's centre."""
+    n_lights = 0
+    for seed in SEEDS:
+        raw, _ = sweep.random_scene(seed, target)
+        spec = sweep._scene(raw).spec
+        for med in spec.media:
+            corners, m = _world_corners(med)
+            lo, hi = np.asarray(med.bounds, float)
+            assert np.allclose(corners.mean(axis=0), m[:3, :3] @ ((lo + hi) / 2) + m[:3, 3])
+            assert np.allclose(corners.mean(axis=0), (lo + hi) / 2, atol=1e-9)
+            inv = np.linalg.inv(m)
+            for lt in raw["lights"]:
+                if "position" not in lt:
+                    continue
+                n_lights += 1
+                p = inv[:3, :3] @ np.asarray(lt["position"]) + inv[:3, 3]
+                assert not np.all((lo <= p) & (p <= hi)), (seed, lt)
+    assert n_lights > 10
+
+
+def test_mitsuba_media_never_overlap():
+    """Mitsuba's volpath has one medium at a time, so the Mitsuba target keeps the media's
+    world boxes apart whatever their turn and stretch (their bounding spheres are
+    disjoint)."""
+    for seed in range(200):
+        raw, _ = sweep.random_scene(seed, "mitsuba")
+        spheres = []
+        for med in sweep._scene(raw).spec.media:
+            corners, _ = _world_corners(med)
+            c = corners.mean(axis=0)
+            spheres.append((c, np.linalg.norm(corners - c, axis=1).max()))
+        for i in range(len(spheres)):
+            for j in range(i):
+                (ci, ri), (cj, rj) = spheres[i], spheres[j]
+                assert np.linalg.norm(ci - cj) > ri + rj, seed
+
+
 def test_blobs_are_a_lumpy_unit_density():
     rng = np.random.default_rng(3)
     d = sweep._blobs(rng, (9, 12, 7))
@@ -75,3 +125,27 @@ def test_a_random_case_agrees_with_the_reference(seed):
     Numba reference at another seed (family level 1 %)."""
     record = sweep.run_case(seed, "reference", 64, log=lambda *a: None)
     assert record["outcome"] == "agree", record["summary"]
+
+
+@pytest.mark.parametrize("script,outcome,factors", [
+    ([(True, True)], "agree", [1]),
+    ([(False, True), (True, True)], "chance", [1, 4]),
+    # Failing per pixel with agreeing image means: rendered once more at 16x spp.
+    ([(False, True), (False, True), (True, True)], "rare events", [1, 4, 16]),
+    ([(False, True), (False, True), (False, True)], "DIFFER", [1, 4, 16]),
+    # Image means that differ at 4x spp are a difference: no third rung.
+    ([(False, True), (False, False)], "DIFFER", [1, 4]),
+])
+def test_failures_climb_the_confirmation_ladder(monkeypatch, script, outcome, factors):
+    calls = []
+
+    def compare(scene, spp, lanes, seed_offset=0):
+        calls.append((spp, seed_offset))
+        passed, means = script[len(calls) - 1]
+        return sweep.Run(passed, means, "AGREE" if passed else "DIFFER")
+
+    monkeypatch.setattr(sweep, "compare_reference", compare)
+    record = sweep.run_case(3, "reference", 32, log=lambda *a: None)
+    assert record["outcome"] == outcome
+    assert [spp for spp, _ in calls] == [32 * f for f in factors]
+    assert len({off for _, off in calls}) == len(calls)     # new seeds on every rung

@@ -46,7 +46,8 @@ def make_renderer(name, scene):
 def compare_with_peer(name, scene, spp=None, passes=16, reference_spp=None, device=None,
                       log=print):
     """Agreement and speed report (a dict) of volmc against peer ``name`` on ``scene``, and
-    the images {"volmc", name, "reference"}.
+    the images {"volmc", name, "reference"} with "volmc.var" and name + ".var", the two
+    renders' variances of the mean.
 
     spp: samples per pixel of both test renders (default: the scene's). passes: the peer
     renders in this many independent launches, whose spread gives its per-pixel variance.
@@ -88,7 +89,9 @@ def compare_with_peer(name, scene, spp=None, passes=16, reference_spp=None, devi
                   name: {"seconds": sec_p, "mean": agr.mean_peer}}
         if sync is not None:
             report[name]["sync_seconds"] = sync
-        images = {"volmc": mean_v, name: mean_p}
+        # Each renderer's variance of the mean beside its image (volmc's from its samples,
+        # the peer's from its passes): what the per-pixel test weighed.
+        images = {"volmc": mean_v, name: mean_p, "volmc.var": var_v, f"{name}.var": var_p}
 
         if reference_spp:
             sr = scene.with_render(seed=(seed + 2) % 2**64)
