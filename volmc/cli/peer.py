@@ -27,7 +27,8 @@ def add_peer_parser(sub):
     add_defines_option(pe)
     pe.add_argument("--json", help="write the report to this JSON file")
     pe.add_argument("--images", metavar="DIR",
-                    help="write volmc.exr, PEER.exr (and reference.exr) into DIR")
+                    help="write volmc.exr, PEER.exr (and reference.exr) into DIR, with "
+                         "volmc.var.exr and PEER.var.exr, their variances of the mean")
     return pe
 
 
