@@ -117,6 +117,9 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["render", "{tiny}", "--checkpoint", ""], "--checkpoint"),
     (["render", "{tiny}", "-o", ""], "--output"),
     (["bench", "transmittance", "--quick", "--json", ""], "--json"),
+    # These failed after the whole benchmark had run.
+    (["bench", "render", "{tiny}", "--plot", "figure.foo"], "--plot"),
+    (["bench", "render", "{tiny}", "--baseline", "."], "--baseline"),
     # Before the "rendering" line, so that the error is the only line.
     (["render", "{tiny}", "--resume", "missing.ckpt"], "no such checkpoint file"),
     (["render", "{tiny}", "--exposure", "nan"], "--exposure"),

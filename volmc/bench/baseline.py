@@ -51,14 +51,21 @@ for line in sys.stdin:
 """
 
 
+
+def check_checkout(path):
+    """``path`` resolved, or the one-line SceneError when it holds no volmc checkout (checked
+    before a benchmark starts, not when its first baseline render is due)."""
+    path = Path(path).resolve()
+    if not (path / "volmc" / "__init__.py").is_file():
+        raise SceneError("command line", "--baseline", f"{path} is not a volmc checkout "
+                         "(no volmc/__init__.py)")
+    return path
+
 class BaselineRunner:
     """Renders with the volmc checkout at ``path`` in a worker process (OpenCL backend)."""
 
     def __init__(self, path, scene_file, defines=()):
-        path = Path(path).resolve()
-        if not (path / "volmc" / "__init__.py").is_file():
-            raise SceneError("command line", "--baseline", f"{path} is not a volmc checkout "
-                             "(no volmc/__init__.py)")
+        path = check_checkout(path)
         self.tmp = tempfile.TemporaryDirectory(prefix="volmc-baseline-")
         self.proc = subprocess.Popen(
             [sys.executable, "-c", _WORKER, str(path), str(scene_file), json.dumps(list(defines))],

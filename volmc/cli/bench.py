@@ -9,8 +9,9 @@ from ..scene.errors import SceneError
 from ..scene.hostmem import require_host
 from .common import (Parser, add_cluster_options, add_defines_option, add_device_option,
                      add_ladder_arguments, add_lanes_option, add_scene_argument,
-                     check_directory, check_writable, comma_list, dask_session, finite_float,
-                     positive_int, scene_path, spp_count, spp_levels)
+                     check_directory, check_figure_path, check_writable, comma_list,
+                     dask_session, finite_float, positive_int, scene_path, spp_count,
+                     spp_levels)
 
 
 def add_bench_transmittance_parser(sub):
@@ -128,9 +129,13 @@ def cmd_bench_render(args):
     majorants = comma_list(args.majorants, "--majorants", MAJORANTS)
     flights = comma_list(args.free_flights, "--free-flights", ("delta", "decomposition"))
     levels = spp_levels(args.spp_levels)
-    for path, flag in ((args.json, "--json"), (args.plot, "--plot")):
-        if path:
-            check_writable(path, flag)
+    if args.json:
+        check_writable(args.json, "--json")
+    if args.plot:
+        check_figure_path(args.plot, "--plot")
+    from ..bench.baseline import check_checkout
+    for b in args.baseline:
+        check_checkout(b)
     path = scene_path(args)
     scene = load_scene(path, args.defines)
     homogeneous = isinstance(scene.spec.medium.density, ConstantDensity)
@@ -246,9 +251,10 @@ def cmd_bench_variance(args):
     allowed = variance.switch_labels()
     labels = allowed if args.switches is None else comma_list(args.switches, "--switches", allowed)
     levels = spp_levels(args.spp_levels)
-    for path, flag in ((args.json, "--json"), (args.plot, "--plot")):
-        if path:
-            check_writable(path, flag)
+    if args.json:
+        check_writable(args.json, "--json")
+    if args.plot:
+        check_figure_path(args.plot, "--plot")
     from ..cl.device import select_device
     # The reference is an OpenCL render whatever --backend says: a bad --device fails now,
     # before anything is rendered.

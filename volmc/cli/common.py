@@ -155,6 +155,18 @@ def scene_path(args):
     return str(default_scene()) if args.scene is None else args.scene
 
 
+def check_figure_path(path, flag):
+    """Raise SceneError unless ``path`` is writable and names a format matplotlib writes
+    (by its suffix), so that a figure cannot fail after the benchmark has run."""
+    check_writable(path, flag)
+    from matplotlib.backend_bases import FigureCanvasBase
+    formats = FigureCanvasBase.get_supported_filetypes()
+    suffix = os.path.splitext(path)[1].lstrip(".").lower()
+    if suffix not in formats:
+        raise SceneError("command line", flag, f"expected a figure path ending in one of "
+                         f"{', '.join('.' + f for f in sorted(formats))}, got {path!r}")
+
+
 def check_writable(path, flag, where="command line"):
     """Raise SceneError(where, flag, ...) unless ``path`` names a file in a writable
     directory."""
