@@ -348,7 +348,14 @@ def cmd_bench_workgroup(args):
     from ..resources import default_scene
 
     def measure(scene):
+        from ..cl.context import cl_context
         sizes = _workgroup_sizes(args.sizes)
+        # Above the device's limit the launch fails inside pyopencl (std::bad_cast).
+        limit = cl_context(args.device).device.max_work_group_size
+        for size in sizes:
+            if size is not None and size > limit:
+                raise SceneError("command line", "--sizes", f"work-group size {size} is above "
+                                 f"the device's maximum, {limit}")
         res = rb.bench_workgroup(scene, sizes, args.spp, args.repeats, args.device)
         rb.print_table("samples per second:", res, baseline="driver" if None in sizes else None)
         return res
