@@ -121,6 +121,8 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["bench", "render", "{tiny}", "--plot", "figure.foo"], "--plot"),
     (["bench", "render", "{tiny}", "--baseline", "."], "--baseline"),
     (["bench", "workgroup", "{tiny}", "--sizes", "driver,99999999999"], "--sizes"),
+    # Before the 512^3 grid is built, not after.
+    (["bench", "sparse", "--device", "99"], "--device"),
     # Before the "rendering" line, so that the error is the only line.
     (["render", "{tiny}", "--resume", "missing.ckpt"], "no such checkpoint file"),
     (["render", "{tiny}", "--exposure", "nan"], "--exposure"),

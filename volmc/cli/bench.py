@@ -461,4 +461,7 @@ def add_bench_parser(sub):
 
 
 def cmd_bench(args):
+    if getattr(args, "device", None):
+        from ..cl.device import select_device
+        select_device(args.device)   # a bad --device fails before any grid is built
     return BENCHES[args.bench][1](args)
