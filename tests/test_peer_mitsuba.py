@@ -439,8 +439,9 @@ def test_rare_event_pixels_are_left_out_but_constant_ones_compared():
     """A pixel the peer's passes all rendered 0 while volmc's samples vary (a shadow ray
     through a dense box: the peer's track-length estimate never got through), or where one
     pass alone drew the rare event, is not evidence against volmc, however small volmc's own
-    variance; it is counted, not tested. A pixel constant in both renderers is compared
-    exactly, so a wrong constant is caught."""
+    variance; it is counted, not tested. Nor is one where all of volmc's samples came out 0
+    while the peer's passes vary (volmc never drew the event). A pixel constant in both
+    renderers is compared exactly, so a wrong constant is caught."""
     rng = np.random.default_rng(7)
     k = 16
     passes = rng.normal(1.0, 0.2, (k, 8, 8, 3))
@@ -450,6 +451,7 @@ def test_rare_event_pixels_are_left_out_but_constant_ones_compared():
     passes[4, 6, 1, :] = 0.02                     # one pass alone drew the rare event
     passes[:, 1, 6, :] = 0.5
     passes[9, 1, 6, :] = 0.52                     # ... on top of a background
+    passes[:, 3, 4, :] = rng.normal(1e-4, 2e-5, (k, 3))   # volmc drew nothing: 0 +- 0
     mean_p, var_p = passes.mean(axis=0), passes.var(axis=0, ddof=1) / k
     a = rng.normal(1.0, 0.02, (8, 8, 3))
     var_a = np.full_like(a, 0.02 ** 2)
@@ -457,12 +459,16 @@ def test_rare_event_pixels_are_left_out_but_constant_ones_compared():
     a[5, 5, :], var_a[5, 5, :] = 0.75, 0.0
     a[6, 1, :], var_a[6, 1, :] = 0.05, 1e-8       # the pass spread says 0.00125 +- 0.00125
     a[1, 6, :], var_a[1, 6, :] = 0.51, 1e-8
+    a[3, 4, :], var_a[3, 4, :] = 0.0, 0.0
     pm, low = passes.mean(axis=(1, 2)), passes.min(axis=0)
     agr = compare.agreement(a, var_a, mean_p, var_p, pm, low)
-    assert agr.passed and agr.n_untested == 9, agr.summary()
+    assert agr.passed and agr.n_untested == 12, agr.summary()
     a[5, 5, :] = 0.7499                           # off by 1.3e-4, far above float32 rounding
     agr = compare.agreement(a, var_a, mean_p, var_p, pm, low)
-    assert not agr.passed and agr.n_untested == 9
+    assert not agr.passed and agr.n_untested == 12
+    a[5, 5, :] = 0.75
+    a[3, 4, :] = 1e-9                             # not an exact 0: a constant, compared
+    assert not compare.agreement(a, var_a, mean_p, var_p, pm, low).passed
 
 
 @pytest.mark.parametrize("light, words", [

@@ -105,7 +105,13 @@ def agreement(mean_v, var_v, mean_p, var_p, pass_means_p, low_p=None):
     excess = mean_p - (0.0 if low_p is None else np.asarray(low_p, np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
         carried = k * excess ** 2 / (excess ** 2 + (k - 1) * var_p)
-    untested = varies & (alike | ~(carried >= 2.0))
+    # The converse: where every one of volmc's samples came out 0 while the peer's passes
+    # vary, volmc never drew the pixel's rare event (a real collision in a thin sliver of
+    # medium at the edge of a pixel, reached by distance sampling with probability tau), so
+    # its variance of 0 says nothing either. Only exact zeros: a constant that is not 0 (a
+    # background seen directly) is compared.
+    never = (mean_v == 0.0) & (var_v == 0.0) & ~alike
+    untested = (varies & (alike | ~(carried >= 2.0))) | never
     p, z = welch_pvalues(mean_v - mean_p, var_v + rounding ** 2, var_p, k - 1)
     p, z = np.where(untested, 1.0, p), np.where(untested, 0.0, z)
     per = 1.0 - (1.0 - ALPHA) ** (1.0 / p.size)
