@@ -166,7 +166,8 @@ def _outside(pos, spheres, margin):
     """``pos`` moved radially out of every sphere (centre, radius) it is within ``margin``
     of. A point-like light inside a scattering medium gives distance-sampled next-event
     estimates unbounded variance (1/d^2 at the vertices near it), so no per-pixel test
-    could judge the images."""
+    could judge the images. Where overlapping spheres push it back and forth, it goes out
+    along its own direction from the origin, beyond them all."""
     pos = np.asarray(pos, float)
     for _ in range(8):
         moved = False
@@ -178,7 +179,12 @@ def _outside(pos, spheres, margin):
                 moved = True
         if not moved:
             return pos
-    return pos
+    # Rounding alone can keep "moving" a point that sits on a sphere: that one is out.
+    if all(np.linalg.norm(pos - c) >= r + margin - 1e-9 for c, r in spheres):
+        return pos
+    reach = max(np.linalg.norm(c) + r + margin for c, r in spheres)
+    n = np.linalg.norm(pos)
+    return (pos / n if n > 1e-9 else np.array([0.0, 1.0, 0.0])) * reach
 
 
 def _lights(rng, cap, spread, spheres):
