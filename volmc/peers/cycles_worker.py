@@ -237,6 +237,9 @@ def _medium(bpy, sc, med, folder, name="volmc_medium"):
     vol.filepath = path
     vol.render.precision = "FULL"   # not half floats
     vol.render.clipping = 0.0       # no small value dropped as empty space
+    # Densities per world unit, as volmc's (pbrt-v4's rule); Blender's default, "OBJECT",
+    # scales them with the object, so a stretched grid had other optical depths.
+    vol.render.space = "WORLD"
     obj = bpy.data.objects.new(name, vol)
     obj.matrix_world = place
     sc.collection.objects.link(obj)
