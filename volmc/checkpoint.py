@@ -96,6 +96,12 @@ def save(path, film, counters, seconds, ident):
         raise
 
 
+def missing(path):
+    """The SceneError of a --resume file that does not exist (raised by ``load``, and by
+    ``volmc render`` before it announces the render)."""
+    return SceneError(path, "--resume", "no such checkpoint file")
+
+
 def load(path, scene, backend, lanes=None, albedo=False):
     """(film, counters dict, seconds) of the checkpoint at ``path``, after checking it is a
     checkpoint of a render of ``scene`` on ``backend`` (a backend name) at lane width
@@ -109,7 +115,7 @@ def load(path, scene, backend, lanes=None, albedo=False):
             header = json.loads(str(z["header"]))
             s, sq, cnt = z["sum"], z["sum_sq"], z["counters"]
     except FileNotFoundError:
-        raise bad("no such checkpoint file") from None
+        raise missing(path) from None
     except (OSError, ValueError, KeyError) as e:
         raise bad(f"not a volmc checkpoint ({type(e).__name__})") from None
     if header.get("format") != FORMAT_VERSION:

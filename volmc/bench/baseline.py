@@ -51,7 +51,6 @@ for line in sys.stdin:
 """
 
 
-
 def check_checkout(path):
     """``path`` resolved, or the one-line SceneError when it holds no volmc checkout (checked
     before a benchmark starts, not when its first baseline render is due)."""
@@ -60,6 +59,7 @@ def check_checkout(path):
         raise SceneError("command line", "--baseline", f"{path} is not a volmc checkout "
                          "(no volmc/__init__.py)")
     return path
+
 
 class BaselineRunner:
     """Renders with the volmc checkout at ``path`` in a worker process (OpenCL backend)."""

@@ -400,9 +400,8 @@ def cmd_bench_sparse(args):
     if args.json:
         check_writable(args.json, "--json")
     need = sparse.least_bytes(args.size, args.lookups, backends)
-    key = "--size" if need - sparse.least_bytes(args.size, 1, backends) < need // 2 \
-        else "--lookups"
-    require_host(need, "command line", key,
+    grid = sparse.least_bytes(args.size, 1, backends)   # the grids alone
+    require_host(need, "command line", "--size" if 2 * grid >= need else "--lookups",
                  f"a {args.size}^3 grid and {args.lookups} lookups per launch")
     argv = ["--size", str(args.size), "--fill", str(args.fill), "--lookups",
             str(args.lookups), "--repeats", str(args.repeats), "--backends",

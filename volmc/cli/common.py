@@ -197,9 +197,9 @@ def comma_list(text, flag, allowed):
 
 def spp_levels(text):
     """The ``--spp-levels`` list: positive integers separated by commas."""
+    from ..scene.schema import MAX_SPP
     levels = []
     for x in text.split(","):
-        from ..scene.schema import MAX_SPP
         if not (x.strip().isascii() and x.strip().isdigit()) or not 1 <= int(x) <= MAX_SPP:
             raise SceneError("command line", "--spp-levels",
                              f"expected integers from 1 to {MAX_SPP} separated by commas, "

@@ -80,7 +80,8 @@ def cmd_render(args):
 
     _check_render_device(args)
     if args.resume and not os.path.isfile(args.resume):   # before the "rendering" line
-        raise SceneError(args.resume, "--resume", "no such checkpoint file")
+        from ..checkpoint import missing
+        raise missing(args.resume)
     from ..memory import check_memory
     # A render that cannot fit fails now.
     check_memory(scene, args.backend, args.device, albedo=args.denoise)
