@@ -189,11 +189,12 @@ static inline int lane_or(lint v, lmask m) {
 }
 
 /* Gathers load lane by lane. LLVM turns that loop into a vector gather instruction, which
- * on the Zen 5 of docs/lanes.md is slower than the scalar loads: volatile keeps them scalar
- * (1.07x samples/s on the default cloud at W = 16, 1.06x at W = 8, 1.10x on an fbm cloud).
- * -DGATHER_SCALAR=0 gives the gather instructions back, to measure on other CPUs. */
+ * on AMD's Zen 5 is slower than scalar loads and on Intel's AVX-512 Xeons faster:
+ * -DGATHER_SCALAR=1 keeps the loads scalar with volatile, 0 lets LLVM gather. The host
+ * chooses per device (volmc.cl.lanes.device_gathers, measured in docs/lanes.md); the loaded
+ * values are the same either way. */
 #ifndef GATHER_SCALAR
-#define GATHER_SCALAR 1
+#define GATHER_SCALAR 0
 #endif
 #if GATHER_SCALAR
 #define GATHER_PTR(T, p) ((volatile global const T *)(p))

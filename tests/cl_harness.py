@@ -22,8 +22,9 @@ def clc():
 
 
 def lane_options(options=()):
-    """``options`` with the current lane width."""
-    return tuple(options) + (f"-DLANES={LANES}",)
+    """``options`` with the current lane width and the device's gather kind."""
+    from volmc.cl.lanes import lane_options as lanes
+    return tuple(options) + tuple(lanes(LANES, clc().device))
 
 
 @functools.lru_cache(maxsize=None)

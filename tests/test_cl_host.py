@@ -70,11 +70,13 @@ def test_program_cache(tmp_path, monkeypatch):
     assert how == "compiled"
 
 
-def test_render_program_builds_without_warnings():
+@pytest.mark.parametrize("scalar", [0, 1])
+def test_render_program_builds_without_warnings(scalar):
     """The render kernel of the default scene at W = 16 builds on the default device with an
-    empty log of warnings. On a CPU without AVX-512, clang warned once per out-of-line call
-    that passes a 512-bit vector (about 20 "changes the ABI" warnings and a pyopencl
-    CompilerWarning on every first build) until kernels/lanes.h silenced -Wpsabi."""
+    empty log of warnings, with either kind of gather (volmc.cl.lanes). On a CPU without
+    AVX-512, clang warned once per out-of-line call that passes a 512-bit vector (about 20
+    "changes the ABI" warnings and a pyopencl CompilerWarning on every first build) until
+    kernels/lanes.h silenced -Wpsabi."""
     from volmc.backends.opencl import render_options
     from volmc.scene import load_scene
     from volmc.resources import default_scene
@@ -83,7 +85,8 @@ def test_render_program_builds_without_warnings():
     dev = select_device()
     opts = list(build.BASE_OPTIONS) + render_options(features(scene),
                                                      scene.render.transmittance,
-                                                     ["-DLANES=16"])
+                                                     ["-DLANES=16",
+                                                      f"-DGATHER_SCALAR={scalar}"])
     prg = cl.Program(cl.Context([dev]), build.assemble("integrator.cl"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")   # (pyopencl's notice that the log is not empty)

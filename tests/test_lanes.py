@@ -258,6 +258,64 @@ def test_lane_width_choice(monkeypatch):
         resolve_lanes()
 
 
+@pytest.mark.parametrize("lanes", [8, 16])
+def test_gather_kinds_trace_the_same_samples(monkeypatch, lanes):
+    """$VOLMC_GATHERS: the gather instructions and the scalar loads build different programs
+    (the build options differ) that load the same values, so every sample and every counter
+    is the same bit for bit: on the cloud (dense grid, grid majorant) and on the plume (bricks,
+    emission, octree)."""
+    for path, extra in (("cloud.toml", []),
+                        ("gallery/plume.toml", ['render.grid_storage="bricks"',
+                                                'render.majorant="octree"'])):
+        scene = load_scene(SCENES / path, ["camera.resolution=[12, 12]", *extra])
+        got, opts = {}, {}
+        for kind in ("instructions", "loads"):
+            monkeypatch.setenv("VOLMC_GATHERS", kind)
+            got[kind] = _samples(scene, lanes, 4)
+            opts[kind] = OpenCLBackend(scene, lanes=lanes).options
+        assert opts["instructions"] != opts["loads"]
+        assert "-DGATHER_SCALAR=1" in opts["loads"]
+        assert np.isfinite(got["loads"][0]).all() and got["loads"][0].any()
+        np.testing.assert_array_equal(got["instructions"][0], got["loads"][0])
+        np.testing.assert_array_equal(got["instructions"][1], got["loads"][1])
+
+
+def test_gather_kind_choice(monkeypatch, tmp_path):
+    """The default gather kind per device (volmc.cl.lanes.device_gathers): CPUs by Intel
+    take the instructions unless Linux reports the Gather Data Sampling microcode
+    mitigation, other CPUs the scalar loads, other devices the instructions; $VOLMC_GATHERS
+    overrides it, and a bad value is the one-line error naming it."""
+    import pyopencl as cl
+    from volmc.cl.device import select_device
+    from volmc.cl.lanes import device_gathers, resolve_gathers
+    class Dev:
+        def __init__(self, vendor, kind=cl.device_type.CPU):
+            self.vendor, self.type = vendor, kind
+    gds = tmp_path / "gather_data_sampling"
+    missing = tmp_path / "absent"
+    intel, amd = Dev("GenuineIntel"), Dev("AuthenticAMD")
+    assert device_gathers(amd, missing) == "loads"
+    assert device_gathers(intel, missing) == "instructions"
+    for status, kind in (("Not affected", "instructions"), ("Mitigation: Microcode", "loads"),
+                         ("Vulnerable: No microcode", "instructions"),
+                         ("Mitigation: Microcode (locked)", "loads"),
+                         ("Mitigation: AVX disabled, no microcode", "instructions")):
+        gds.write_text(status + "\n")
+        assert device_gathers(intel, gds) == kind, status
+        assert device_gathers(amd, gds) == "loads"
+    assert device_gathers(Dev("NVIDIA Corporation", cl.device_type.GPU), missing) \
+        == "instructions"
+    dev = select_device()
+    monkeypatch.delenv("VOLMC_GATHERS", raising=False)
+    assert resolve_gathers(dev) == device_gathers(dev)
+    monkeypatch.setenv("VOLMC_GATHERS", " Loads ")
+    assert resolve_gathers(dev) == "loads"
+    monkeypatch.setenv("VOLMC_GATHERS", "fast")
+    with pytest.raises(SceneError, match="environment: VOLMC_GATHERS: must be one of "
+                                         "instructions, loads, got 'fast'"):
+        resolve_gathers(dev)
+
+
 def _cli(*args, env=None):
     e = dict(os.environ)
     e.update(env or {})

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..cl.context import cl_context
 from ..pack import env_buffer, pack_scene, shared_buffers
-from ..cl.lanes import resolve_lanes
+from ..cl.lanes import lane_options, resolve_lanes
 from ..film import CHANNELS
 from ..params import N_COUNTERS, launch_dtype, launch_spp
 from ..scene.features import define_flags, features
@@ -127,7 +127,7 @@ class OpenCLBackend(RenderBackend):
         pk = pack_scene(scene, np.float32)
         n_media = len(pk.parts)
         self.options = render_options(self.features, scene.render.transmittance,
-                                      list(options) + [f"-DLANES={self.lanes}"]
+                                      list(options) + lane_options(self.lanes, self.device)
                                       + ([f"-DMEDIA_COUNT={n_media}"] if n_media > 1 else []))
         self.local_size = local_size
         w, h = scene.camera.resolution

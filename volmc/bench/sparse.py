@@ -190,10 +190,10 @@ def bench_sums(kind, grid, table, pool, dims, bmin, bmax, bricks, mode, n_items,
 
 # --- OpenCL ----------------------------------------------------------------------------------
 
-def lookup_options(kind, lanes=1):
-    """Build options of kernels/bench_sparse.cl for lookup ``kind`` (an index of LOOKUPS)
-    at lane width ``lanes``."""
-    return (f"-DLOOKUP_KIND={kind}", f"-DLANES={lanes}")
+def lookup_options(kind):
+    """Build option of kernels/bench_sparse.cl for lookup ``kind`` (an index of LOOKUPS);
+    the lane options (volmc.cl.lanes.lane_options) come beside it."""
+    return (f"-DLOOKUP_KIND={kind}",)
 
 
 class OpenCLSparseBench:
@@ -201,11 +201,12 @@ class OpenCLSparseBench:
 
     def __init__(self, grid, table, pool, bricks, bmin, bmax, device=None, lanes=None):
         from ..cl.context import cl_context
-        from ..cl.lanes import resolve_lanes
+        from ..cl.lanes import lane_options, resolve_lanes
         self.clc = cl_context(device)
         self.lanes = resolve_lanes(lanes, self.clc.device)
+        opts = lane_options(self.lanes, self.clc.device)
         self.kernels = [self.clc.kernel(self.clc.program("bench_sparse.cl",
-                                                         lookup_options(k, self.lanes))[0],
+                                                         [*lookup_options(k), *opts])[0],
                                         "sparse_bench") for k in range(len(LOOKUPS))]
         nz, ny, nx = grid.shape
         self.dims = np.array([nx, ny, nz, 0], np.int32)

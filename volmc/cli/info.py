@@ -27,12 +27,15 @@ def cmd_info(args):
             print(f"  device {i}:{j}: {d.name} ({d.version}, driver {d.driver_version}, "
                   f"{d.max_compute_units} compute units, {d.global_mem_size >> 20} MiB)")
     try:
-        from ..cl.lanes import ENV_VAR as LANES_VAR, device_lanes, resolve_lanes
+        from ..cl.lanes import (ENV_VAR as LANES_VAR, GATHER_ENV, device_gathers, device_lanes,
+                                resolve_gathers, resolve_lanes)
         dev = select_device()
         print(f"default device: {describe(dev)}")
         print(f"lanes: {resolve_lanes(None, dev)} paths per work-item (the device prefers "
               f"{dev.preferred_vector_width_float} floats a vector, so "
               f"{device_lanes(dev)} by default; --lanes or ${LANES_VAR} set it)")
+        print(f"gathers: {resolve_gathers(dev)} ({device_gathers(dev)} by default on this "
+              f"device; ${GATHER_ENV} sets it; the images are the same either way)")
     except SceneError as e:
         print(f"default device: none ({e})")
     print(f"select another with --device PLATFORM[:DEVICE] or ${ENV_VAR}")

@@ -162,9 +162,10 @@ def _render_defines(args):
 def _check_render_device(args):
     if args.backend == "opencl":
         from ..cl.device import select_device
-        from ..cl.lanes import resolve_lanes
-        select_device(args.device)   # a bad --device fails before anything is printed
-        resolve_lanes(args.lanes, args.device)   # and so does a bad $VOLMC_LANES
+        from ..cl.lanes import resolve_gathers, resolve_lanes
+        dev = select_device(args.device)   # a bad --device fails before anything is printed
+        resolve_lanes(args.lanes, dev)   # and so does a bad $VOLMC_LANES
+        resolve_gathers(dev)             # or $VOLMC_GATHERS
 
 
 def _warn_out_of_view(scene, scene_path, prefix=""):
