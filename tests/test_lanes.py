@@ -325,8 +325,9 @@ def _cli(*args, env=None):
 
 def test_cli_lanes(tmp_path):
     """volmc render --lanes W renders at W (the stats say so, with the occupancy); a bad
-    --lanes or $VOLMC_LANES is the one-line error with exit status 2 and no file written;
-    volmc info names the width."""
+    --lanes, $VOLMC_LANES or $VOLMC_GATHERS is the one-line error with exit status 2 and no
+    file written; volmc info names the width and the gathers, and refuses the same bad
+    values after its listing."""
     scene = SCENES / "tests" / "absorber.toml"
     out = tmp_path / "a.exr"
     r = _cli("render", str(scene), "-o", str(out), "--spp", "2", "--lanes", "4", "--stats",
@@ -343,6 +344,21 @@ def test_cli_lanes(tmp_path):
         assert not bad.exists()
     r = _cli("info")
     assert r.returncode == 0 and "lanes: " in r.stdout and "paths per work-item" in r.stdout
+    assert "gathers: " in r.stdout
+    for var, value in (("VOLMC_LANES", "5"), ("VOLMC_GATHERS", "fast")):
+        r = _cli("info", env={var: value})
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert r.stderr.strip().splitlines() == [
+            f"volmc: error: environment: {var}: "
+            + ("lane width must be one of 1, 4, 8, 16, got '5'" if var == "VOLMC_LANES"
+               else "must be one of instructions, loads, got 'fast'")]
+        assert "default device: none" not in r.stdout
+    bad = tmp_path / "g.exr"
+    r = _cli("render", str(scene), "-o", str(bad), env={"VOLMC_GATHERS": "fast"})
+    assert r.returncode == 2 and not bad.exists()
+    assert r.stderr.strip().splitlines() == [
+        "volmc: error: environment: VOLMC_GATHERS: must be one of instructions, loads, "
+        "got 'fast'"]
 
 
 def test_resume_with_another_width_is_refused(tmp_path):

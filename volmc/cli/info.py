@@ -26,18 +26,21 @@ def cmd_info(args):
         for j, d in enumerate(devs):
             print(f"  device {i}:{j}: {d.name} ({d.version}, driver {d.driver_version}, "
                   f"{d.max_compute_units} compute units, {d.global_mem_size >> 20} MiB)")
+    from ..cl.lanes import (ENV_VAR as LANES_VAR, GATHER_ENV, device_gathers, device_lanes,
+                            resolve_gathers, resolve_lanes)
     try:
-        from ..cl.lanes import (ENV_VAR as LANES_VAR, GATHER_ENV, device_gathers, device_lanes,
-                                resolve_gathers, resolve_lanes)
         dev = select_device()
+    except SceneError as e:
+        dev = None
+        print(f"default device: none ({e})")
+    if dev is not None:
+        # (a bad $VOLMC_LANES or $VOLMC_GATHERS is the one-line error, after the listing)
         print(f"default device: {describe(dev)}")
         print(f"lanes: {resolve_lanes(None, dev)} paths per work-item (the device prefers "
               f"{dev.preferred_vector_width_float} floats a vector, so "
               f"{device_lanes(dev)} by default; --lanes or ${LANES_VAR} set it)")
         print(f"gathers: {resolve_gathers(dev)} ({device_gathers(dev)} by default on this "
               f"device; ${GATHER_ENV} sets it; the images are the same either way)")
-    except SceneError as e:
-        print(f"default device: none ({e})")
     print(f"select another with --device PLATFORM[:DEVICE] or ${ENV_VAR}")
     cdir = cache_dir()
     n = len(list(cdir.glob("*.bin"))) if cdir.is_dir() else 0
