@@ -69,7 +69,7 @@ def device_gathers(device, gds_status=GDS_STATUS):
     """The default gather kind of a pyopencl Device (docs/lanes.md, "Gathers"). Measured at
     W = 16 (`volmc bench render --baseline`): on an AMD Zen 5 the scalar loads were 1.07x to
     1.10x faster, on a Zen 3 at W = 8 the two were equal, on an Intel Xeon with AVX-512
-    (Sapphire Rapids class) the instructions were 1.12x to 1.35x faster. So CPUs take the
+    (Sapphire Rapids class) the instructions were 1.12x to 1.34x faster. So CPUs take the
     instructions when Intel made them and the loads otherwise; an Intel CPU whose kernel
     reports the Gather Data Sampling microcode mitigation takes the loads, since that
     microcode is what slows its gathers. Other devices (GPUs, at W = 1 by default) take the
