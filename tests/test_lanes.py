@@ -316,6 +316,22 @@ def test_gather_kind_choice(monkeypatch, tmp_path):
         resolve_gathers(dev)
 
 
+def test_bench_lanes_records_the_gathers(monkeypatch):
+    """`volmc bench lanes` names the gather kind its renders were built with, per width in
+    the JSON report and once in its table's heading, so a figure says which code it
+    measured ($VOLMC_GATHERS set both ways)."""
+    from volmc.bench import lanes
+    scene = load_scene(SCENES / "tests" / "white_furnace.toml", ["camera.resolution=[8, 8]"])
+    for kind in ("loads", "instructions"):
+        monkeypatch.setenv("VOLMC_GATHERS", kind)
+        lines = []
+        report = lanes.run_scene(scene, widths=(1, 4), spp_levels=(1, 2), reference_spp=4,
+                                 repeats=1, ceiling=False, log=lambda *a: None)
+        lanes.print_summary("wf", report, log=lines.append)
+        assert [s["gathers"] for s in report["summary"]] == [kind, kind]
+        assert f"reference 4 spp, gathers: {kind})" in lines[0]
+
+
 def _cli(*args, env=None):
     e = dict(os.environ)
     e.update(env or {})

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..cl.context import cl_context
 from ..pack import env_buffer, pack_scene, shared_buffers
-from ..cl.lanes import lane_options, resolve_lanes
+from ..cl.lanes import lane_options, resolve_gathers, resolve_lanes
 from ..film import CHANNELS
 from ..params import N_COUNTERS, launch_dtype, launch_spp
 from ..scene.features import define_flags, features
@@ -113,6 +113,7 @@ class OpenCLBackend(RenderBackend):
         self.clc = cl_context(device)
         self.device = self.clc.device
         self.lanes = resolve_lanes(lanes, self.device)
+        self.gathers = resolve_gathers(self.device)   # (lane_options builds with it)
         self.jobs_per_item = int(jobs_per_item) if jobs_per_item else None
         needed = features(scene)
         self.features = needed if feature_set is None else frozenset(feature_set)

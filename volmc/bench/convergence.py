@@ -318,6 +318,7 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
             rounds = sum(p["counters"]["lane_rounds"] for p in pts)
             if lanes and rounds:
                 row["lanes"] = lanes
+                row["gathers"] = getattr(getattr(runners[cfg], "be", None), "gathers", None)
                 row["lane_occupancy"] = sum(p["counters"]["lane_active"]
                                             for p in pts) / (rounds * lanes)
         results.append(row)

@@ -57,6 +57,7 @@ def run_scene(scene, widths=LANE_WIDTHS, spp_levels=(4, 16), reference_spp=256, 
         "lookups_per_sample": rows[w].get("lookups_per_sample"),
         "fraction_of_lookup_ceiling": rows[w].get("fraction_of_lookup_ceiling"),
         "rmse_last": rows[w]["points"][-1]["rmse"],
+        "gathers": rows[w].get("gathers"),
     } for w in widths]
     return report
 
@@ -64,8 +65,10 @@ def run_scene(scene, widths=LANE_WIDTHS, spp_levels=(4, 16), reference_spp=256, 
 def print_summary(path, report, log=print):
     """One table per scene."""
     w, h = report["resolution"]
+    gathers = sorted({s["gathers"] for s in report["summary"] if s.get("gathers")})
     log(f"\n{path} ({w}x{h}, spp {report['spp_levels']} x {report['repeats']}, reference "
-        f"{report['reference_spp']} spp)")
+        f"{report['reference_spp']} spp"
+        + (f", gathers: {', '.join(gathers)}" if gathers else "") + ")")
     log(f"  {'W':>3s} {'samples/s':>11s} {'speed':>7s} {'time to equal error':>20s} "
         f"{'occupancy':>10s} {'of ceiling':>11s} {'RMSE':>10s}")
     for s in report["summary"]:
