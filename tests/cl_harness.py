@@ -23,8 +23,8 @@ def clc():
 
 def lane_options(options=()):
     """``options`` with the current lane width and the device's gather kind."""
-    from volmc.cl.lanes import lane_options as lanes
-    return tuple(options) + tuple(lanes(LANES, clc().device))
+    from volmc.cl.lanes import lane_options as lanes, resolve_gathers
+    return tuple(options) + tuple(lanes(LANES, resolve_gathers(clc().device)))
 
 
 @functools.lru_cache(maxsize=None)

@@ -113,7 +113,7 @@ class OpenCLBackend(RenderBackend):
         self.clc = cl_context(device)
         self.device = self.clc.device
         self.lanes = resolve_lanes(lanes, self.device)
-        self.gathers = resolve_gathers(self.device)   # (lane_options builds with it)
+        self.gathers = resolve_gathers(self.device)
         self.jobs_per_item = int(jobs_per_item) if jobs_per_item else None
         needed = features(scene)
         self.features = needed if feature_set is None else frozenset(feature_set)
@@ -128,7 +128,7 @@ class OpenCLBackend(RenderBackend):
         pk = pack_scene(scene, np.float32)
         n_media = len(pk.parts)
         self.options = render_options(self.features, scene.render.transmittance,
-                                      list(options) + lane_options(self.lanes, self.device)
+                                      list(options) + lane_options(self.lanes, self.gathers)
                                       + ([f"-DMEDIA_COUNT={n_media}"] if n_media > 1 else []))
         self.local_size = local_size
         w, h = scene.camera.resolution

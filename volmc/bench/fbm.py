@@ -5,10 +5,10 @@ are made another way: five octaves of trilinearly upsampled white noise (4^3 to 
 each octave 0.55 of the last's amplitude, normalised to a mean near 0.5) on a 128^3 grid,
 its contrast raised 4x, minus the distance from the centre (squashed 1.3x along y) less
 0.6, clipped at 0 and scaled to a maximum of 1: a lumpy cloud filling about a fifth of its
-box. Each
-seed writes ``fbm<seed>.npy`` and ``fbm<seed>.toml``: the grid in the unit box at extinction
-40, albedo 0.98, HG g = 0.7, under the default cloud's sky and sun, 96x96. docs/lanes.md
-measures the lane widths on them (`volmc bench lanes OUTDIR/fbm1.toml OUTDIR/fbm2.toml`).
+box. Each seed writes ``fbm<seed>.npy`` and ``fbm<seed>.toml``: the grid in the unit box at
+extinction 40, albedo 0.98, HG g = 0.7, under the default cloud's sky and sun, 96x96.
+docs/lanes.md measures the lane widths on them (`volmc bench lanes OUTDIR/fbm1.toml
+OUTDIR/fbm2.toml`).
 """
 
 import argparse

@@ -84,10 +84,11 @@ class OpenCLLookups:
 
     def __init__(self, grid, bmin, bmax, segs, device=None, local_size=1, lanes=None):
         from ..cl.context import cl_context
-        from ..cl.lanes import lane_options, resolve_lanes
+        from ..cl.lanes import lane_options, resolve_gathers, resolve_lanes
         self.clc = cl_context(device)
         self.lanes = resolve_lanes(lanes, self.clc.device)
-        prg, _ = self.clc.program("bench.cl", lane_options(self.lanes, self.clc.device))
+        gathers = resolve_gathers(self.clc.device)
+        prg, _ = self.clc.program("bench.cl", lane_options(self.lanes, gathers))
         self.kernel = self.clc.kernel(prg, "lookup_throughput")
         g = np.ascontiguousarray(grid, np.float32)
         nz, ny, nx = g.shape

@@ -201,10 +201,10 @@ class OpenCLSparseBench:
 
     def __init__(self, grid, table, pool, bricks, bmin, bmax, device=None, lanes=None):
         from ..cl.context import cl_context
-        from ..cl.lanes import lane_options, resolve_lanes
+        from ..cl.lanes import lane_options, resolve_gathers, resolve_lanes
         self.clc = cl_context(device)
         self.lanes = resolve_lanes(lanes, self.clc.device)
-        opts = lane_options(self.lanes, self.clc.device)
+        opts = lane_options(self.lanes, resolve_gathers(self.clc.device))
         self.kernels = [self.clc.kernel(self.clc.program("bench_sparse.cl",
                                                          [*lookup_options(k), *opts])[0],
                                         "sparse_bench") for k in range(len(LOOKUPS))]

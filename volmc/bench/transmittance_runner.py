@@ -92,14 +92,15 @@ class OpenCLEstimator:
 
     def __init__(self, name, device=None, chromatic=False, shadow=False, lanes=None):
         from ..cl.context import cl_context
-        from ..cl.lanes import lane_options, resolve_lanes
+        from ..cl.lanes import lane_options, resolve_gathers, resolve_lanes
         self.est = ESTIMATORS[name]
         self.chromatic = chromatic
         self.clc = cl_context(device)
         self.lanes = resolve_lanes(lanes, self.clc.device)
+        gathers = resolve_gathers(self.clc.device)
         self.program, _ = self.clc.program("estimators.cl",
                                            estimator_options(name, chromatic, shadow)
-                                           + lane_options(self.lanes, self.clc.device))
+                                           + lane_options(self.lanes, gathers))
         self.kernel = self.clc.kernel(self.program, "estimate_batch")
 
     def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,

@@ -102,7 +102,7 @@ def resolve_gathers(device):
     return device_gathers(device)
 
 
-def lane_options(lanes, device):
-    """Build options of a lane-generic program: its width and its gather kind."""
-    scalar = int(resolve_gathers(device) == "loads")
-    return [f"-DLANES={int(lanes)}", f"-DGATHER_SCALAR={scalar}"]
+def lane_options(lanes, gathers):
+    """Build options of a lane-generic program: its width and its gather kind (one of
+    GATHER_KINDS, as resolve_gathers gives it)."""
+    return [f"-DLANES={int(lanes)}", f"-DGATHER_SCALAR={int(gathers == 'loads')}"]
