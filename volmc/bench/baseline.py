@@ -67,13 +67,23 @@ class BaselineRunner:
     def __init__(self, path, scene_file, defines=()):
         path = check_checkout(path)
         self.tmp = tempfile.TemporaryDirectory(prefix="volmc-baseline-")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", _WORKER, str(path), str(scene_file), json.dumps(list(defines))],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=self.tmp.name)
+        # The worker runs in the temporary directory, so it gets the scene's absolute path;
+        # its stderr goes to a file, whose last line says why it could not start.
+        log = Path(self.tmp.name) / "worker.log"
+        with open(log, "w") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-c", _WORKER, str(path), str(Path(scene_file).resolve()),
+                 json.dumps(list(defines))],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err, text=True,
+                cwd=self.tmp.name)
         line = self.proc.stdout.readline()
         if not line.startswith("ready"):
+            self.proc.wait(timeout=60)
+            lines = log.read_text(errors="replace").strip().splitlines()
+            self.tmp.cleanup()
+            why = f" ({lines[-1].strip()})" if lines else ""
             raise SceneError("command line", "--baseline",
-                             f"the volmc at {path} could not render the scene")
+                             f"the volmc at {path} could not render the scene{why}")
         self.module = line.split(maxsplit=1)[1].strip()
         self.n = 0
 
