@@ -7,19 +7,22 @@ The Python API (volmc/api.py; docs/python_api.md and docs/api/volmc.md)::
     img = volmc.render(scene, seed=1)          # img.image: float32 [h, w, 3]
     img.save("out.exr")
 
-* ``load_scene(path=None, overrides=None)``: a scene file (None: the bundled cloud), with
-  overrides as a dict of dotted keys or ``-D`` strings.
-* ``scene_from_dict(scene, base_dir=".", overrides=None)``: a scene from a dict shaped like
-  the TOML (numpy arrays allowed as density grids) or from the schema dataclasses.
+* ``load_scene(path=None, overrides=None, frame=None)``: a scene file (None: the bundled
+  cloud), with overrides as a dict of dotted keys or ``-D`` strings.
+* ``scene_from_dict(scene, base_dir=".", overrides=None, name="<dict>", frame=None)``: a
+  scene from a dict shaped like the TOML (numpy arrays allowed as density grids) or from the
+  schema dataclasses.
 * ``render(scene, spp=None, seed=None, backend="opencl", device=None, progress=True,
-  client=None, checkpoint=None, checkpoint_every=60.0, resume=None)``: a ``RenderedImage``
+  client=None, checkpoint=None, checkpoint_every=60.0, resume=None, lanes=None,
+  albedo=False)``: a ``RenderedImage``
   with ``image``, ``variance``, ``counters``, ``seconds``, ``save(path)``; ``client`` renders
   on a Dask cluster, ``checkpoint``/``resume`` as on the command line.
 * ``render_frames(scene, frames, output=None, ...)``: a scene whose grid files name the frame
   (``{frame:04d}``), rendered once per frame; with ``output`` written as
   ``<stem>.0001.exr``, ... and complete frames skipped.
 * ``estimate_transmittance(scene_or_medium, origins, directions, t_max, estimator="auto",
-  n=64, backend="opencl", seed=0)``: a ``TransmittanceResult`` per ray.
+  n=64, backend="opencl", seed=0, device=None, lanes=None)``: a ``TransmittanceResult``
+  per ray.
 * ``VolmcError``: raised for any bad input, with the CLI's one-line message.
 * ``VolmcWarning``: issued by ``render`` when a guard fired (the image may be biased).
 

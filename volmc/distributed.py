@@ -5,7 +5,7 @@ only cuts the work and merges it. A task is one chunk of the render (``render.ch
 consecutive batches, ranges of the global sample index on which the counter RNG and the
 samplers are keyed, about CHUNK_SAMPLES samples). The worker renders the chunk into an empty
 film (``render.render_chunk``) and returns its sums of sample values and of their squares
-(float64; 48 bytes per pixel) with the counts it made. The host adds the chunks to its film
+(float64 RGBA; 64 bytes per pixel) with the counts it made. The host adds the chunks to its film
 in schedule order, exactly as a local render adds its own chunks, so the image is the local
 render's bit for bit.
 
