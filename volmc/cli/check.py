@@ -30,6 +30,10 @@ def cmd_check(args):
     scene = load_scene(path, args.defines)
     w, h = scene.camera.resolution
     spp = args.spp or scene.render.spp
+    if spp < 2:   # the tests need each pixel's sample variance
+        raise SceneError("command line" if args.spp else path,
+                         "--spp" if args.spp else "render.spp",
+                         f"volmc check needs at least 2 samples per pixel, got {spp}")
     print(f"volmc check: {path}: {w}x{h}, {spp} spp, {names[0]} (seed s) vs {names[1]} "
           f"(seed s + 1)", flush=True)
     cmp, ra, rb = check_scene(scene, names, spp=args.spp, device=args.device)
