@@ -164,3 +164,43 @@ def test_sigkill_after_a_checkpoint_then_resume(tmp_path):
         assert len(lines) == 1 and lines[0].startswith(f"volmc: error: {ck}: --resume: ")
         assert word in lines[0] and "Traceback" not in err
         assert not (tmp_path / "bad.exr").exists()
+
+
+
+def test_damaged_checkpoints_are_one_line_errors(tmp_path):
+    """A checkpoint truncated, replaced by an .npy, a directory, or edited (its spp, seconds,
+    sums or counters): SceneError naming the file and --resume, never another exception,
+    and never a film built from impossible numbers."""
+    from volmc import checkpoint as ckpt
+    from volmc.cl.lanes import resolve_lanes
+    scene = load_scene(default_scene(), SMALL)
+    good = tmp_path / "ck.npz"
+    render(scene, backend="opencl", spp=2, progress=False, checkpoint=str(good))
+    lanes = resolve_lanes(None, None)
+    with np.load(good) as z:
+        parts = {k: z[k] for k in z.files}
+    header = json.loads(str(parts["header"]))
+
+    def edited(name, head=None, **arrays):
+        p = tmp_path / name
+        np.savez(p, **{**parts, "header": np.array(json.dumps({**header, **(head or {})})),
+                       **arrays})
+        return p
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    npy = tmp_path / "arr.npz"
+    with open(npy, "wb") as f:
+        np.save(f, np.zeros(3))
+    folder = tmp_path / "dir.npz"
+    folder.mkdir()
+    bad = [cut, npy, folder,
+           edited("neg.npz", {"spp": -4}), edited("float.npz", {"spp": 2.5}),
+           edited("secs.npz", {"seconds": "x"}), edited("inf.npz", {"seconds": 1e400}),
+           edited("nan.npz", sum=parts["sum"] * np.nan),
+           edited("negsq.npz", sum_sq=-parts["sum_sq"] - 1.0),
+           edited("cnt.npz", counters=-parts["counters"] - 1)]
+    for p in bad:
+        with pytest.raises(SceneError) as e:
+            ckpt.load(str(p), scene, "opencl", lanes)
+        assert str(e.value).startswith(f"{p}: --resume: "), (p, e.value)
+    assert ckpt.load(str(good), scene, "opencl", lanes)[0].spp == 2

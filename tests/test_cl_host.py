@@ -142,6 +142,15 @@ def test_info_lists_pocl_and_cache():
     assert "Portable Computing Language" in r.stdout and "kernel cache:" in r.stdout
 
 
+def test_info_with_a_bad_default_device_exits_2():
+    """The listing, then the device's one-line error and exit status 2 (it exited 0)."""
+    r = subprocess.run(volmc_cli("info"), env={**volmc_env(), "VOLMC_CL_DEVICE": "97"},
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2 and "kernel cache:" in r.stdout, r.stdout + r.stderr
+    assert r.stderr.strip().splitlines() == [r.stderr.strip()]
+    assert r.stderr.startswith("volmc: error: VOLMC_CL_DEVICE: 97: ")
+
+
 def test_check_cli_on_a_test_scene():
     from volmc.resources import scenes_dir
     r = _run(["check", str(scenes_dir() / "tests" / "white_furnace.toml"), "--spp", "32"])

@@ -125,6 +125,16 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["bench", "sparse", "--device", "99"], "--device"),
     # Before the "rendering" line, so that the error is the only line.
     (["render", "{tiny}", "--resume", "missing.ckpt"], "no such checkpoint file"),
+    # Before rendering, not after: /proc takes no new file, whatever os.access says to root.
+    (["render", "{tiny}", "-o", "/proc/volmc.exr"], "-o"),
+    (["render", "{tiny}", "--png", "/proc/volmc.png"], "--png"),
+    (["render", "{tiny}", "--checkpoint", "/proc/volmc.npz"], "--checkpoint"),
+    (["render", "{tiny}", "-o", "a.exr", "--checkpoint", "a.exr"], "--checkpoint"),
+    (["bench", "render", "{tiny}", "--json", "/proc/volmc.json"], "--json"),
+    (["convert", "g.npy", "/proc/volmc.vol"], "output"),
+    (["convert", "g.npy", "g.vol", "--bounds", "0", "0", "0", "1e39", "1", "1"], "--bounds"),
+    (["convert", "g.npy", "g.vol", "--bounds", "1", "1", "1", "0", "0", "0"], "--bounds"),
+    (["check", "{tiny}", "--spp", "1"], "--spp"),
     (["render", "{tiny}", "--exposure", "nan"], "--exposure"),
     # An unbounded count started worker processes until memory ran out.
     (["render", "{tiny}", "--workers", "99999999999999999999"], "--workers"),
@@ -137,12 +147,32 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["convert", "missing.npy", "x.vol"], "missing.npy"),
 ])
 def test_bad_command_lines_one_line_exit_2(tmp_path, tiny, args, words):
+    np.save(tmp_path / "g.npy", np.ones((2, 2, 2), np.float32))   # for convert
     r = run([a.replace("{tiny}", str(tiny)) for a in args], tmp_path)
     assert r.returncode == 2, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("volmc: error: "), r.stderr
     assert words in lines[0]
     assert "Traceback" not in r.stderr
+
+
+def test_sparse_bench_without_an_active_voxel(tmp_path):
+    """A grid too small for its fill has no voxel to look up in ("active" points): the
+    one-line error after the progress line, not Numba's ZeroDivisionError."""
+    r = run(["bench", "sparse", "--size", "2", "--lookups", "1000"], tmp_path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith("volmc: error: command line: --fill: ")
+
+
+def test_a_fifo_is_refused_not_waited_on(tmp_path):
+    """A FIFO as the scene or the VDB file: open() would wait for a writer forever."""
+    import os
+    os.mkfifo(tmp_path / "pipe")
+    for args, words in ((["render", "pipe"], "pipe: not a regular file"),
+                        (["info", "pipe"], "pipe: file: not a regular file")):
+        r = run(args, tmp_path)
+        assert r.returncode == 2 and r.stderr.strip() == f"volmc: error: {words}" + \
+            (", not a scene file" if args[0] == "render" else ""), r.stderr
 
 
 def test_bad_grid_via_cli(tmp_path):

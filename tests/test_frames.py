@@ -315,3 +315,17 @@ def test_cli_frames_denoise_each_frame(seq):
         assert int(dmeta["denoised.albedo_aov"]) == 1
     with pytest.raises(volmc.VolmcError, match="denoise: needs an output"):
         volmc.render_frames(seq, 1, denoise=True)
+
+
+def test_frame_patterns_that_cannot_name_a_file_are_one_line_errors():
+    """An index or attribute of the frame number, another field, or a width Python would
+    spend gigabytes on: SceneError naming the file and key (they were a TypeError and a
+    MemoryError)."""
+    from volmc.scene.frames import format_path
+    for pattern in ("d_{frame[0]}.npy", "d_{frame.real}.npy", "d_{fram:04d}.npy",
+                    "d_{frame:>99999999999}.npy", "d_{frame:.500}.npy", "d_{frame:x>100}.npy"):
+        with pytest.raises(SceneError) as e:
+            format_path(pattern, 7, "s.toml", "medium.density.file")
+        assert str(e.value).startswith("s.toml: medium.density.file: "), pattern
+    assert format_path("d_{frame:04d}.npy", 7, "s.toml", "k") == "d_0007.npy"
+    assert format_path("d_{frame:>12}.npy", 7, "s.toml", "k") == "d_" + " " * 11 + "7.npy"

@@ -24,12 +24,13 @@ seconds, and the identity above.
 import hashlib
 import json
 import os
-import tempfile
 
 import numpy as np
 
 from .film import ALBEDO_CHANNELS, Film
+from .outputs import written_whole
 from .params import COUNTER_NAMES
+from .scene.schema import MAX_SPP
 from .scene.errors import SceneError
 
 #: Bumped when the layout changes; older files are refused with a message saying so. 2: the
@@ -81,19 +82,11 @@ def save(path, film, counters, seconds, ident):
     header = {"format": FORMAT_VERSION, "spp": int(film.spp), "seconds": float(seconds),
               "width": film.width, "height": film.height, **ident}
     cnt = np.array([counters.get(n, 0) for n in COUNTER_NAMES], np.int64)
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".volmc-checkpoint-", dir=d)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, sum=film.sum, sum_sq=film.sum_sq, counters=cnt,
-                     header=np.array(json.dumps(header)))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with written_whole(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, sum=film.sum, sum_sq=film.sum_sq, counters=cnt,
+                 header=np.array(json.dumps(header)))
+        f.flush()
+        os.fsync(f.fileno())
 
 
 def missing(path):
@@ -110,14 +103,25 @@ def load(path, scene, backend, lanes=None, albedo=False):
     without the albedo AOV unlike ``albedo`` -- raises SceneError(path, "--resume", ...)."""
     def bad(what):
         return SceneError(path, "--resume", what)
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise bad("not a regular file")
+    # Any failure to parse is the file's: it may be damaged, truncated or another .npy/.npz.
     try:
-        with np.load(path, allow_pickle=False) as z:
-            header = json.loads(str(z["header"]))
-            s, sq, cnt = z["sum"], z["sum_sq"], z["counters"]
+        z = np.load(path, allow_pickle=False)
     except FileNotFoundError:
         raise missing(path) from None
-    except (OSError, ValueError, KeyError) as e:
+    except Exception as e:   # noqa: BLE001
         raise bad(f"not a volmc checkpoint ({type(e).__name__})") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise bad("not a volmc checkpoint (an .npy array, not an .npz archive)")
+    try:
+        with z:
+            header = json.loads(str(z["header"][()]))
+            s, sq, cnt = z["sum"], z["sum_sq"], z["counters"]
+    except Exception as e:   # noqa: BLE001
+        raise bad(f"not a volmc checkpoint ({type(e).__name__})") from None
+    if not isinstance(header, dict):
+        raise bad("not a volmc checkpoint (its header is not a record)")
     if header.get("format") != FORMAT_VERSION:
         raise bad(f"checkpoint format {header.get('format')}, this volmc reads "
                   f"{FORMAT_VERSION}")
@@ -139,9 +143,18 @@ def load(path, scene, backend, lanes=None, albedo=False):
                   + " the albedo AOV of --denoise: resume it " + ("with" if not albedo else
                                                                    "without") + " --denoise")
     if s.shape != film.sum.shape or sq.shape != film.sum.shape or \
-            len(cnt) != len(COUNTER_NAMES):
+            cnt.shape != (len(COUNTER_NAMES),):
         raise bad("the checkpoint's arrays do not match the scene's resolution")
+    spp, seconds = header.get("spp"), header.get("seconds")
+    if type(spp) is not int or not 0 < spp <= MAX_SPP:
+        raise bad(f"the checkpoint's spp {spp!r} is not a sample count")
+    if type(seconds) not in (int, float) or not 0.0 <= seconds < float("inf"):
+        raise bad(f"the checkpoint's seconds {seconds!r} are not a time")
+    if s.dtype.kind != "f" or sq.dtype.kind != "f" or cnt.dtype.kind not in "iu" or \
+            not (np.isfinite(s).all() and np.isfinite(sq).all()) or (sq < 0.0).any() or \
+            (cnt < 0).any():
+        raise bad("the checkpoint's sums or counters are damaged (not finite, or negative)")
     film.sum[...] = s
     film.sum_sq[...] = sq
-    film.spp = int(header["spp"])
-    return film, dict(zip(COUNTER_NAMES, (int(x) for x in cnt))), float(header["seconds"])
+    film.spp = spp
+    return film, dict(zip(COUNTER_NAMES, (int(x) for x in cnt))), float(seconds)

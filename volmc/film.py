@@ -18,8 +18,11 @@ Images are float arrays [height, width, 3] of linear RGB, row 0 at the top; ``al
 """
 
 import math
+import os
 
 import numpy as np
+
+from .outputs import written_whole
 
 #: Metadata attribute prefix in EXR headers.
 META_PREFIX = "volmc:"
@@ -97,8 +100,8 @@ def write_exr(path, image, metadata=None):
         header[META_PREFIX + k] = v
     channels = {c: np.ascontiguousarray(image[..., i])
                 for i, c in enumerate("RGBA"[:image.shape[2]])}
-    with OpenEXR.File(header, channels) as f:
-        f.write(str(path))
+    with written_whole(path, ".exr") as tmp, OpenEXR.File(header, channels) as f:
+        f.write(tmp)
 
 
 def read_exr(path, alpha=False):
@@ -159,7 +162,8 @@ def write_png(path, image, exposure=0.0, operator="filmic", alpha=None):
             out[y:y + PNG_BAND_ROWS, :, 3] = (a * 255.0 + 0.5).astype(np.uint8)
         out[y:y + PNG_BAND_ROWS, :, :3] = (tonemap(band, exposure, operator) * 255.0 + 0.5) \
             .astype(np.uint8)
-    mpimg.imsave(str(path), out)
+    with written_whole(path, os.path.splitext(str(path))[1]) as tmp:
+        mpimg.imsave(tmp, out)
 
 
 def rmse(image, reference):

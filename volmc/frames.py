@@ -20,7 +20,6 @@ import hashlib
 import json
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 
 from .scene.errors import SceneError
@@ -101,19 +100,11 @@ def is_complete(exr, ident):
 
 
 def write_exr_atomic(path, image, meta):
-    """film.write_exr to a temporary file in the same directory, then renamed over
-    ``path``: a run killed while writing leaves no EXR that looks complete."""
+    """film.write_exr, which writes a temporary file in the same directory and renames it
+    over ``path`` (volmc.outputs.written_whole): a run killed while writing leaves no EXR
+    that looks complete."""
     from .film import write_exr
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".volmc-frame-", suffix=".exr", dir=d)
-    os.close(fd)
-    try:
-        write_exr(tmp, image, meta)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_exr(path, image, meta)
 
 
 class FrameSequence:

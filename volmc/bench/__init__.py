@@ -5,7 +5,6 @@ def report_main(make_report, print_report, json_path=None):
     """The end of a benchmark's command line: build the report (``make_report()``), print it
     with the wall time, and write it as JSON to ``json_path`` if given. Bad input (a
     VolmcError: a scene, a grid, a map) is the one-line error with exit status 2."""
-    import json
     import sys
     import time
     from ..scene.errors import VolmcError
@@ -18,5 +17,5 @@ def report_main(make_report, print_report, json_path=None):
     print_report(report)
     print(f"\n{time.perf_counter() - t:.0f} s")
     if json_path:
-        with open(json_path, "w") as f:
-            json.dump(report, f, indent=1)
+        from ..outputs import write_json
+        write_json(json_path, report, indent=1)

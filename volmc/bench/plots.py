@@ -6,6 +6,13 @@ import os
 import numpy as np
 
 
+def save_figure(fig, path):
+    """``fig`` at ``path`` (its format by the suffix), written whole (volmc.outputs)."""
+    from ..outputs import written_whole
+    with written_whole(path, os.path.splitext(str(path))[1]) as tmp:
+        fig.savefig(tmp, dpi=110)
+
+
 def _plt():
     import matplotlib
     matplotlib.use("Agg")
@@ -65,7 +72,7 @@ def _estimator_panels(report, grids, limits, axes, colour_label, title, path, si
         ax.axis("off")
     fig.colorbar(im, ax=axs.ravel().tolist(), label=colour_label)
     fig.suptitle(title)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -102,7 +109,7 @@ def convergence_plots(report, path_cost, path_time):
             ax.set_ylabel(ylabel)
             ax.legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path)
         plt.close(fig)
 
 
@@ -132,7 +139,7 @@ def render_convergence_plot(report, path, max_lines=12):
     ax.set_ylabel("RMSE against the reference")
     ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -179,7 +186,7 @@ def variance_sampler_plot(full, path):
         ax.set_ylabel("RMSE against the reference")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -282,7 +289,7 @@ def winner_map(report, path):
     fig.suptitle("Winner over the majorant segments of replayed render segments" + note,
                  fontsize=9)
     fig.tight_layout(rect=(0, 0.07, 1, 0.95))
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     plt.close(fig)
 
 

@@ -9,7 +9,6 @@ Configurations alternate within each repetition so machine drift affects all of 
 figures are medians over repetitions, compile time excluded.
 """
 
-import json
 import statistics
 import time
 
@@ -116,5 +115,5 @@ def print_table(title, results, baseline=None, log=print):
 
 
 def write_json(path, payload):
-    with open(path, "w") as f:
-        json.dump(payload, f, indent=2)
+    from ..outputs import write_json as write
+    write(path, payload)

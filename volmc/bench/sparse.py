@@ -24,7 +24,6 @@ ones bit for bit on each backend, which the run checks.
 """
 
 import argparse
-import json
 import math
 import time
 
@@ -53,7 +52,9 @@ def blobs_grid(size=512, fill=0.03, seed=1, n_blobs=7):
     vol = fill * size**3 * w / w.sum() * 1.15      # a little extra: the noise erodes the rims
     for v in vol:
         r = (3.0 * v / (4.0 * math.pi)) ** (1.0 / 3.0)
-        c = rng.uniform(r + 2, size - r - 2, 3)
+        # Inside the grid by 2 voxels where it fits; in a grid too small for it, about its
+        # middle (the clip below keeps the ball's voxels in the grid).
+        c = rng.uniform(min(r + 2, size / 2), max(size - r - 2, size / 2), 3)
         lo = np.maximum(np.floor(c - r).astype(int), 0)
         hi = np.minimum(np.ceil(c + r).astype(int) + 1, size)
         z, y, x = np.meshgrid(*[np.arange(a, b) + 0.5 for a, b in zip(lo[::-1], hi[::-1])],
@@ -269,6 +270,10 @@ def run(size=512, fill=0.03, lookups=1 << 22, per_item=64, repeats=5, backends=(
     (bx, bn), t_maj_dense = _timed(lambda: build_majorant_grid(g, table.shape))
     assert np.array_equal(mx, bx) and np.array_equal(mn, bn)
     active = int(np.count_nonzero(g))
+    if active == 0:   # the "active" points are drawn in non-empty bricks: none to draw from
+        from ..scene.errors import SceneError
+        raise SceneError("command line", "--fill", f"a {size}^3 grid at fill {fill} has no "
+                         "active voxel; raise --fill or --size")
     bricks = np.ascontiguousarray(np.argwhere(table)[:, ::-1], np.int32)   # (x, y, z)
     report = {
         "size": size, "active_voxels": active, "voxel_fill": active / g.size,
@@ -379,8 +384,8 @@ def main(argv=None):
             device=a.device, log=lambda s: print(s, file=sys.stderr))
     print(format_report(r))
     if a.json:
-        with open(a.json, "w") as f:
-            json.dump(r, f, indent=1)
+        from ..outputs import write_json
+        write_json(a.json, r, indent=1)
     return 0
 
 

@@ -29,7 +29,6 @@ Each case prints its seed and its scene, so ``--case SEED`` renders it again.
 """
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -403,7 +402,7 @@ def compare_reference(scene, spp, lanes, seed_offset=0):
     a = render(sa, backend="opencl", spp=spp, progress=False, lanes=lanes)
     b = render(sb, backend="numba", spp=spp, progress=False)
     c = compare_images(a.film.mean(), a.film.variance_of_mean(), b.film.mean(),
-                       b.film.variance_of_mean())
+                       b.film.variance_of_mean(), dof_a=a.film.spp - 1, dof_b=b.film.spp - 1)
     capped = a.counters.get("capped", 0) + b.counters.get("capped", 0)
     return Run(c.passed and capped == 0, c.means_agree and capped == 0,
                c.summary() + (f"; capped {capped}" if capped else ""))
@@ -478,9 +477,9 @@ def main(argv=None):
         counts[r["outcome"]] = counts.get(r["outcome"], 0) + 1
     print("outcomes: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"against": args.against, "spp": args.spp, "cases": records}, f,
-                      indent=1)
+        from ..outputs import write_json
+        write_json(args.json, {"against": args.against, "spp": args.spp, "cases": records},
+                   indent=1)
     return 1 if counts.get("DIFFER") else 0
 
 

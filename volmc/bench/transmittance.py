@@ -22,7 +22,6 @@ truth, variance, mean lookups, time per estimate, efficiency 1 / (variance x loo
 the per-estimate variance (equal samples).
 """
 
-import json
 import math
 import threading
 import time
@@ -418,5 +417,5 @@ def guard_totals(report):
 
 
 def write_json(path, report):
-    with open(path, "w") as f:
-        json.dump(report, f, indent=1, default=float)
+    from ..outputs import write_json as write
+    write(path, report, indent=1, default=float)

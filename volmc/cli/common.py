@@ -168,21 +168,19 @@ def check_figure_path(path, flag):
 
 
 def check_writable(path, flag, where="command line"):
-    """Raise SceneError(where, flag, ...) unless ``path`` names a file in a writable
-    directory."""
-    if not path or path.endswith(("/", os.sep)) or os.path.isdir(path):
-        raise SceneError(where, flag, f"expected a file path, got {path!r}")
-    d = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(d):
-        raise SceneError(where, flag, f"directory does not exist: {d}")
-    if not os.access(d, os.W_OK):
-        raise SceneError(where, flag, f"directory is not writable: {d}")
+    """Raise SceneError(where, flag, ...) unless ``path`` can be written as a file
+    (volmc.outputs.check_output)."""
+    from ..outputs import check_output
+    check_output(path, flag, where)
 
 
 def check_directory(path, flag):
-    """Raise SceneError unless ``path`` is an existing directory."""
+    """Raise SceneError unless ``path`` is an existing directory where files can be
+    written (the output folders of benchmarks and peers)."""
+    from ..outputs import check_directory_writable
     if not os.path.isdir(path):
         raise SceneError("command line", flag, f"not a directory: {path}")
+    check_directory_writable(path, flag)
 
 
 def comma_list(text, flag, allowed):

@@ -2,7 +2,12 @@
 
 import sys
 
+import numpy as np
+
+from ..scene.errors import SceneError
 from .common import check_writable, finite_float
+
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def add_convert_parser(sub):
@@ -18,15 +23,24 @@ def add_convert_parser(sub):
 
 def cmd_convert(args):
     from ..scene.grids import load_grid, read_vol, save_grid
-    grid = load_grid(args.input, "input")
+    if args.input.lower().endswith((".vdb", ".nvdb")):
+        raise SceneError(args.input, "input", "convert reads .npy, .npz and .vol grids; a "
+                         "VDB grid renders as it is (medium.density = { file = ..., grid = "
+                         "... })")
     bounds = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
     if args.bounds is not None:
         b = args.bounds
         bounds = (tuple(b[:3]), tuple(b[3:]))
-    elif args.input.lower().endswith(".vol"):
+        # A .vol header holds float32: the box must be one there, and not empty.
+        if not all(abs(v) <= FLOAT32_MAX for v in b) or not all(lo < hi for lo, hi in
+                                                                 zip(b[:3], b[3:])):
+            raise SceneError("command line", "--bounds", f"expected XMIN YMIN ZMIN < XMAX "
+                             f"YMAX ZMAX within float32's range, got {' '.join(map(str, b))}")
+    check_writable(args.output, "output")
+    grid = load_grid(args.input, "input")
+    if args.bounds is None and args.input.lower().endswith(".vol"):
         bb = read_vol(args.input)[1]
         bounds = (tuple(bb[:3]), tuple(bb[3:]))
-    check_writable(args.output, "output")
     save_grid(args.output, grid, bounds)
     nz, ny, nx = grid.shape
     print(f"volmc: wrote {args.output} ({nx}x{ny}x{nz} [x, y, z])", file=sys.stderr)

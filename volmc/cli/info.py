@@ -28,10 +28,11 @@ def cmd_info(args):
                   f"{d.max_compute_units} compute units, {d.global_mem_size >> 20} MiB)")
     from ..cl.lanes import (ENV_VAR as LANES_VAR, GATHER_ENV, device_gathers, device_lanes,
                             resolve_gathers, resolve_lanes)
+    failed = None   # the one-line error (exit status 2) after the listing
     try:
         dev = select_device()
     except SceneError as e:
-        dev = None
+        dev, failed = None, e
         print(f"default device: none ({e})")
     if dev is not None:
         # (a bad $VOLMC_LANES or $VOLMC_GATHERS is the one-line error, after the listing)
@@ -45,4 +46,6 @@ def cmd_info(args):
     cdir = cache_dir()
     n = len(list(cdir.glob("*.bin"))) if cdir.is_dir() else 0
     print(f"kernel cache: {cdir} ({n} programs; set VOLMC_CACHE_DIR to move it)")
+    if failed is not None:
+        raise failed
     return 0

@@ -51,10 +51,9 @@ def cmd_peer(args):
     except PeerUnavailable as e:
         raise SceneError("command line", "peer", str(e)) from None
     if args.json:
-        import json
+        from ..outputs import write_json
         report["scene"] = os.path.abspath(path)
-        with open(args.json, "w") as f:
-            json.dump(report, f, indent=2)
+        write_json(args.json, report)
     if args.images:
         from ..film import write_exr
         for name, img in images.items():

@@ -82,6 +82,12 @@ def cmd_render(args):
     if args.resume and not os.path.isfile(args.resume):   # before the "rendering" line
         from ..checkpoint import missing
         raise missing(args.resume)
+    checkpoint = args.checkpoint or args.resume
+    if checkpoint:
+        check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
+        if os.path.abspath(checkpoint) in map(os.path.abspath, _outputs(args, out, png)):
+            raise SceneError("command line", "--checkpoint", f"{checkpoint} is also an "
+                             "image this render writes")
     from ..memory import check_memory
     # A render that cannot fit fails now.
     check_memory(scene, args.backend, args.device, albedo=args.denoise)
@@ -89,9 +95,6 @@ def cmd_render(args):
         w, h = scene.camera.resolution
         print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "
               f"backend {args.backend})", file=sys.stderr, flush=True)
-    checkpoint = args.checkpoint or args.resume
-    if checkpoint:
-        check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
     _warn_out_of_view(scene, scene_path)
     with dask_session(args) as client:
         # By name: the driver reads a --resume checkpoint (and refuses a wrong one) before
@@ -104,25 +107,59 @@ def cmd_render(args):
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
     meta["scene_toml"] = to_toml(scene.spec)
-    write_exr(out, res.film.rgba(), meta)
-    if args.variance:
-        write_exr(os.path.splitext(out)[0] + ".var.exr", res.film.variance_of_mean(), meta)
-    if png:
-        write_png(png, res.image, args.exposure, args.tonemap,
-                  alpha=res.alpha if scene.render.transparent_background else None)
+    _write_or_rescue(out, res.film.rgba(), meta)
     denoised = []
-    if args.denoise:   # after the unbiased files: nothing rendered is lost if it fails
-        from ..denoise import write_denoised
-        denoised = write_denoised(res.film, meta, out, png or None, args.exposure,
-                                  args.tonemap, scene.render.transparent_background)
+    try:   # after the EXR: nothing rendered is lost if one of these fails
+        if args.variance:
+            write_exr(os.path.splitext(out)[0] + ".var.exr", res.film.variance_of_mean(), meta)
+        if png:
+            write_png(png, res.image, args.exposure, args.tonemap,
+                      alpha=res.alpha if scene.render.transparent_background else None)
+        if args.denoise:
+            from ..denoise import write_denoised
+            denoised = write_denoised(res.film, meta, out, png or None, args.exposure,
+                                      args.tonemap, scene.render.transparent_background)
+    except (OSError, RuntimeError) as e:
+        raise SceneError("command line", "-o", f"{out} is written, but not all of the files "
+                         f"beside it: {e}") from None
 
     if not args.quiet:
+        if res.film.spp > scene.render.spp:
+            print(f"volmc: note: {args.resume} held {res.film.spp} spp already, more than the "
+                  f"{scene.render.spp} asked; the image has them all", file=sys.stderr)
         state = "interrupted, partial image" if res.partial else "done"
         print(f"volmc: {state}: {_summary(out, png, res, scene)}", file=sys.stderr)
         if denoised:
             print(f"volmc: denoised preview: {' + '.join(denoised)}", file=sys.stderr)
     _report(args, res)
     return EXIT_INTERRUPTED if res.partial else 0
+
+
+def _write_or_rescue(out, rgba, meta):
+    """The EXR at ``out``, checked writable before the render; should writing it fail all the
+    same (a full disk, a directory removed meanwhile), the image is written to the system's
+    temporary directory instead and the one-line error names it: a render is not lost."""
+    from ..film import write_exr
+    try:
+        write_exr(out, rgba, meta)
+    except (OSError, RuntimeError) as e:
+        import tempfile
+        fd, rescue = tempfile.mkstemp(prefix="volmc-rescued-", suffix=".exr")
+        os.close(fd)
+        write_exr(rescue, rgba, meta)
+        raise SceneError("command line", "-o", f"could not write {out} ({e}); the image is "
+                         f"saved as {rescue}") from None
+
+
+def _outputs(args, out, png):
+    """Every file ``volmc render`` writes for EXR ``out`` and PNG ``png`` (or None)."""
+    from ..denoise import denoised_path
+    paths = [out] + ([png] if png else [])
+    if args.variance:
+        paths.append(os.path.splitext(out)[0] + ".var.exr")
+    if args.denoise:
+        paths += [denoised_path(p) for p in paths[:1 + bool(png)]]
+    return paths
 
 
 def _render_paths(args):
@@ -146,6 +183,9 @@ def _render_paths(args):
             raise SceneError("command line", "--png", f"expected a path ending in .png, got "
                                                       f"{png!r}")
         check_writable(png, "--png")
+    if args.frames is None:
+        for path in _outputs(args, out, png)[1 + bool(png):]:   # --variance, --denoise
+            check_writable(path, "--variance" if path.endswith(".var.exr") else "--denoise")
     return scene_path, out, png
 
 
@@ -213,6 +253,10 @@ def cmd_render_frames(args, scene_path, out, png, defines):
     _check_render_device(args)
     seq = FrameSequence(read_raw(scene_path, defines), scene_path, None, frames)
     plan = seq.plan(out, args.backend)
+    for p in plan:   # every file of the frames to render, before the first renders
+        if not p.complete:
+            for path in _outputs(args, p.exr, png and frame_path(png, p.frame)):
+                check_writable(path, "-o")
     if not args.quiet:
         n_done = sum(p.complete for p in plan)
         print(f"volmc: rendering {scene_path}, {describe(seq.frames)} ({len(plan)} frames, "

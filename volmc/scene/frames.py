@@ -64,10 +64,16 @@ def patterns(raw):
 
 def format_path(pattern, frame, file, key):
     """``pattern`` with the frame number in; a field other than ``frame`` or a format spec
-    an integer does not take is a SceneError(file, key)."""
+    an integer does not take is a SceneError(file, key), as is a width or precision of more
+    than two digits (a file name has no use for it, and Python would build the string)."""
+    import re
+    import string
     try:
+        for _, name, spec, _ in string.Formatter().parse(pattern):
+            if name is not None and (name != "frame" or re.search(r"\d{3,}", spec or "")):
+                raise KeyError(name)
         return pattern.format(frame=frame)
-    except (KeyError, IndexError, AttributeError):
+    except (KeyError, IndexError, AttributeError, TypeError):
         raise SceneError(file, key, f"{pattern!r}: only {{frame}} (with a format spec, e.g. "
                                     "{frame:04d}) can be substituted") from None
     except ValueError as e:

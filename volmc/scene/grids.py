@@ -66,7 +66,8 @@ def write_vol(path, grid, bounds=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))):
         raise ValueError(f"grid must be 3-D, got shape {grid.shape}")
     nz, ny, nx = grid.shape
     lo, hi = bounds
-    with open(path, "wb") as f:
+    from ..outputs import written_whole
+    with written_whole(path) as tmp, open(tmp, "wb") as f:
         f.write(VOL_HEADER.pack(VOL_MAGIC, VOL_VERSION, VOL_ENCODING_FLOAT32, nx, ny, nz, 1,
                                 *[float(v) for v in lo], *[float(v) for v in hi]))
         f.write(grid.tobytes())
@@ -187,10 +188,13 @@ def save_grid(path, grid, bounds=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))):
     suffix = os.path.splitext(path)[1].lower()
     if suffix == ".vol":
         write_vol(path, grid, bounds)
-    elif suffix == ".npy":
-        np.save(path, np.ascontiguousarray(grid, np.float32))
-    elif suffix == ".npz":
-        np.savez_compressed(path, density=np.ascontiguousarray(grid, np.float32))
+    elif suffix in (".npy", ".npz"):
+        from ..outputs import written_whole
+        with written_whole(path, suffix) as tmp:
+            if suffix == ".npy":
+                np.save(tmp, np.ascontiguousarray(grid, np.float32))
+            else:
+                np.savez_compressed(tmp, density=np.ascontiguousarray(grid, np.float32))
     else:
         raise SceneError(path, "output", f"unknown grid format '{suffix}' (use .npy, .npz "
                                          "or .vol)")

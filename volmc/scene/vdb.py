@@ -236,6 +236,9 @@ def _grid_list_text(infos):
 
 def _with_reader(path, key, action):
     path = os.fspath(path)
+    if os.path.exists(path) and not os.path.isdir(path) and not os.path.isfile(path):
+        # A FIFO or device: open() would wait for a writer, or read forever.
+        raise SceneError(path, key, "not a regular file")
     try:
         with open(path, "rb") as f:
             size = os.fstat(f.fileno()).st_size

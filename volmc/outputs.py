@@ -1,0 +1,84 @@
+"""Files volmc writes: checked before the work that fills them, and written whole.
+
+A render or a benchmark can run for hours, so every path it will write is checked before it
+starts (``check_output``): a file path (not a directory, not a FIFO or device), in a
+directory where a file can really be created. The check creates and removes a probe file
+rather than trusting ``os.access``, which reads permission bits: root passes those
+everywhere, and some filesystems (/proc, read-only mounts) refuse what the bits allow.
+
+Every file is then written to a temporary file in its directory and renamed over the path
+(``written_whole``), so a failure or a kill while writing leaves the earlier file as it was,
+never a truncated one; the new file gets the permissions a plain ``open`` would give it
+(those of the file it replaces, else 0666 less the umask), not mkstemp's 0600.
+"""
+
+import contextlib
+import os
+import stat
+import tempfile
+
+from .scene.errors import SceneError
+
+
+def _umask():
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+#: The process's umask, read once (os.umask can only be read by setting it).
+UMASK = _umask()
+
+
+def check_output(path, key, where="command line"):
+    """Raise SceneError(where, key, ...) unless ``path`` can be written as a file."""
+    path = os.fspath(path) if path is not None else ""
+    if not path or path.endswith(("/", os.sep)) or os.path.isdir(path):
+        raise SceneError(where, key, f"expected a file path, got {path!r}")
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise SceneError(where, key, f"not a regular file: {path}")
+    d = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(d):
+        raise SceneError(where, key, f"directory does not exist: {d}")
+    check_directory_writable(d, key, where)
+
+
+def check_directory_writable(d, key, where="command line"):
+    """Raise SceneError(where, key, ...) unless a file can be created in directory ``d``."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".volmc-probe-", dir=d)
+    except OSError:
+        raise SceneError(where, key, f"directory is not writable: {d}") from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(probe)
+
+
+def write_json(path, payload, indent=2, default=None):
+    """``payload`` as JSON at ``path``, written whole (reports of benchmarks and peers)."""
+    import json
+    with written_whole(path) as tmp, open(tmp, "w") as f:
+        json.dump(payload, f, indent=indent, default=default)
+
+
+@contextlib.contextmanager
+def written_whole(path, suffix=""):
+    """Yields a temporary path beside ``path`` to write; renames it over ``path`` when the
+    block ends without an exception, and removes it otherwise. ``suffix``: the temporary
+    file's (writers that choose the format by suffix need the path's own)."""
+    path = os.fspath(path)
+    d = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".volmc-", suffix=suffix, dir=d)
+    os.close(fd)
+    try:
+        yield tmp
+        try:
+            mode = stat.S_IMODE(os.stat(path).st_mode)
+        except OSError:
+            mode = 0o666 & ~UMASK
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
