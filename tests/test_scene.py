@@ -274,3 +274,24 @@ def test_bad_grid_files(tmp_path):
     with pytest.raises(SceneError, match="real numbers"):
         load_scene(_grid_scene(tmp_path, "s.npy"))
     assert os.path.exists(tmp_path / "s.npy")
+
+
+@pytest.mark.parametrize("bounds, key, field", [
+    ([[-3e38, -3e38, -3e38], [3e38, 3e38, 3e38]], "medium.bounds", "scale"),
+    ([[0.0, 0.0, 0.0], [1e-38, 1e-38, 1e-38]], "camera", "eye"),
+])
+def test_values_that_overflow_in_the_scene_frame(bounds, key, field):
+    """Each value passes the schema alone, but the frame the kernels render in overflows
+    float32 (extinction as scale x unit; positions relative to the box): the one-line
+    error naming the key, for both precisions (it was a numpy warning and a render)."""
+    import volmc.pack as pack
+    from volmc.resources import scenes_dir
+    scene = load_scene(scenes_dir() / "tests" / "absorber.toml",
+                       [f"medium.bounds={bounds}"])
+    pack.pack_scene(scene, np.float64)   # float64 holds them
+    with pytest.raises(SceneError) as e:
+        pack.pack_scene(scene, np.float32)
+    assert f": {key}: {field} overflows float32" in str(e.value)
+    fine = load_scene(scenes_dir() / "tests" / "absorber.toml",
+                      ["medium.bounds=[[0, 0, 0], [1e-30, 1e-30, 1e-30]]"])
+    pack.pack_scene(fine, np.float32)

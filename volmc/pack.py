@@ -20,6 +20,7 @@ from .params import light_dtype, medium_dtype, params_dtype
 from .techniques import ESTIMATORS
 from .scene.schema import (FLOAT32_MAX, DirectionalLight, EnvironmentLight, PointLight,
                            SphereLight, SpotLight, chroma)
+from .scene.errors import SceneError
 from .scene.transform import box_frame, placement
 from .scene.envmap import light_texels
 from .reference.environment import environment_distribution, no_env
@@ -155,7 +156,37 @@ def pack_scene(scene, real=np.float64, spp_seed=None):
     kernels). Environment lights are summed into params.env; the light array holds the
     directional and point lights; the grid is a C-contiguous [z, y, x] array (a 1x1x1
     placeholder when homogeneous). Positions and extinction are in the scene frame
-    (``scene_frame``)."""
+    (``scene_frame``). A value that overflows there is a SceneError (check_packed)."""
+    with np.errstate(over="ignore", invalid="ignore"):   # check_packed names what overflowed
+        pk = _pack_scene(scene, real, spp_seed)
+    check_packed(scene, pk)
+    return pk
+
+
+def check_packed(scene, pk):
+    """Raise SceneError(scene file, key) if a real of the packed records is not finite. The
+    schema bounds every value alone; only their combination in the scene frame can
+    overflow: a box of extent 6e38 (extinction is scale x unit), or a camera or light far
+    from a box of extent 1e-38 (positions are (x - centre) / unit)."""
+    centre, unit = scene_frame(scene)
+    for records, key in ((pk.params, "camera"), (pk.medium, "medium.bounds"),
+                         (pk.lights, "lights")):
+        records = np.atleast_1d(records)
+        for name in records.dtype.names or ():
+            v = records[name]
+            if v.dtype.kind == "f" and not np.isfinite(v).all():
+                raise SceneError(scene.file, key, f"{name} overflows float{8 * v.itemsize} in "
+                                 f"the frame volmc renders in (positions relative to the "
+                                 f"media's box, centre {_show3(centre)}, in units of {unit:g}; "
+                                 "extinction per that unit): bring the box's size and the "
+                                 "distances of the camera and lights from it closer")
+
+
+def _show3(v):
+    return "(" + ", ".join(f"{x:g}" for x in v) + ")"
+
+
+def _pack_scene(scene, real, spp_seed):
     cam, rnd = scene.camera, scene.render
     centre, unit = scene_frame(scene)
 
