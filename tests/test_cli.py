@@ -135,6 +135,8 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["convert", "g.npy", "g.vol", "--bounds", "0", "0", "0", "1e39", "1", "1"], "--bounds"),
     (["convert", "g.npy", "g.vol", "--bounds", "1", "1", "1", "0", "0", "0"], "--bounds"),
     (["check", "{tiny}", "--spp", "1"], "--spp"),
+    # Before the header line, not after it.
+    (["check", "{tiny}", "--device", "9"], "--device"),
     (["render", "{tiny}", "--exposure", "nan"], "--exposure"),
     # An unbounded count started worker processes until memory ran out.
     (["render", "{tiny}", "--workers", "99999999999999999999"], "--workers"),

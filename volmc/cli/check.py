@@ -2,12 +2,12 @@
 
 from ..scene.errors import SceneError
 from .common import (add_defines_option, add_device_option, add_scene_argument,
-                     scene_path, spp_count)
+                     check_opencl_choices, scene_path, spp_count)
 
 
 def add_check_parser(sub):
     k = sub.add_parser("check", help="render a scene with two backends and compare the images "
-                                     "(per-pixel z-test)")
+                                     "(per-pixel t-test)")
     add_scene_argument(k)
     k.add_argument("--spp", type=spp_count, help="samples per pixel for both renders")
     k.add_argument("--backends", default="opencl,numba", help="two backends (default "
@@ -34,6 +34,8 @@ def cmd_check(args):
         raise SceneError("command line" if args.spp else path,
                          "--spp" if args.spp else "render.spp",
                          f"volmc check needs at least 2 samples per pixel, got {spp}")
+    if "opencl" in names:
+        check_opencl_choices(args.device)
     print(f"volmc check: {path}: {w}x{h}, {spp} spp, {names[0]} (seed s) vs {names[1]} "
           f"(seed s + 1)", flush=True)
     cmp, ra, rb = check_scene(scene, names, spp=args.spp, device=args.device)

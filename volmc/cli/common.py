@@ -167,6 +167,16 @@ def check_figure_path(path, flag):
                          f"{', '.join('.' + f for f in sorted(formats))}, got {path!r}")
 
 
+def check_opencl_choices(device, lanes=None):
+    """A bad --device, lane width, $VOLMC_LANES or $VOLMC_GATHERS is the one-line error now,
+    before a command prints anything."""
+    from ..cl.device import select_device
+    from ..cl.lanes import resolve_gathers, resolve_lanes
+    dev = select_device(device)
+    resolve_lanes(lanes, dev)
+    resolve_gathers(dev)
+
+
 def check_writable(path, flag, where="command line"):
     """Raise SceneError(where, flag, ...) unless ``path`` can be written as a file
     (volmc.outputs.check_output)."""

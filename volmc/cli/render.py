@@ -6,8 +6,8 @@ import time
 
 from ..scene.errors import SceneError
 from .common import (EXIT_INTERRUPTED, add_cluster_options, add_defines_option,
-                     add_lanes_option, add_scene_argument, check_writable, dask_session,
-                     exposure, nonnegative_seconds, seed, spp_count)
+                     add_lanes_option, add_scene_argument, check_opencl_choices, check_writable,
+                     dask_session, exposure, nonnegative_seconds, seed, spp_count)
 
 
 def add_render_parser(sub):
@@ -201,11 +201,7 @@ def _render_defines(args):
 
 def _check_render_device(args):
     if args.backend == "opencl":
-        from ..cl.device import select_device
-        from ..cl.lanes import resolve_gathers, resolve_lanes
-        dev = select_device(args.device)   # a bad --device fails before anything is printed
-        resolve_lanes(args.lanes, dev)   # and so does a bad $VOLMC_LANES
-        resolve_gathers(dev)             # or $VOLMC_GATHERS
+        check_opencl_choices(args.device, args.lanes)
 
 
 def _warn_out_of_view(scene, scene_path, prefix=""):
