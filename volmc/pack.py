@@ -104,11 +104,22 @@ def scene_frame(scene):
     half-size in [0.7, 1.4] at the origin: a scene translated 1e7 units away (where float32
     has an ulp of 1) or scaled by 1e-4 or 1e4 renders from the same numbers as at the origin.
     A power of two scales without rounding. Counters (lookups, steps) are unchanged too.
-    Several media: the box around all of their placed boxes."""
+
+    Several media: the frame of the placed box nearest the eye (of those at the same
+    distance, such as all that hold the eye, the smallest), as pbrt-v4 renders near its
+    camera. The box around all of them would put its centre between media far apart, and
+    then neither the camera nor the medium it sees could be placed: a cloud at the origin
+    beside a haze box 1e8 away sat 5e7 from that centre, where float32 resolves 4 units, and
+    the kernels rendered the bare sky. A medium far from the one chosen is placed only as
+    precisely as float32 resolves its distance, as in any float32 renderer."""
     boxes = [placement(m)[:2] for m in scene.spec.media]
-    lo = [min(b[0][a] for b in boxes) for a in range(3)]
-    hi = [max(b[1][a] for b in boxes) for a in range(3)]
-    return box_frame(lo, hi)
+    eye = scene.camera.eye
+
+    def nearness(box):
+        lo, hi = box
+        gap = math.sqrt(sum(max(lo[a] - eye[a], 0.0, eye[a] - hi[a]) ** 2 for a in range(3)))
+        return gap, max(hi[a] - lo[a] for a in range(3))
+    return box_frame(*min(boxes, key=nearness))
 
 
 def medium_space(lo, hi, m, centre, unit):
