@@ -314,3 +314,21 @@ def test_errors_are_volmc_errors_with_the_cli_message(tmp_path):
         volmc.estimate_transmittance(scene, [0, 0, 4], [0, 0, 0])
     with pytest.raises(volmc.VolmcError, match="t_max: must be >= 0"):
         volmc.estimate_transmittance(scene, [0, 0, 4], [0, 0, -1], -1.0)
+
+
+def test_numpy_grids_in_every_media_entry():
+    """A numpy array is a grid in a [[media]] entry as in [medium] (density, emission field
+    and temperature), and through a media.N override; elsewhere arrays are lists."""
+    g = np.ones((4, 5, 6), np.float32)
+    box = [[-1, -1, -1], [1, 1, 1]]
+    s = volmc.scene_from_dict({"camera": {}, "media": [
+        {"bounds": box, "density": 1.0},
+        {"bounds": box, "density": g, "emission": {"field": g, "radiance": 1.0}},
+        {"bounds": box, "density": 0.5, "emission": {"temperature": g * 1500.0}}]})
+    assert s.spec.media[1].density.array.shape == (4, 5, 6)
+    assert s.spec.media[1].emission.field.array.shape == (4, 5, 6)
+    assert s.spec.media[2].emission.temperature.array.shape == (4, 5, 6)
+    s = volmc.scene_from_dict({"camera": {"eye": np.array([0.0, 0.0, 5.0])},
+                               "media": [{"bounds": box, "density": 1.0}]},
+                              overrides={"media.0.density": g})
+    assert s.spec.media[0].density.array.shape == (4, 5, 6) and s.camera.eye == (0.0, 0.0, 5.0)

@@ -265,3 +265,15 @@ def test_compare_images_false_failure_rate_at_few_samples(spp):
         z_fails += not compare_images(ma, va, mb, vb).passed
     assert stats.binom.sf(fails - 1, trials, 0.02) > 1e-4, fails
     assert z_fails > trials // 4, z_fails
+
+
+def test_compare_images_reports_a_gross_difference():
+    """Images apart by thousands of standard errors: a verdict, not an exception (the
+    p-value's normal quantile was taken of 1 - p / 2, which rounds to 1)."""
+    shape = (6, 5, 3)
+    c = compare_images(np.ones(shape), np.full(shape, 1e-8), np.zeros(shape),
+                       np.full(shape, 1e-8), dof_a=15, dof_b=15)
+    assert not c.passed and c.max_abs_z > 8.0 and c.frac_outside == 1.0
+    same = compare_images(np.ones(shape), np.full(shape, 1e-8), np.ones(shape),
+                          np.full(shape, 1e-8), dof_a=15, dof_b=15)
+    assert same.passed and same.max_abs_z == 0.0

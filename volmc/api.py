@@ -15,6 +15,7 @@ Heavy modules (Numba, pyopencl, matplotlib) are imported inside the functions, s
 
 import contextlib
 import os
+import re
 from dataclasses import dataclass, field
 
 # VolmcError and VolmcWarning are exported by volmc/__init__.py, on first use (they live in
@@ -29,8 +30,9 @@ def _error(file, key, message):
     return _SceneError(file, key, message)
 
 
-#: Keys whose value may be a numpy array (a grid given directly); other arrays become lists.
-_GRID_KEYS = ("medium.density", "medium.emission.field", "medium.emission.temperature")
+#: Keys whose value may be a numpy array (a grid given directly), in `[medium]` or any
+#: `[[media]]` entry (media.N); other arrays become lists.
+_GRID_KEY = re.compile(r"(medium|media\.\d+)\.(density|emission\.field|emission\.temperature)")
 
 
 def _plain(value, path=""):
@@ -38,7 +40,7 @@ def _plain(value, path=""):
     TOML gives the validator), except numpy arrays at a grid key, which are kept as grids."""
     import numpy as np
     if isinstance(value, np.ndarray):
-        return value if path in _GRID_KEYS else value.tolist()
+        return value if _GRID_KEY.fullmatch(path) else value.tolist()
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, dict):

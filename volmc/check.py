@@ -133,8 +133,9 @@ def compare_images(mean_a, var_a, mean_b, var_b, alpha=ALPHA, dof_a=math.inf,
         i = int(np.argmin(p))
         from statistics import NormalDist
         pmin = float(p.flat[i])
-        max_z = (NormalDist().inv_cdf(1.0 - pmin / 2.0) if pmin > 0.0
-                 else float(abs(z.flat[i])))
+        # From the lower tail: 1 - pmin / 2 rounds to 1 below pmin = 1e-16
+        max_z = (-NormalDist().inv_cdf(pmin / 2.0) if 0.0 < pmin < 1.0
+                 else 0.0 if pmin >= 1.0 else float(abs(z.flat[i])))
     n_pix = diff.shape[0] * diff.shape[1]
     mz = []
     for c in range(3):
