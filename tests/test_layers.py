@@ -9,7 +9,7 @@ import volmc
 #: Lowest first. A module belongs to the layer of its longest matching prefix.
 LAYERS = [
     ("volmc.constants", "volmc.params", "volmc.resources", "volmc.scene.errors",
-     "volmc.emission"),
+     "volmc.emission", "volmc.outputs"),
     ("volmc.reference",),
     ("volmc.techniques",),
     ("volmc.scene",),
