@@ -69,11 +69,11 @@ static inline spec transmittance_by_segments(const MediumData *med, lvec3 o, lve
                                              lfloat t1, int kind, Rng *rng, lulong *counters,
                                              int max_steps, lmask active) {
     o = madd3(o, d, t0);
-    MajorantIter it;
+    MajorantIter it = {0};   /* records start defined in every lane (lanes.h) */
     majorant_iter_init(&it, med, o, d, (lfloat)(0.0f), t1 - t0, active);
     uspec k = medium_chroma(med);
     spec T = spec_s((lfloat)(1.0f));
-    Segment seg;
+    Segment seg = {0};
     lmask live = active;
     while (ANY(live)) {
         counters[C_LANE_ROUNDS] += lane_ones(LANE_IOTA == 0);

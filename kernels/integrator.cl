@@ -1062,9 +1062,8 @@ kernel void render_batch(const Params prm, global const Medium *media, const Lau
     lulong cnt[N_COUNTERS];
     for (int k = 0; k < N_COUNTERS; ++k) cnt[k] = (lulong)(0);
     Rng rng = rng_empty(), rng_s = rng_empty();
-    Walk wk;
-    wk.live = wk.in_seg = (lmask)(0);
-    Path path;
+    Walk wk = {0};   /* records start defined in every lane (lanes.h) */
+    Path path = {0};
     path.state = (lint)(PATH_IDLE);
     while (true) {
         /* Path logic until every lane walks or has nothing left. */

@@ -94,6 +94,14 @@ typedef LANE_TYPE(int) lmask; /* -1 true, 0 false, as vector comparisons give */
 #define LANE_UNROLL _Pragma("unroll")
 #endif
 
+/* Records of lane values (a walk, a path, a segment) start zeroed, `Walk wk = {0}`, never
+ * uninitialised: a lane that no code has written yet is otherwise undefined to LLVM, a mask
+ * that combines it is undefined too, and ANY() of it is a branch on an undefined value,
+ * which the optimiser may assume never happens. It did: with both majorant kinds compiled
+ * in, estimate_batch at W > 1 under the octree returned T = 1 without a lookup (correct
+ * with -cl-opt-disable, and once the walk record was zeroed). Zeroing a record costs
+ * a few stores per walk or per work-item. */
+
 /* A mask of every lane or none from a condition every lane shares. (A cast would not do:
  * (lmask)(1) is 1 in every lane, which vector masks read as false.) */
 static inline lmask lanes_if(int c) { return c ? LANES_ALL : (lmask)(0); }

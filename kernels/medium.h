@@ -541,7 +541,7 @@ static inline lmask majorant_next(MajorantIter *it, const MediumData *med, Segme
         it->has[i] = it->has[i] & !passed;
         lmask need = passed & !it->one[i].done;
         if (ANY(need)) {
-            Segment s;
+            Segment s = {0};
             lmask got = medium_iter_next(&it->one[i], med, i, &s, need);
             it->one[i].done = it->one[i].done | (need & !got);
             it->cur[i].t_min = select(it->cur[i].t_min, s.t_min, got);

@@ -306,8 +306,7 @@ kernel void t_dda(global const float *rays, float3 bmin, float3 bmax, int3 res_z
                   int max_segments, global float *out, global int *count, int n) {
     lmask on;
     lint r = lane_element(n, &on);
-    Dda s;
-    s.done = (lmask)(0);
+    Dda s = {0};
     dda_init(&s, load_float3(rays, r, 9, 0), load_float3(rays, r, 9, 3), load_float(rays, r, 9, 6),
              load_float(rays, r, 9, 7), bmin, bmax, res_zyx, on);
     lfloat ta, tb;
@@ -333,8 +332,7 @@ kernel void t_octree(global const float *rays, float3 bmin, float3 bmax,
                      global float *out, global int *count, int n) {
     lmask on;
     lint r = lane_element(n, &on);
-    OctreeWalk s;
-    s.done = (lmask)(0);
+    OctreeWalk s = {0};
     octree_init(&s, load_float3(rays, r, 9, 0), load_float3(rays, r, 9, 3),
                 load_float(rays, r, 9, 6), load_float(rays, r, 9, 7), bmin, bmax, depth, on);
     lfloat ta, tb;

@@ -249,7 +249,7 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
     /* Lanes between segments start their next one (or end: no segment left). */
     lmask need = wk->live & !wk->in_seg;
     if (ANY(need)) {
-        Segment seg; /* written in the lanes that get a segment, read only there */
+        Segment seg = {0}; /* written in the lanes that get a segment, read only there */
         lmask ok = majorant_next(&wk->it, med, &seg, need);
         wk->live = wk->live & !(need & !ok);
         lfloat ta = seg.t_min, sm = seg.sigma_maj, smin = seg.sigma_min;
@@ -455,9 +455,7 @@ static inline __attribute__((always_inline)) lint track(
     const MediumData *med, lvec3 o, lvec3 d, lfloat t0, lfloat t1, int technique,
     int use_control, lvec3 beta, lint hero, EmisMis emis, Rng *rng, lulong *counters,
     int max_steps, lmask active, lfloat *t_out, spec *T_out, lvec3 *E_out) {
-    Walk wk;
-    wk.live = (lmask)(0);
-    wk.in_seg = (lmask)(0);
+    Walk wk = {0};   /* records start defined in every lane (lanes.h) */
     walk_begin(&wk, med, o, d, t0, t1, media_near(med, o, d, t0, t1, active), (lint)(technique),
                lanes_if(use_control), beta, hero, emis, active);
     while (ANY(wk.live)) walk_step(&wk, med, TRACK_BIT(technique), rng, counters, max_steps);

@@ -244,3 +244,23 @@ def test_octree_and_grid_majorants_agree(backend, which):
     assert cmp.passed, cmp.summary("grid", "octree")
     assert b.counters["over_majorant"] == 0 and b.counters["capped"] == 0
     assert b.counters["lookups"] > 0
+
+
+@pytest.mark.parametrize("estimator", ["ratio", "track_length"])
+def test_tracking_estimators_under_the_octree_at_every_width(estimator):
+    """volmc.estimate_transmittance with the octree: the same estimates at W = 16 as at
+    W = 1, and the reference's within the standard error. The kernels returned T = 1
+    without a lookup at W > 1 (an uninitialised walk record: kernels/lanes.h)."""
+    import volmc
+    scene = volmc.load_scene(overrides={"render.majorant": "octree",
+                                        "camera.resolution": [8, 8]})
+    o, d = [[0.0, 0.6, 4.0], [0.3, 0.0, 4.0]], [0.0, 0.0, -1.0]
+    one, wide = (volmc.estimate_transmittance(scene, o, d, estimator=estimator, n=256,
+                                              lanes=w) for w in (1, 16))
+    np.testing.assert_array_equal(wide.estimates, one.estimates)
+    assert (wide.lookups > 1.0).all() and (wide.estimates < 0.5).all()
+    ref = volmc.estimate_transmittance(scene, o, d, estimator=estimator, n=256, seed=7,
+                                       backend="numba")
+    se = np.sqrt(one.stderr ** 2 + ref.stderr ** 2)
+    assert (np.abs(one.estimates - ref.estimates) <= 4.5 * se).all(), (one.estimates,
+                                                                       ref.estimates, se)
