@@ -3,6 +3,7 @@ in Python with numpy grids, rendering, saving, transmittance on the caller's ray
 
 import io
 import math
+import os
 import subprocess
 import sys
 
@@ -332,3 +333,55 @@ def test_numpy_grids_in_every_media_entry():
                                "media": [{"bounds": box, "density": 1.0}]},
                               overrides={"media.0.density": g})
     assert s.spec.media[0].density.array.shape == (4, 5, 6) and s.camera.eye == (0.0, 0.0, 5.0)
+
+
+def test_api_arguments_found_by_a_hostile_pass(tmp_path):
+    """Arguments a black-box pass over the API sent: each works, or is the one-line
+    VolmcError (they were TypeError, AttributeError, MemoryError, a silent black PNG, or a
+    list of a billion frames)."""
+    import itertools
+    import pyopencl as cl
+    box = {"bounds": [[-1, -1, -1], [1, 1, 1]], "density": 2.0}
+    o, d = [[0, 0, -5]], [0, 0, 1]
+    from volmc.api import _device
+    from volmc.cl.device import select_device
+    device = select_device()
+    assert isinstance(device, cl.Device)
+    for spec in (device, 0, np.int64(0)):   # a Device was refused, an int crashed later
+        r = volmc.estimate_transmittance(box, o, d, device=spec)
+        assert r.estimates[0] == pytest.approx(math.exp(-4.0), rel=1e-6)
+    assert _device(0, "opencl", "w") == "0"
+    # a scene dict with [[media]] is a scene, not a [medium] table
+    r = volmc.estimate_transmittance({"camera": {}, "media": [box]}, o, d)
+    assert r.estimates[0] == pytest.approx(math.exp(-4.0), rel=1e-6)
+    scene = volmc.load_scene(overrides={"camera.resolution": [6, 5], "render.spp": 2})
+    img = volmc.render(scene, progress=False)
+    bad = [
+        (lambda: volmc.estimate_transmittance(box, o, d, device=3.5), "device"),
+        (lambda: volmc.estimate_transmittance({"camera": {}, "media": [box, box]}, o, d),
+         "2 media"),
+        (lambda: volmc.estimate_transmittance(box, o, d, t_max=np.full(10**6, np.inf),
+                                              n=2**31 - 1), "n: "),
+        (lambda: volmc.estimate_transmittance(box, o, d, estimator=["ratio"]), "estimator"),
+        (lambda: volmc.render_frames({"camera": {}, "medium": box}, range(10**9)), "frames"),
+        (lambda: volmc.render_frames({"camera": {}, "medium": box}, itertools.count()),
+         "frames"),
+        (lambda: volmc.render_frames({"camera": {}, "medium": box}, [1], output=str(
+            tmp_path / ".exr")), "output"),
+        (lambda: volmc.load_scene(overrides=5), "overrides"),
+        (lambda: volmc.load_scene(overrides=[5]), "overrides"),
+        (lambda: volmc.load_scene(3), "path"),
+        (lambda: img.save(None), "path"),
+        (lambda: img.save(str(tmp_path / "a\0.exr")), "path"),
+        (lambda: img.save(str(tmp_path / ("x" * 300 + ".exr"))), "path"),
+        (lambda: img.save(str(tmp_path / "a.png"), exposure="1"), "exposure"),
+        (lambda: img.save(str(tmp_path / "a.png"), exposure=1e6), "exposure"),
+        (lambda: img.save(str(tmp_path / "a.png"), exposure=float("nan")), "exposure"),
+        (lambda: img.png_bytes(tonemap="bogus"), "tonemap"),
+    ]
+    for call, words in bad:
+        with pytest.raises(volmc.VolmcError) as e:
+            call()
+        assert words in str(e.value) and "\n" not in str(e.value), (words, e.value)
+    assert os.listdir(tmp_path) == []   # nothing written by a refused call
+    assert img.save(os.fsencode(tmp_path / "b.exr")) == str(tmp_path / "b.exr")

@@ -56,9 +56,16 @@ def _overrides(overrides):
     if overrides is None:
         return ()
     if isinstance(overrides, dict):
+        if not all(isinstance(k, str) for k in overrides):
+            raise _error("overrides", "", "the keys of an overrides dict are dotted scene "
+                                          "keys (text), such as 'render.spp'")
         return {k: _plain(v, k) for k, v in overrides.items()}
     if isinstance(overrides, str):
         return [overrides]
+    if not isinstance(overrides, (list, tuple)) or \
+            not all(isinstance(x, str) for x in overrides):
+        raise _error("overrides", "", "expected a dict of dotted keys, or -D texts such as "
+                                      f"'render.spp=16', got {type(overrides).__name__}")
     return list(overrides)
 
 
@@ -81,6 +88,9 @@ def load_scene(path=None, overrides=None, frame=None):
     """
     from .resources import default_scene
     from .scene import load_scene as _load
+    if path is not None and not isinstance(path, (str, os.PathLike)):
+        raise _error("volmc.load_scene()", "path", f"expected a scene file path, got "
+                                                   f"{type(path).__name__}")
     return _load(str(default_scene()) if path is None else os.fspath(path),
                  _overrides(overrides), _frame(frame, "volmc.load_scene()"))
 
@@ -166,15 +176,30 @@ def _seconds(v, where, key):
 
 def _backend_name(backend, device, where):
     from .backends import BACKENDS
-    if backend not in BACKENDS:
+    if not isinstance(backend, str) or backend not in BACKENDS:
         raise _error(where, "backend", f"must be one of {', '.join(map(repr, BACKENDS))}, "
                                            f"got {backend!r}")
-    if backend == "opencl":
-        from .cl.device import select_device
-        select_device(device)   # a bad device fails here, as one line
-    elif device is not None:
+    if backend != "opencl" and device is not None:
         raise _error(where, "device", "a device applies to the opencl backend only")
     return backend
+
+
+def _device(device, backend, where):
+    """``device`` as the renderer takes it: None, a pyopencl Device, or a spec string (a
+    platform number given as an int becomes its text), checked now: a bad one is the
+    one-line error."""
+    if backend != "opencl" or device is None:
+        return device
+    import numbers
+    import pyopencl as cl
+    if isinstance(device, numbers.Integral) and not isinstance(device, bool):
+        device = str(int(device))
+    if not isinstance(device, (str, cl.Device)):
+        raise _error(where, "device", f"expected a pyopencl Device or a spec such as '0:1', "
+                                      f"got {type(device).__name__}")
+    from .cl.device import select_device
+    select_device(device)
+    return device
 
 
 def _lanes(lanes, backend, where):
@@ -225,6 +250,7 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     if keys:
         scene = scene.with_render(**keys)
     name = _backend_name(backend, device, where)
+    device = _device(device, name, where)
     lanes = _lanes(lanes, name, where)
     # As on the command line, a resumed render goes on checkpointing to its file.
     resume = _path(resume, where, "resume", writable=checkpoint is None)
@@ -325,10 +351,15 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     apply_overrides(raw, {f"render.{k}": v for k, v in keys.items()}, file)
     frames = _frame_list(frames, where)
     name = _backend_name(backend, device, where)
+    device = _device(device, name, where)
     lanes = _lanes(lanes, name, where)
     output = _path(output, where, "output", writable=True)
-    if output is not None and not output.lower().endswith(".exr"):
-        raise _error(where, "output", f"expected a path ending in .exr, got {output!r}")
+    if output is not None and (not output.lower().endswith(".exr")
+                               or os.path.basename(output).lower() == ".exr"):
+        raise _error(where, "output", f"expected a path ending in .exr after a name, got "
+                                      f"{output!r}")
+    if png:
+        exposure, tonemap = _display(exposure, tonemap, where)
     if (png or variance or denoise) and output is None:
         raise _error(where, "png" if png else "variance" if variance else "denoise",
                      "needs an output path")
@@ -354,18 +385,38 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     return out
 
 
+def _display(exposure, tonemap, where):
+    """(exposure, tonemap) of a PNG checked: a finite number of stops (at most 100 either
+    way, as --exposure), and "filmic" or "clamp"."""
+    import math
+    import numbers
+    if isinstance(exposure, bool) or not isinstance(exposure, numbers.Real) or \
+            not math.isfinite(exposure) or abs(exposure) > 100:
+        raise _error(where, "exposure", f"expected a number of stops in [-100, 100], got "
+                                        f"{exposure!r}")
+    if not isinstance(tonemap, str) or tonemap not in ("filmic", "clamp"):
+        raise _error(where, "tonemap", f"must be 'filmic' or 'clamp', got {tonemap!r}")
+    return float(exposure), tonemap
+
+
 def _frame_list(frames, where):
     """The frames argument as a list of distinct frame numbers."""
     from .frames import check_count, parse_frames
     if isinstance(frames, str):
         return list(parse_frames(frames, where, "frames"))
-    if not isinstance(frames, bool) and isinstance(frames, int):
+    import itertools
+    import numbers
+    from .frames import MAX_FRAMES
+    if not isinstance(frames, bool) and isinstance(frames, numbers.Integral):
         frames = [frames]
-    try:
-        frames = list(frames)
+    try:   # no more than one past the limit: range(10**9) is not built as a list
+        frames = list(itertools.islice(iter(frames), MAX_FRAMES + 1))
     except TypeError:
         raise _error(where, "frames", f"expected frame numbers or a text such as '1-48', got "
                                       f"{type(frames).__name__}") from None
+    if len(frames) > MAX_FRAMES:
+        raise _error(where, "frames", f"more than {MAX_FRAMES} frames; at most {MAX_FRAMES} "
+                                      "in one run")
     out = [_integer(f, where, "frames", 0, 10**9 - 1) for f in frames]
     if len(set(out)) != len(out):
         raise _error(where, "frames", "a frame is named twice")
@@ -447,14 +498,17 @@ class RenderedImage:
         from .cli import _check_writable
         from .film import write_exr, write_png
         where = "RenderedImage.save()"
-        path = os.fspath(path)
         _check_writable(path, "path", where)
+        path = os.fsdecode(path)
         suffix = os.path.splitext(path)[1].lower()
         if suffix not in (".exr", ".png"):
             raise _error(where, "path", f"expected a path ending in .exr or .png, got "
                                             f"{path!r}")
-        if suffix == ".png" and tonemap not in ("filmic", "clamp"):
-            raise _error(where, "tonemap", f"must be 'filmic' or 'clamp', got {tonemap!r}")
+        exposure, tonemap = _display(exposure, tonemap, where)
+        if denoised:   # before any file: a missing denoiser leaves nothing half written
+            from .denoise import denoise_film, denoised_metadata, denoised_path
+            film = self.result.film
+            rgba = denoise_film(film, where, "denoised")
         if suffix == ".exr":
             write_exr(path, self.result.film.rgba(), self.metadata())
         else:
@@ -463,9 +517,6 @@ class RenderedImage:
         if variance:
             write_exr(os.path.splitext(path)[0] + ".var.exr", self.variance, self.metadata())
         if denoised:
-            from .denoise import denoise_film, denoised_metadata, denoised_path
-            film = self.result.film
-            rgba = denoise_film(film, where, "denoised")
             if suffix == ".exr":
                 write_exr(denoised_path(path), rgba,
                           denoised_metadata(self.metadata(), film.has_albedo, path))
@@ -482,6 +533,7 @@ class RenderedImage:
         import numpy as np
         from matplotlib import image as mpimg
         from .film import tonemap as _tonemap
+        exposure, tonemap = _display(exposure, tonemap, "RenderedImage.png_bytes()")
         rgb = (_tonemap(self.image, exposure, tonemap) * 255.0 + 0.5).astype(np.uint8)
         buf = io.BytesIO()
         mpimg.imsave(buf, rgb, format="png")
@@ -525,7 +577,8 @@ class TransmittanceResult:
 
 def _medium_scene(medium, where):
     """A Scene from a Scene, path, scene dict or a ``[medium]`` table alone."""
-    if isinstance(medium, dict) and "medium" not in medium:
+    from .scene.schema import TOP_KEYS
+    if isinstance(medium, dict) and not set(TOP_KEYS) & set(medium):
         return scene_from_dict({"camera": {}, "medium": medium}, name="<medium>")
     return _as_scene(medium, where)
 
@@ -610,7 +663,7 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     if len(scene.media) > 1:
         raise _error(where, "scene_or_medium", f"{len(scene.media)} media: the estimator "
                      "runners take one medium (render the scene for several)")
-    if estimator not in ESTIMATORS:
+    if not isinstance(estimator, str) or estimator not in ESTIMATORS:
         raise _error(where, "estimator", f"unknown estimator {estimator!r} (have "
                                              f"{', '.join(ESTIMATORS)})")
     est = ESTIMATORS[estimator]
@@ -621,8 +674,15 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     n = _integer(n, where, "n", 1, 2**31 - 1)
     seed = _integer(seed, where, "seed", 0, 2**64 - 1)
     backend = _backend_name(backend, device, where)
+    device = _device(device, backend, where)
     lanes = _lanes(lanes, backend, where)
     o, d, t_max = _rays(origins, directions, t_max, where)
+    # Per estimate, the runners hold its value (float32 on the device and its host copy,
+    # float64 after) and its counters (uint64, and int64 after).
+    from .params import N_COUNTERS
+    from .scene.hostmem import require_host
+    require_host(len(o) * n * (3 if chromatic else 1) * 16 + len(o) * n * N_COUNTERS * 16,
+                 where, "n", f"{len(o)} rays x {n} estimates")
     if stores_bricks(scene):   # the runners read dense grids
         scene = scene.with_render(grid_storage="dense")
     pk = pack_scene(scene, np.float64)

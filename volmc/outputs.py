@@ -32,7 +32,13 @@ UMASK = _umask()
 
 def check_output(path, key, where="command line"):
     """Raise SceneError(where, key, ...) unless ``path`` can be written as a file."""
-    path = os.fspath(path) if path is not None else ""
+    try:
+        path = os.fsdecode(path)
+    except TypeError:
+        raise SceneError(where, key, f"expected a file path, got {type(path).__name__}") \
+            from None
+    if "\0" in path or len(os.path.basename(path)) > 255 - 16:   # room for the temporary
+        raise SceneError(where, key, f"not a usable file name: {path[:80]!r}")
     if not path or path.endswith(("/", os.sep)) or os.path.isdir(path):
         raise SceneError(where, key, f"expected a file path, got {path!r}")
     if os.path.exists(path) and not os.path.isfile(path):

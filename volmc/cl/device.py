@@ -82,7 +82,11 @@ def _compiler_advice(failures):
 
 
 def select_device(spec=None):
-    """The pyopencl Device named by ``spec`` (or VOLMC_CL_DEVICE, or PoCL by default)."""
+    """The pyopencl Device named by ``spec`` (or VOLMC_CL_DEVICE, or PoCL by default); a
+    pyopencl Device is itself."""
+    import pyopencl as cl
+    if isinstance(spec, cl.Device):
+        return spec
     source = "--device"
     if spec is None:
         spec = os.environ.get(ENV_VAR) or None
