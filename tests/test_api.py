@@ -351,11 +351,15 @@ def test_api_arguments_found_by_a_hostile_pass(tmp_path):
         r = volmc.estimate_transmittance(box, o, d, device=spec)
         assert r.estimates[0] == pytest.approx(math.exp(-4.0), rel=1e-6)
     assert _device(0, "opencl", "w") == "0"
+    for scale in (1e200, 1e-170):   # overflowed to a miss, underflowed to "zero vector"
+        r = volmc.estimate_transmittance(box, [[-5, 0, 0]], [scale, 0, 0])
+        assert r.estimates[0] == pytest.approx(math.exp(-4.0), rel=1e-6)
     # a scene dict with [[media]] is a scene, not a [medium] table
     r = volmc.estimate_transmittance({"camera": {}, "media": [box]}, o, d)
     assert r.estimates[0] == pytest.approx(math.exp(-4.0), rel=1e-6)
     scene = volmc.load_scene(overrides={"camera.resolution": [6, 5], "render.spp": 2})
     img = volmc.render(scene, progress=False)
+    huge = np.broadcast_to(np.zeros((1, 1, 1), np.float32), (3000, 3000, 3000))
     bad = [
         (lambda: volmc.estimate_transmittance(box, o, d, device=3.5), "device"),
         (lambda: volmc.estimate_transmittance({"camera": {}, "media": [box, box]}, o, d),
@@ -378,6 +382,9 @@ def test_api_arguments_found_by_a_hostile_pass(tmp_path):
         (lambda: img.save(str(tmp_path / "a.png"), exposure=1e6), "exposure"),
         (lambda: img.save(str(tmp_path / "a.png"), exposure=float("nan")), "exposure"),
         (lambda: img.png_bytes(tonemap="bogus"), "tonemap"),
+        # a broadcast view of 2.7e10 voxels: the check's temporaries ran out of memory
+        (lambda: volmc.scene_from_dict({"camera": {}, "medium": {**box, "density": huge}}),
+         "needs"),
     ]
     for call, words in bad:
         with pytest.raises(volmc.VolmcError) as e:

@@ -607,10 +607,14 @@ def _rays(origins, directions, t_max, where):
         raise _error(where, "rays", f"origins, directions and t_max disagree on the "
                                         f"number of rays ({len(o)}, {len(d)}, {len(t)})") \
             from None
-    norm = np.linalg.norm(d, axis=1, keepdims=True)
-    if np.any(norm == 0):
+    # Scaled by the largest component first: 1e200 would overflow the norm, 1e-170
+    # underflow it to 0.
+    big = np.abs(d).max(axis=1, keepdims=True)
+    if np.any(big == 0):
         raise _error(where, "directions", "must not be the zero vector")
-    o, d, t = (np.broadcast_to(x, (k,) + x.shape[1:]) for x in (o, d / norm, t))
+    d = d / big
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    o, d, t = (np.broadcast_to(x, (k,) + x.shape[1:]) for x in (o, d, t))
     return o, d, t
 
 
