@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from volmc.film import read_exr, write_exr
-from volmc.outputs import UMASK, check_output, written_whole
+from volmc.outputs import check_output, written_whole
 from volmc.scene.errors import SceneError
 
 
@@ -20,7 +20,8 @@ def test_check_output_refuses_what_cannot_be_written(tmp_path):
              (fifo, "not a regular file"),
              (tmp_path / "missing" / "a.exr", "directory does not exist"),
              # root passes os.access everywhere, and /proc refuses new files to anyone
-             ("/proc/volmc.exr", "directory is not writable")]
+             ("/proc/volmc.exr", "directory is not writable"),
+             (tmp_path / ("\u00e9" * 128 + ".exr"), "not a usable file name")]   # 261 bytes
     for path, words in cases:
         with pytest.raises(SceneError, match=words) as e:
             check_output(path, "-o")
@@ -43,10 +44,19 @@ def test_written_whole_keeps_the_old_file_when_writing_fails(tmp_path):
 
 def test_written_whole_gives_plain_permissions(tmp_path):
     """A new file gets 0666 less the umask (not mkstemp's 0600); a replaced file keeps its
-    mode."""
-    new = tmp_path / "new.exr"
-    write_exr(new, np.ones((2, 3, 4), np.float32))
-    assert stat.S_IMODE(new.stat().st_mode) == 0o666 & ~UMASK
+    mode; a symbolic link is written through, not replaced by a file."""
+    old_mask = os.umask(0o027)
+    try:
+        new = tmp_path / "new.exr"
+        write_exr(new, np.ones((2, 3, 4), np.float32))
+    finally:
+        os.umask(old_mask)
+    assert stat.S_IMODE(new.stat().st_mode) == 0o640
+    link = tmp_path / "link.exr"
+    link.symlink_to(new)
+    write_exr(link, np.full((2, 3, 4), 7.0, np.float32))
+    assert link.is_symlink() and read_exr(new, alpha=True)[0].min() == 7.0
+    link.unlink()
     old = tmp_path / "old.exr"
     write_exr(old, np.zeros((2, 3, 4), np.float32))
     os.chmod(old, 0o640)

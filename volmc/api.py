@@ -184,10 +184,11 @@ def _backend_name(backend, device, where):
     return backend
 
 
-def _device(device, backend, where):
+def _device(device, backend, where, client=None):
     """``device`` as the renderer takes it: None, a pyopencl Device, or a spec string (a
     platform number given as an int becomes its text), checked now: a bad one is the
-    one-line error."""
+    one-line error. With a Dask ``client`` the workers choose the device by its spec: a
+    Device object cannot travel to them."""
     if backend != "opencl" or device is None:
         return device
     import numbers
@@ -197,6 +198,9 @@ def _device(device, backend, where):
     if not isinstance(device, (str, cl.Device)):
         raise _error(where, "device", f"expected a pyopencl Device or a spec such as '0:1', "
                                       f"got {type(device).__name__}")
+    if client is not None and isinstance(device, cl.Device):
+        raise _error(where, "device", "a Dask cluster's workers choose their device by a spec "
+                                      "such as '0:0', not a pyopencl Device")
     from .cl.device import select_device
     select_device(device)
     return device
@@ -250,7 +254,7 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     if keys:
         scene = scene.with_render(**keys)
     name = _backend_name(backend, device, where)
-    device = _device(device, name, where)
+    device = _device(device, name, where, client)
     lanes = _lanes(lanes, name, where)
     # As on the command line, a resumed render goes on checkpointing to its file.
     resume = _path(resume, where, "resume", writable=checkpoint is None)
@@ -351,7 +355,7 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     apply_overrides(raw, {f"render.{k}": v for k, v in keys.items()}, file)
     frames = _frame_list(frames, where)
     name = _backend_name(backend, device, where)
-    device = _device(device, name, where)
+    device = _device(device, name, where, client)
     lanes = _lanes(lanes, name, where)
     output = _path(output, where, "output", writable=True)
     if output is not None and (not output.lower().endswith(".exr")
@@ -504,9 +508,15 @@ class RenderedImage:
         if suffix not in (".exr", ".png"):
             raise _error(where, "path", f"expected a path ending in .exr or .png, got "
                                             f"{path!r}")
-        exposure, tonemap = _display(exposure, tonemap, where)
+        if suffix == ".png":
+            exposure, tonemap = _display(exposure, tonemap, where)
+        from .denoise import denoised_path
+        for extra, key in ((variance, "variance"), (denoised, "denoised")):
+            if extra:   # before the image: a render's files are written all or none
+                _check_writable(os.path.splitext(path)[0] + ".var.exr" if key == "variance"
+                                else denoised_path(path), key, where)
         if denoised:   # before any file: a missing denoiser leaves nothing half written
-            from .denoise import denoise_film, denoised_metadata, denoised_path
+            from .denoise import denoise_film, denoised_metadata
             film = self.result.film
             rgba = denoise_film(film, where, "denoised")
         if suffix == ".exr":

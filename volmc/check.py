@@ -76,13 +76,20 @@ def _betainc_fraction(a, b, x, iterations=400):
     return h
 
 
+#: Degrees of freedom above which student_t_two_sided takes the normal tail.
+NORMAL_DOF = 1e6
+
+
 def student_t_two_sided(t, dof):
     """P(|T| >= |t|) for Student's t with ``dof`` degrees of freedom (arrays; dof = inf is
     the normal distribution): I_x(dof/2, 1/2) at x = dof / (dof + t^2)."""
     t, dof = np.broadcast_arrays(np.abs(np.asarray(t, np.float64)),
                                  np.asarray(dof, np.float64))
     p = np.empty(t.shape)
-    normal = ~np.isfinite(dof)
+    # Above NORMAL_DOF the normal tail is exact to about t^4 / (4 dof) relative (1e-4 at
+    # t = 5), while the beta form below loses its digits to cancellation (lgamma(a + 1/2) -
+    # lgamma(a), 1 - x): at 1e16 degrees of freedom it gave 6.5e-11 for p = 2.7e-3.
+    normal = ~(dof <= NORMAL_DOF)
     p[normal] = np.array([math.erfc(v / math.sqrt(2.0)) for v in t[normal].ravel()])
     tt, nu = t[~normal], dof[~normal]
     a, b = nu / 2.0, 0.5

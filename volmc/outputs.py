@@ -13,21 +13,28 @@ never a truncated one; the new file gets the permissions a plain ``open`` would 
 """
 
 import contextlib
+import errno
 import os
+import shutil
 import stat
 import tempfile
 
 from .scene.errors import SceneError
 
 
-def _umask():
+def umask():
+    """The process's umask: from /proc on Linux (os.umask can only read it by setting it,
+    which races with other threads), else by setting and restoring it."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
-
-
-#: The process's umask, read once (os.umask can only be read by setting it).
-UMASK = _umask()
 
 
 def check_output(path, key, where="command line"):
@@ -37,7 +44,7 @@ def check_output(path, key, where="command line"):
     except TypeError:
         raise SceneError(where, key, f"expected a file path, got {type(path).__name__}") \
             from None
-    if "\0" in path or len(os.path.basename(path)) > 255 - 16:   # room for the temporary
+    if "\0" in path or len(os.fsencode(os.path.basename(path))) > 255:   # NAME_MAX bytes
         raise SceneError(where, key, f"not a usable file name: {path[:80]!r}")
     if not path or path.endswith(("/", os.sep)) or os.path.isdir(path):
         raise SceneError(where, key, f"expected a file path, got {path!r}")
@@ -71,9 +78,12 @@ def write_json(path, payload, indent=2, default=None):
 def written_whole(path, suffix=""):
     """Yields a temporary path beside ``path`` to write; renames it over ``path`` when the
     block ends without an exception, and removes it otherwise. ``suffix``: the temporary
-    file's (writers that choose the format by suffix need the path's own)."""
-    path = os.fspath(path)
-    d = os.path.dirname(os.path.abspath(path))
+    file's (writers that choose the format by suffix need the path's own). A symbolic link
+    is written through (the file it names is replaced, in that file's directory); where the
+    rename cannot replace the file (a file bind-mounted into a container: EBUSY), the
+    temporary file is copied into it instead."""
+    path = os.path.realpath(os.fspath(path))
+    d = os.path.dirname(path)
     fd, tmp = tempfile.mkstemp(prefix=".volmc-", suffix=suffix, dir=d)
     os.close(fd)
     try:
@@ -81,9 +91,15 @@ def written_whole(path, suffix=""):
         try:
             mode = stat.S_IMODE(os.stat(path).st_mode)
         except OSError:
-            mode = 0o666 & ~UMASK
+            mode = 0o666 & ~umask()
         os.chmod(tmp, mode)
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as e:
+            if e.errno not in (errno.EBUSY, errno.EXDEV):
+                raise
+            shutil.copyfile(tmp, path)
+            os.unlink(tmp)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)

@@ -78,7 +78,11 @@ class BaselineRunner:
                 cwd=self.tmp.name)
         line = self.proc.stdout.readline()
         if not line.startswith("ready"):
-            self.proc.wait(timeout=60)
+            try:
+                self.proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:   # it printed something else and goes on
+                self.proc.kill()
+                self.proc.wait()
             lines = log.read_text(errors="replace").strip().splitlines()
             self.tmp.cleanup()
             why = f" ({lines[-1].strip()})" if lines else ""

@@ -27,7 +27,8 @@ def bench_fastmath(scene, spp=4, repeats=5, device=None, log=print):
 def main(argv=None):
     from ..resources import default_scene
     from ..scene import load_scene
-    from .render import print_table, write_json
+    from ..outputs import write_json
+    from .render import print_table
     ap = argparse.ArgumentParser(prog="python -m volmc.bench.fastmath")
     ap.add_argument("scene", nargs="?", default=None)
     ap.add_argument("--spp", type=int, default=4, help="samples per pixel per timed render")

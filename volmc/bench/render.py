@@ -112,8 +112,3 @@ def print_table(title, results, baseline=None, log=print):
             f"({r['seconds']:.3f} s per batch, {r['lookups']} lookups){ratio}")
     log("  (CPU time counts every thread of this process, so it is not slowed by other tenants; "
         "wall time also shows how well each backend keeps all cores busy)")
-
-
-def write_json(path, payload):
-    from ..outputs import write_json as write
-    write(path, payload)

@@ -414,8 +414,3 @@ def guard_totals(report):
             for k in t:
                 t[k] += r["guards"][k]
     return out
-
-
-def write_json(path, report):
-    from ..outputs import write_json as write
-    write(path, report, indent=1, default=float)

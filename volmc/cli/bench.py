@@ -5,6 +5,7 @@ import os
 import sys
 import time
 
+from ..outputs import write_json
 from ..scene.errors import SceneError
 from ..scene.hostmem import require_host
 from .common import (Parser, add_cluster_options, add_defines_option, add_device_option,
@@ -70,7 +71,7 @@ def cmd_bench_transmittance(args):
     report["seconds"] = time.perf_counter() - t
     bt.print_report(report)
     if args.json:
-        bt.write_json(args.json, report)
+        write_json(args.json, report, indent=1, default=float)
     if args.figures:
         from ..bench import plots
         plots.heatmaps(report, os.path.join(args.figures, "estimators_heatmap.png"))
@@ -121,7 +122,6 @@ def add_bench_render_parser(sub):
 
 def cmd_bench_render(args):
     from ..bench import convergence as cv
-    from ..bench.render import write_json
     from ..backends import BACKENDS
     from ..scene import load_scene
     from ..scene.schema import MAJORANTS, SPECTRAL_MODES, ConstantDensity
@@ -201,7 +201,6 @@ def add_bench_lanes_parser(sub):
 
 def cmd_bench_lanes(args):
     from ..bench import lanes
-    from ..bench.render import write_json
     from ..cl.device import select_device
     from ..cl.lanes import LANE_WIDTHS
     from ..scene import load_scene
@@ -246,7 +245,6 @@ def add_bench_variance_parser(sub):
 
 def cmd_bench_variance(args):
     from ..bench import variance
-    from ..bench.render import write_json
     from ..scene import load_scene
     allowed = variance.switch_labels()
     labels = allowed if args.switches is None else comma_list(args.switches, "--switches", allowed)
@@ -304,7 +302,7 @@ def _samples_per_second(args, default_paths, measure):
         print(f"{path}: {w}x{h}, {args.spp} spp per batch, {args.repeats} repeats", flush=True)
         report[path] = measure(scene)
     if args.json:
-        rb.write_json(args.json, {"benchmark": args.bench, "spp": args.spp,
+        write_json(args.json, {"benchmark": args.bench, "spp": args.spp,
                                   "repeats": args.repeats, "results": report})
     return 0
 

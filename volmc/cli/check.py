@@ -5,6 +5,12 @@ from .common import (add_defines_option, add_device_option, add_scene_argument,
                      check_opencl_choices, scene_path, spp_count)
 
 
+#: Fewest samples per pixel volmc check compares: the t-test assumes roughly normal pixel
+#: means, and a path tracer's samples are discrete (often 0 or one light's value): at 2 and
+#: 4 spp such pixels failed most comparisons of identical renders (docs/testing.md).
+MIN_CHECK_SPP = 16
+
+
 def add_check_parser(sub):
     k = sub.add_parser("check", help="render a scene with two backends and compare the images "
                                      "(per-pixel t-test)")
@@ -30,10 +36,11 @@ def cmd_check(args):
     scene = load_scene(path, args.defines)
     w, h = scene.camera.resolution
     spp = args.spp or scene.render.spp
-    if spp < 2:   # the tests need each pixel's sample variance
+    if spp < MIN_CHECK_SPP:
         raise SceneError("command line" if args.spp else path,
                          "--spp" if args.spp else "render.spp",
-                         f"volmc check needs at least 2 samples per pixel, got {spp}")
+                         f"volmc check needs at least {MIN_CHECK_SPP} samples per pixel, got "
+                         f"{spp}")
     if "opencl" in names:
         check_opencl_choices(args.device)
     print(f"volmc check: {path}: {w}x{h}, {spp} spp, {names[0]} (seed s) vs {names[1]} "

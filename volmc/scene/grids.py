@@ -163,10 +163,12 @@ def validate_grid(arr, file, key="density"):
         raise SceneError(file, key, f"grid must be 3-D [z, y, x], got shape {arr.shape}")
     if arr.size == 0:
         raise SceneError(file, key, f"grid is empty (shape {arr.shape})")
-    # The checks' temporaries (a byte a voxel) and the float32 copy: an array given in Python
-    # (a broadcast view, a memmap) has had no check of its file's size.
-    require_host(arr.size * 5, file, key, f"checking a {'x'.join(map(str, arr.shape[::-1]))} "
-                                          "grid")
+    # The checks' temporaries (a byte a voxel, one at a time) and the float32 copy unless the
+    # array is one already: an array given in Python (a broadcast view, a memmap) has had no
+    # check of its file's size.
+    copy = not (arr.dtype == np.float32 and arr.flags.c_contiguous)
+    require_host(arr.size * (1 + 4 * copy), file, key,
+                 f"checking a {'x'.join(map(str, arr.shape[::-1]))} grid")
     n_nan = int(np.isnan(arr).sum()) if arr.dtype.kind == "f" else 0
     n_inf = int(np.isinf(arr).sum()) if arr.dtype.kind == "f" else 0
     if n_nan or n_inf:

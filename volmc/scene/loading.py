@@ -88,9 +88,6 @@ def require_one_medium(scene, what):
 
 def read_toml(path):
     """Parse a TOML file; unreadable or malformed files raise SceneError."""
-    if os.path.exists(path) and not os.path.isdir(path) and not os.path.isfile(path):
-        # A FIFO or device: open() would wait for a writer, or read forever.
-        raise SceneError(path, "", "not a regular file, not a scene file")
     try:
         with open(path, "rb") as f:
             return tomllib.load(f)

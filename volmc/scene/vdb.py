@@ -237,7 +237,7 @@ def _grid_list_text(infos):
 def _with_reader(path, key, action):
     path = os.fspath(path)
     if os.path.exists(path) and not os.path.isdir(path) and not os.path.isfile(path):
-        # A FIFO or device: open() would wait for a writer, or read forever.
+        # A FIFO or device: open() would wait for a writer, and the reader maps the file.
         raise SceneError(path, key, "not a regular file")
     try:
         with open(path, "rb") as f:
