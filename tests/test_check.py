@@ -277,3 +277,21 @@ def test_compare_images_reports_a_gross_difference():
     same = compare_images(np.ones(shape), np.full(shape, 1e-8), np.ones(shape),
                           np.full(shape, 1e-8), dof_a=15, dof_b=15)
     assert same.passed and same.max_abs_z == 0.0
+
+
+def test_compare_images_t_test_at_its_bound():
+    """Power at few samples: one pixel channel just beyond the t-test's critical value (the
+    Sidak level over all channels, Welch's 6 degrees of freedom of two 4-spp renders) fails
+    the comparison, just within it passes; the normal bound would fail both."""
+    from scipy import stats
+    from volmc.check import ALPHA, sidak_level, sidak_z
+    shape = (10, 8, 3)
+    per = sidak_level(ALPHA, np.prod(shape))
+    t_crit = stats.t.isf(per / 2.0, 6.0)
+    assert t_crit > 1.5 * sidak_z(ALPHA, np.prod(shape))
+    var = np.full(shape, 0.5)
+    for factor, passes in ((1.01, False), (0.99, True)):
+        a = np.zeros(shape)
+        a[3, 4, 1] = factor * t_crit   # the difference over sqrt(0.5 + 0.5)
+        c = compare_images(a, var, np.zeros(shape), var, dof_a=3, dof_b=3)
+        assert (c.max_abs_z <= c.z_bound) == passes, (factor, c.summary())

@@ -35,11 +35,13 @@ from .scene.errors import SceneError
 
 #: Bumped when the layout changes; older files are refused with a message saying so. 2: the
 #: lane counters, and the lane width in the identity. 3: the film's A channel (RGBA sums).
-FORMAT_VERSION = 3
+#: 4: the scene frame in the identity (several media moved to the nearest box's frame).
+FORMAT_VERSION = 4
 
 #: What must match for a checkpoint to be resumed, with the words the error uses.
 IDENTITY = (("seed", "seed"), ("sampler", "render.sampler"), ("backend", "backend"),
-            ("lanes", "lane width"), ("grids", "grids"), ("scene_toml", "scene"))
+            ("lanes", "lane width"), ("grids", "grids"), ("frame", "scene frame"),
+            ("scene_toml", "scene"))
 
 
 def grid_hashes(scene):
@@ -62,13 +64,16 @@ def identity(scene, backend, lanes=None):
     but the vector maths library may round differently from the scalar one
     (docs/lanes.md), so another width need not give the same image bit for bit."""
     import dataclasses
+    from .pack import scene_frame
     from .scene.serialize import to_toml
     spec = dataclasses.replace(scene.spec, render=dataclasses.replace(scene.spec.render, spp=1))
+    centre, unit = scene_frame(scene)   # the kernels' float32 numbers are those of this frame
     # A grid given as a numpy array (Python API) is identified by its hash in "grids"; the
     # TOML records where it stands and its shape.
     return {"scene_toml": to_toml(spec, array_as=_array_stand_in), "grids": grid_hashes(scene),
             "seed": str(scene.render.seed), "backend": backend,
-            "lanes": lanes, "sampler": scene.render.sampler}
+            "lanes": lanes, "sampler": scene.render.sampler,
+            "frame": [float(x) for x in centre] + [float(unit)]}
 
 
 def _array_stand_in(a):

@@ -146,7 +146,12 @@ def _write_or_rescue(out, rgba, meta):
         import tempfile
         fd, rescue = tempfile.mkstemp(prefix="volmc-rescued-", suffix=".exr")
         os.close(fd)
-        write_exr(rescue, rgba, meta)
+        try:
+            write_exr(rescue, rgba, meta)
+        except (OSError, RuntimeError) as e2:   # the temporary directory's disk is full too
+            os.unlink(rescue)
+            raise SceneError("command line", "-o", f"could not write {out} ({e}), nor a copy "
+                             f"in the temporary directory ({e2})") from None
         raise SceneError("command line", "-o", f"could not write {out} ({e}); the image is "
                          f"saved as {rescue}") from None
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..check import ALPHA, ROUNDING_ABS, ROUNDING_REL
+from ..check import ALPHA, ROUNDING_ABS, ROUNDING_REL, sidak_level
 
 
 #: Relative standard error below which volmc's pixel counts as constant (see agreement).
@@ -58,7 +58,7 @@ class Agreement:
     @property
     def means_agree(self):
         """The image-mean test alone (Sidak over the three channels)."""
-        return self.mean_p >= 1 - (1 - ALPHA) ** (1 / 3)
+        return self.mean_p >= sidak_level(ALPHA, 3)
 
     def summary(self, peer="peer"):
         verdict = "AGREE" if self.passed else "DIFFER"
@@ -114,7 +114,7 @@ def agreement(mean_v, var_v, mean_p, var_p, pass_means_p, low_p=None):
     untested = (varies & (alike | ~(carried >= 2.0))) | never
     p, z = welch_pvalues(mean_v - mean_p, var_v + rounding ** 2, var_p, k - 1)
     p, z = np.where(untested, 1.0, p), np.where(untested, 0.0, z)
-    per = 1.0 - (1.0 - ALPHA) ** (1.0 / p.size)
+    per = sidak_level(ALPHA, p.size)
     n_pix = mean_v.shape[0] * mean_v.shape[1]
     mz, mp = [], []
     pm = np.asarray(pass_means_p, np.float64)
