@@ -295,3 +295,15 @@ def test_values_that_overflow_in_the_scene_frame(bounds, key, field):
     fine = load_scene(scenes_dir() / "tests" / "absorber.toml",
                       ["medium.bounds=[[0, 0, 0], [1e-30, 1e-30, 1e-30]]"])
     pack.pack_scene(fine, np.float32)
+
+
+def test_scene_file_with_a_byte_order_mark(tmp_path):
+    """Notepad's UTF-8 files start with a byte-order mark: read as the file without it (it
+    was 'malformed TOML: Invalid statement'); a mark inside the text stays an error."""
+    text = dict_to_toml({"camera": {"fov": 33.0},
+                         "medium": {"bounds": [[0, 0, 0], [1, 1, 1]], "density": 1.0}})
+    (tmp_path / "bom.toml").write_bytes(b"\xef\xbb\xbf" + text.encode())
+    assert load_scene(tmp_path / "bom.toml").camera.fov == 33.0
+    (tmp_path / "inner.toml").write_bytes(text.encode() + b"\xef\xbb\xbf")
+    with pytest.raises(SceneError, match="malformed TOML"):
+        load_scene(tmp_path / "inner.toml")

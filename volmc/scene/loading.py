@@ -90,7 +90,9 @@ def read_toml(path):
     """Parse a TOML file; unreadable or malformed files raise SceneError."""
     try:
         with open(path, "rb") as f:
-            return tomllib.load(f)
+            data = f.read()
+        # A byte-order mark (Windows Notepad writes one) is not TOML, nor text in the file.
+        return tomllib.loads(data.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except FileNotFoundError:
         raise SceneError(path, "", "scene file not found") from None
     except IsADirectoryError:
