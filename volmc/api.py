@@ -500,7 +500,7 @@ class RenderedImage:
         marked as denoised (as ``volmc render --denoise``).
         Returns the path of the image. Raises VolmcError."""
         from .cli import _check_writable
-        from .film import write_exr, write_png
+        from .film import variance_path, write_exr, write_png
         where = "RenderedImage.save()"
         _check_writable(path, "path", where)
         path = os.fsdecode(path)
@@ -513,7 +513,7 @@ class RenderedImage:
         from .denoise import denoised_path
         for extra, key in ((variance, "variance"), (denoised, "denoised")):
             if extra:   # before the image: a render's files are written all or none
-                _check_writable(os.path.splitext(path)[0] + ".var.exr" if key == "variance"
+                _check_writable(variance_path(path) if key == "variance"
                                 else denoised_path(path), key, where)
         if denoised:   # before any file: a missing denoiser leaves nothing half written
             from .denoise import denoise_film, denoised_metadata
@@ -525,7 +525,7 @@ class RenderedImage:
             write_png(path, self.image, exposure, tonemap, alpha=self.alpha if
                       self.scene.render.transparent_background else None)
         if variance:
-            write_exr(os.path.splitext(path)[0] + ".var.exr", self.variance, self.metadata())
+            write_exr(variance_path(path), self.variance, self.metadata())
         if denoised:
             if suffix == ".exr":
                 write_exr(denoised_path(path), rgba,

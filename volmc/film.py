@@ -80,6 +80,12 @@ class Film:
         return var / n
 
 
+def variance_path(exr):
+    """``<name>.var.exr`` beside the EXR ``exr``: where --variance writes the per-pixel
+    variance of the mean (``cloud.exr`` -> ``cloud.var.exr``)."""
+    return os.path.splitext(os.fspath(exr))[0] + ".var.exr"
+
+
 def write_exr(path, image, metadata=None):
     """Write a float32 RGB or RGBA EXR (channels R, G, B and A for an [h, w, 4] image; ZIP
     compression) with string/number metadata.

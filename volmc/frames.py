@@ -178,7 +178,7 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
     (partial) frame, which is written marked partial. ``denoise``: each frame's denoised
     preview is written beside its EXR and PNG (denoise.write_denoised; render_one then
     renders with the albedo AOV), before the EXR that marks the frame complete."""
-    from .film import write_exr
+    from .film import variance_path, write_exr
     n = len(plan)
     for i, p in enumerate(plan, 1):
         f, ident, exr = p.frame, p.identity, p.exr
@@ -192,7 +192,7 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
             if png:
                 img.save(frame_path(png, f), exposure, tonemap)
             if variance:
-                write_exr(os.path.splitext(exr)[0] + ".var.exr", img.variance, meta)
+                write_exr(variance_path(exr), img.variance, meta)
             if denoise:
                 from .denoise import write_denoised
                 write_denoised(img.result.film, meta, exr, frame_path(png, f) if png else None,

@@ -64,7 +64,7 @@ def _announce_start():
 
 
 def cmd_render(args):
-    from ..film import write_exr, write_png
+    from ..film import variance_path, write_exr, write_png
     from ..render import render
     from ..scene import load_scene
     from ..scene.serialize import to_toml
@@ -111,7 +111,7 @@ def cmd_render(args):
     denoised = []
     try:   # after the EXR: nothing rendered is lost if one of these fails
         if args.variance:
-            write_exr(os.path.splitext(out)[0] + ".var.exr", res.film.variance_of_mean(), meta)
+            write_exr(variance_path(out), res.film.variance_of_mean(), meta)
         if png:
             write_png(png, res.image, args.exposure, args.tonemap,
                       alpha=res.alpha if scene.render.transparent_background else None)
@@ -159,9 +159,10 @@ def _write_or_rescue(out, rgba, meta):
 def _outputs(args, out, png):
     """Every file ``volmc render`` writes for EXR ``out`` and PNG ``png`` (or None)."""
     from ..denoise import denoised_path
+    from ..film import variance_path
     paths = [out] + ([png] if png else [])
     if args.variance:
-        paths.append(os.path.splitext(out)[0] + ".var.exr")
+        paths.append(variance_path(out))
     if args.denoise:
         paths += [denoised_path(p) for p in paths[:1 + bool(png)]]
     return paths
@@ -188,9 +189,10 @@ def _render_paths(args):
             raise SceneError("command line", "--png", f"expected a path ending in .png, got "
                                                       f"{png!r}")
         check_writable(png, "--png")
+    from ..film import variance_path
     if args.frames is None:
         for path in _outputs(args, out, png)[1 + bool(png):]:   # --variance, --denoise
-            check_writable(path, "--variance" if path.endswith(".var.exr") else "--denoise")
+            check_writable(path, "--variance" if path == variance_path(out) else "--denoise")
     return scene_path, out, png
 
 
