@@ -148,7 +148,7 @@ def test_info_with_a_bad_default_device_exits_2():
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 2 and "kernel cache:" in r.stdout, r.stdout + r.stderr
     assert r.stderr.strip().splitlines() == [r.stderr.strip()]
-    assert r.stderr.startswith("volmc: error: VOLMC_CL_DEVICE: 97: ")
+    assert r.stderr.startswith("volmc: error: environment: VOLMC_CL_DEVICE: 97: ")
 
 
 def test_check_cli_on_a_test_scene():

@@ -136,7 +136,8 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["convert", "g.npy", "g.vol", "--bounds", "1", "1", "1", "0", "0", "0"], "--bounds"),
     (["check", "{tiny}", "--spp", "8"], "--spp"),
     # Before the header line, not after it.
-    (["check", "{tiny}", "--spp", "16", "--device", "9"], "--device"),
+    (["check", "{tiny}", "--spp", "16", "--device", "9"], "command line: --device: 9: "),
+    (["render", "{tiny}", "--device", ":"], "command line: --device: :"),
     (["render", "{tiny}", "--exposure", "nan"], "--exposure"),
     # An unbounded count started worker processes until memory ran out.
     (["render", "{tiny}", "--workers", "99999999999999999999"], "--workers"),

@@ -330,3 +330,28 @@ def test_a_medium_far_away_leaves_the_near_one_rendered(far):
     diff = a.film.mean() - alone.film.mean()
     se = np.sqrt(a.film.variance_of_mean() + alone.film.variance_of_mean())
     assert abs(diff.mean()) < 4.0 * np.sqrt((se ** 2).sum()) / diff.size, diff.mean()
+
+
+def test_a_far_medium_in_view_renders_in_the_near_ones_frame():
+    """The camera sees a cloud near it and, far behind it, a wide absorbing haze slab 1e6
+    away: in the near box's frame the far slab still dims the sky by its exact exp(-tau)
+    where no cloud is in front, and the kernels agree with the reference."""
+    from volmc.check import check_scene
+    rng = np.random.default_rng(4)
+    cloud = {"bounds": [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]],
+             "density": rng.random((6, 6, 6)) * 3.0, "albedo": 0.0}
+    haze = {"bounds": [[-1e6, -1e6, -1e6 - 1e4], [1e6, 1e6, -1e6 + 1e4]], "density": 1e-4,
+            "albedo": 0.0}
+    scene = scene_from_dict({"camera": {"eye": [0.0, 0.0, 4.0], "target": [0, 0, 0],
+                                        "fov": 40, "resolution": [16, 16]},
+                             "media": [cloud, haze],
+                             "lights": [{"type": "environment", "radiance": 0.8}],
+                             "render": {"spp": 32, "max_depth": 2}})
+    cmp, a, _ = check_scene(scene)
+    assert cmp.passed, cmp.summary()
+    # A pixel the cloud does not cover: the slab's optical depth 2 along z, over the cosine
+    # of the pixel centre's ray (fov is vertical, the image square; the pixel's own spread
+    # of angles is within the tolerance).
+    x = math.tan(math.radians(20.0)) * 15.0 / 16.0
+    expected = 0.8 * math.exp(-2.0 * math.sqrt(1.0 + 2.0 * x * x))
+    np.testing.assert_allclose(a.film.mean()[0, 0, :3], expected, rtol=0.02)

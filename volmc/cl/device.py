@@ -87,10 +87,10 @@ def select_device(spec=None):
     import pyopencl as cl
     if isinstance(spec, cl.Device):
         return spec
-    source = "--device"
+    where, key = "command line", "--device"
     if spec is None:
         spec = os.environ.get(ENV_VAR) or None
-        source = ENV_VAR
+        where, key = "environment", ENV_VAR
     plats = list_devices()
     if not plats:
         raise SceneError("OpenCL", "platforms", "no OpenCL platform found (is "
@@ -108,6 +108,8 @@ def select_device(spec=None):
             failures.append((dev, err))
         raise SceneError("OpenCL", "devices", _compiler_advice(failures))
     plat_part, _, dev_part = str(spec).partition(":")
+    if not plat_part:
+        raise SceneError(where, key, f"{spec}: expected PLATFORM[:DEVICE], e.g. 0 or pocl:0")
     chosen = None
     if plat_part.isascii() and plat_part.isdigit():   # "²".isdigit(), but int("²") fails
         idx = int(plat_part)
@@ -122,16 +124,17 @@ def select_device(spec=None):
         chosen = (working or matches or [None])[0]
     if chosen is None:
         names = ", ".join(f"{i}: {p.name}" for i, p, _ in plats)
-        raise SceneError(source, spec, f"no such OpenCL platform (have {names})")
+        raise SceneError(where, key, f"{spec}: no such OpenCL platform (have {names})")
     devs = chosen[2]
     if dev_part == "":
         dev_idx = 0
     elif dev_part.isascii() and dev_part.isdigit():
         dev_idx = int(dev_part)
     else:
-        raise SceneError(source, spec, "device part must be an index, e.g. 0:1")
+        raise SceneError(where, key, f"{spec}: the device part must be an index, e.g. 0:1")
     if dev_idx >= len(devs):
-        raise SceneError(source, spec, f"platform '{chosen[1].name}' has {len(devs)} device(s)")
+        raise SceneError(where, key, f"{spec}: platform '{chosen[1].name}' has {len(devs)} "
+                                     "device(s)")
     return devs[dev_idx]
 
 
