@@ -138,6 +138,9 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     # Before the header line, not after it.
     (["check", "{tiny}", "--spp", "16", "--device", "9"], "command line: --device: 9: "),
     (["render", "{tiny}", "--device", ":"], "command line: --device: :"),
+    # These waited for Dask's 30 s connect timeout.
+    (["render", "{tiny}", "--scheduler", "tcp://127.0.0.1:99999"], "--scheduler"),
+    (["render", "{tiny}", "--scheduler", "tcp://256.1.1.1:8786"], "--scheduler"),
     (["render", "{tiny}", "--exposure", "nan"], "--exposure"),
     # An unbounded count started worker processes until memory ran out.
     (["render", "{tiny}", "--workers", "99999999999999999999"], "--workers"),

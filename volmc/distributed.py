@@ -137,11 +137,29 @@ def connect(workers=None, scheduler=None, file="command line", key="--scheduler"
         import distributed  # noqa: F401
     except ImportError:
         raise SceneError(file, key, "needs Dask: pip install 'volmc[dask]'") from None
+    why = address_problem(scheduler) if scheduler else None
+    if why:   # now, not after Dask's connect timeout (30 s)
+        raise SceneError(file, key, f"{scheduler!r}: {why}")
     try:
         return make_client(workers, scheduler)
     except (OSError, TimeoutError, ValueError) as e:
         raise SceneError(file, key, f"cannot reach the Dask scheduler {scheduler!r}: "
                                     f"{e}") from None
+
+
+def address_problem(address):
+    """Why ``address`` cannot name a scheduler, or None if it may: a port outside 1-65535,
+    or a dotted-quad host with a number above 255. Dask would find out only when its
+    connect timeout ends."""
+    import re
+    host, sep, port = address.split("://", 1)[-1].rpartition(":")
+    if not sep:
+        return None   # no port: Dask's default one
+    if not (port.isascii() and port.isdigit()) or not 0 < int(port) < 65536:
+        return f"the port {port!r} is not a number from 1 to 65535"
+    if re.fullmatch(r"\d+(\.\d+){3}", host) and any(int(x) > 255 for x in host.split(".")):
+        return f"{host} is not an IPv4 address"
+    return None
 
 
 def make_client(workers=None, scheduler=None):

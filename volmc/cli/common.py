@@ -121,13 +121,23 @@ def add_defines_option(parser, help="override a scene key (repeatable)"):
                         metavar="SECTION.KEY=VALUE", help=help)
 
 
+def scheduler_address(text):
+    """A --scheduler address that may name a scheduler (volmc.distributed.address_problem):
+    a bad port or host is the one-line error before anything runs."""
+    from ..distributed import address_problem
+    why = address_problem(text)
+    if why:
+        raise argparse.ArgumentTypeError(why)
+    return text
+
+
 def add_cluster_options(parser, what):
     """--workers N | --scheduler ADDRESS (rendering on Dask; see dask_session)."""
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=local_workers, metavar="N",
                        help=f"{what} on a new local Dask cluster of N worker processes "
                             "(needs volmc[dask])")
-    where.add_argument("--scheduler", metavar="ADDRESS",
+    where.add_argument("--scheduler", metavar="ADDRESS", type=scheduler_address,
                        help=f"{what} on the running Dask scheduler at ADDRESS, e.g. "
                             "tcp://10.0.0.1:8786 (its workers need volmc installed)")
 
