@@ -160,8 +160,8 @@ def _path(p, where, key, writable=False):
         raise _error(where, key, f"expected a path, got {type(p).__name__}")
     p = os.fspath(p)
     if writable:
-        from .cli import _check_writable
-        _check_writable(p, key, where)
+        from .outputs import check_output
+        check_output(p, key, where)
     return p
 
 
@@ -390,15 +390,16 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
 
 
 def _display(exposure, tonemap, where):
-    """(exposure, tonemap) of a PNG checked: a finite number of stops (at most 100 either
-    way, as --exposure), and "filmic" or "clamp"."""
+    """(exposure, tonemap) of a PNG checked: a finite number of stops (at most MAX_EXPOSURE
+    either way, as --exposure), and one of TONE_OPERATORS."""
     import math
     import numbers
+    from .film import MAX_EXPOSURE, TONE_OPERATORS
     if isinstance(exposure, bool) or not isinstance(exposure, numbers.Real) or \
-            not math.isfinite(exposure) or abs(exposure) > 100:
-        raise _error(where, "exposure", f"expected a number of stops in [-100, 100], got "
-                                        f"{exposure!r}")
-    if not isinstance(tonemap, str) or tonemap not in ("filmic", "clamp"):
+            not math.isfinite(exposure) or abs(exposure) > MAX_EXPOSURE:
+        raise _error(where, "exposure", f"expected a number of stops in [-{MAX_EXPOSURE:g}, "
+                                        f"{MAX_EXPOSURE:g}], got {exposure!r}")
+    if not isinstance(tonemap, str) or tonemap not in TONE_OPERATORS:
         raise _error(where, "tonemap", f"must be 'filmic' or 'clamp', got {tonemap!r}")
     return float(exposure), tonemap
 
@@ -499,10 +500,10 @@ class RenderedImage:
         alpha) to ``<path without its extension>.denoised.exr`` or ``.png``, its metadata
         marked as denoised (as ``volmc render --denoise``).
         Returns the path of the image. Raises VolmcError."""
-        from .cli import _check_writable
         from .film import variance_path, write_exr, write_png
+        from .outputs import check_output
         where = "RenderedImage.save()"
-        _check_writable(path, "path", where)
+        check_output(path, "path", where)
         path = os.fsdecode(path)
         suffix = os.path.splitext(path)[1].lower()
         if suffix not in (".exr", ".png"):
@@ -511,10 +512,11 @@ class RenderedImage:
         if suffix == ".png":
             exposure, tonemap = _display(exposure, tonemap, where)
         from .denoise import denoised_path
-        for extra, key in ((variance, "variance"), (denoised, "denoised")):
-            if extra:   # before the image: a render's files are written all or none
-                _check_writable(variance_path(path) if key == "variance"
-                                else denoised_path(path), key, where)
+        # Before the image: a render's files are written all or none.
+        if variance:
+            check_output(variance_path(path), "variance", where)
+        if denoised:
+            check_output(denoised_path(path), "denoised", where)
         if denoised:   # before any file: a missing denoiser leaves nothing half written
             from .denoise import denoise_film, denoised_metadata
             film = self.result.film

@@ -132,6 +132,12 @@ def srgb_encode(x):
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
 
 
+#: The tone operators of ``tonemap``, and the largest |exposure| in stops (2 ** exposure and
+#: the scaled radiance stay finite floats).
+TONE_OPERATORS = ("filmic", "clamp")
+MAX_EXPOSURE = 100.0
+
+
 def tonemap(image, exposure=0.0, operator="filmic"):
     """Linear radiance -> display [0, 1]: scale by 2^exposure, then a tone curve, then sRGB.
 

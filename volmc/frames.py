@@ -99,14 +99,6 @@ def is_complete(exr, ident):
         return False
 
 
-def write_exr_atomic(path, image, meta):
-    """film.write_exr, which writes a temporary file in the same directory and renames it
-    over ``path`` (volmc.outputs.written_whole): a run killed while writing leaves no EXR
-    that looks complete."""
-    from .film import write_exr
-    write_exr(path, image, meta)
-
-
 class FrameSequence:
     """A raw scene (a scene file's TOML or a scene dict, overrides applied) whose grid files
     name the frame, and the frames to render of it."""
@@ -197,7 +189,9 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
                 from .denoise import write_denoised
                 write_denoised(img.result.film, meta, exr, frame_path(png, f) if png else None,
                                exposure, tonemap, img.scene.render.transparent_background)
-            write_exr_atomic(exr, img.result.film.rgba(), meta)
+            # Written whole (film.write_exr): a kill while writing leaves no EXR that looks
+            # complete.
+            write_exr(exr, img.result.film.rgba(), meta)
         yield FrameDone(f, i, n, exr, img)
         if img.partial:
             return

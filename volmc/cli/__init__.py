@@ -14,14 +14,11 @@ import sys
 from ..scene.errors import SceneError
 from .bench import add_bench_parser, cmd_bench
 from .check import add_check_parser, cmd_check
-from .common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, Parser, check_writable
+from .common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, Parser
 from .convert import add_convert_parser, cmd_convert
 from .info import add_info_parser, cmd_info
 from .peer import add_peer_parser, cmd_peer
 from .render import add_render_parser, cmd_render
-
-#: The output-path check, under the name volmc.api imports.
-_check_writable = check_writable
 
 #: ``volmc`` COMMAND -> (parser builder, handler), in the order ``--help`` lists them.
 COMMANDS = {

@@ -6,6 +6,7 @@ import contextlib
 import math
 import os
 
+from ..outputs import check_output as check_writable
 from ..scene.errors import SceneError
 
 EXIT_BAD_INPUT = 2
@@ -96,9 +97,11 @@ def finite_float(text):
 
 
 def exposure(text):
+    from ..film import MAX_EXPOSURE
     v = finite_float(text)
-    if abs(v) > 100.0:   # 2 ** exposure must stay a finite float
-        raise argparse.ArgumentTypeError(f"must be in [-100, 100] stops, got {text!r}")
+    if abs(v) > MAX_EXPOSURE:
+        raise argparse.ArgumentTypeError(f"must be in [-{MAX_EXPOSURE:g}, {MAX_EXPOSURE:g}] "
+                                         f"stops, got {text!r}")
     return v
 
 
@@ -185,13 +188,6 @@ def check_opencl_choices(device, lanes=None):
     dev = select_device(device)
     resolve_lanes(lanes, dev)
     resolve_gathers(dev)
-
-
-def check_writable(path, flag, where="command line"):
-    """Raise SceneError(where, flag, ...) unless ``path`` can be written as a file
-    (volmc.outputs.check_output)."""
-    from ..outputs import check_output
-    check_output(path, flag, where)
 
 
 def check_directory(path, flag):

@@ -2,12 +2,9 @@
 
 import sys
 
-import numpy as np
-
 from ..scene.errors import SceneError
+from ..scene.schema import FLOAT32_MAX
 from .common import check_writable, finite_float
-
-FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def add_convert_parser(sub):

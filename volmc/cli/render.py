@@ -12,6 +12,7 @@ from .common import (EXIT_INTERRUPTED, add_cluster_options, add_defines_option,
 
 def add_render_parser(sub):
     from ..backends import BACKENDS
+    from ..film import TONE_OPERATORS
     r = sub.add_parser("render", help="render a scene to EXR (and PNG)")
     add_scene_argument(r)
     r.add_argument("-o", "--output", help="EXR path (default: <scene name>.exr here)")
@@ -28,7 +29,7 @@ def add_render_parser(sub):
                         ".png); on by default when no scene is given")
     r.add_argument("--exposure", type=exposure, default=0.0,
                    help="PNG exposure in stops (default 0)")
-    r.add_argument("--tonemap", choices=("filmic", "clamp"), default="filmic",
+    r.add_argument("--tonemap", choices=TONE_OPERATORS, default="filmic",
                    help="PNG tone curve (default filmic)")
     r.add_argument("--variance", action="store_true",
                    help="also write <output>.var.exr: per-pixel variance of the mean")
@@ -85,7 +86,8 @@ def cmd_render(args):
     checkpoint = args.checkpoint or args.resume
     if checkpoint:
         check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
-        if os.path.abspath(checkpoint) in map(os.path.abspath, _outputs(args, out, png)):
+        if os.path.abspath(checkpoint) in [os.path.abspath(p) for p, _ in
+                                           _outputs(args, out, png)]:
             raise SceneError("command line", "--checkpoint", f"{checkpoint} is also an "
                              "image this render writes")
     from ..memory import check_memory
@@ -157,15 +159,13 @@ def _write_or_rescue(out, rgba, meta):
 
 
 def _outputs(args, out, png):
-    """Every file ``volmc render`` writes for EXR ``out`` and PNG ``png`` (or None)."""
+    """(path, flag) of every file ``volmc render`` writes for EXR ``out`` and PNG ``png``
+    (or None), the flag that asks for it."""
     from ..denoise import denoised_path
     from ..film import variance_path
-    paths = [out] + ([png] if png else [])
-    if args.variance:
-        paths.append(variance_path(out))
-    if args.denoise:
-        paths += [denoised_path(p) for p in paths[:1 + bool(png)]]
-    return paths
+    images = [(out, "-o")] + ([(png, "--png")] if png else [])
+    return (images + ([(variance_path(out), "--variance")] if args.variance else [])
+            + ([(denoised_path(p), "--denoise") for p, _ in images] if args.denoise else []))
 
 
 def _render_paths(args):
@@ -189,10 +189,10 @@ def _render_paths(args):
             raise SceneError("command line", "--png", f"expected a path ending in .png, got "
                                                       f"{png!r}")
         check_writable(png, "--png")
-    from ..film import variance_path
-    if args.frames is None:
-        for path in _outputs(args, out, png)[1 + bool(png):]:   # --variance, --denoise
-            check_writable(path, "--variance" if path == variance_path(out) else "--denoise")
+    if args.frames is None:   # the EXR and PNG are checked above
+        for path, flag in _outputs(args, out, png):
+            if flag in ("--variance", "--denoise"):
+                check_writable(path, flag)
     return scene_path, out, png
 
 
@@ -258,8 +258,8 @@ def cmd_render_frames(args, scene_path, out, png, defines):
     plan = seq.plan(out, args.backend)
     for p in plan:   # every file of the frames to render, before the first renders
         if not p.complete:
-            for path in _outputs(args, p.exr, png and frame_path(png, p.frame)):
-                check_writable(path, "-o")
+            for path, flag in _outputs(args, p.exr, png and frame_path(png, p.frame)):
+                check_writable(path, flag)
     if not args.quiet:
         n_done = sum(p.complete for p in plan)
         print(f"volmc: rendering {scene_path}, {describe(seq.frames)} ({len(plan)} frames, "
