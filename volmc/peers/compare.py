@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..check import ALPHA, ROUNDING_ABS, ROUNDING_REL, sidak_level
+from ..check import ALPHA, ROUNDING_ABS, ROUNDING_REL, sidak_level, student_t_two_sided
 
 
 #: Relative standard error below which volmc's pixel counts as constant (see agreement).
@@ -28,13 +28,12 @@ SPREAD_REL = 1e-7
 
 def welch_pvalues(diff, var_a, var_b, dof_b):
     """Two-sided p-values of diff / sqrt(var_a + var_b); var_b has dof_b degrees of freedom."""
-    from scipy import stats
     var = var_a + var_b
     with np.errstate(divide="ignore", invalid="ignore"):
         dof = np.where(var_b > 0, var * var / (var_b * var_b / dof_b), np.inf)
         z = np.where(var > 0, diff / np.sqrt(var), np.where(diff == 0, 0.0, np.inf))
     dof = np.maximum(dof, dof_b)
-    return 2.0 * stats.t.sf(np.abs(z), dof), z
+    return student_t_two_sided(z, dof), z
 
 
 @dataclass
