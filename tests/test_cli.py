@@ -125,6 +125,8 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["bench", "sparse", "--device", "99"], "--device"),
     # Before the "rendering" line, so that the error is the only line.
     (["render", "{tiny}", "--resume", "missing.ckpt"], "no such checkpoint file"),
+    (["render", "{tiny}", "--resume", "."], "not a regular file"),
+    (["render", "{tiny}", "--resume", "/dev/zero"], "not a regular file"),
     # Before rendering, not after: /proc takes no new file, whatever os.access says to root.
     (["render", "{tiny}", "-o", "/proc/volmc.exr"], "-o"),
     (["render", "{tiny}", "--png", "/proc/volmc.png"], "--png"),

@@ -95,8 +95,11 @@ def save(path, film, counters, seconds, ident):
 
 
 def missing(path):
-    """The SceneError of a --resume file that does not exist (raised by ``load``, and by
-    ``volmc render`` before it announces the render)."""
+    """The SceneError of a --resume path that is no file (raised by ``load``, and by
+    ``volmc render`` before it announces the render): none there, or a directory, FIFO or
+    device."""
+    if os.path.exists(path):
+        return SceneError(path, "--resume", "not a regular file")
     return SceneError(path, "--resume", "no such checkpoint file")
 
 
@@ -108,8 +111,8 @@ def load(path, scene, backend, lanes=None, albedo=False):
     without the albedo AOV unlike ``albedo`` -- raises SceneError(path, "--resume", ...)."""
     def bad(what):
         return SceneError(path, "--resume", what)
-    if os.path.exists(path) and not os.path.isfile(path):
-        raise bad("not a regular file")
+    if not os.path.isfile(path):
+        raise missing(path)
     # Any failure to parse is the file's: it may be damaged, truncated or another .npy/.npz.
     try:
         z = np.load(path, allow_pickle=False)
