@@ -407,3 +407,17 @@ def test_reading_builds_no_dense_array():
         assert len(g.origins) == 2 and g.values.nbytes == 2 * 512 * 4
         assert np.prod(g.shape, dtype=np.int64) > 10 ** 9
         assert peak < 16 * 2 ** 20, peak
+
+
+def test_bad_values_are_named_all_at_once():
+    """A VDB's stored values are checked as an array's are (validate_grid): NaN, infinite
+    and negative voxels counted in one message, a negative infinity as infinite."""
+    import dataclasses
+    from volmc.scene.loading import _vdb_bricks
+    vg = read_vdb(DATA / "blobs.vdb")
+    values = vg.values.copy()
+    values.reshape(-1)[[3, 70, 600]] = [np.nan, -np.inf, -0.25]
+    with pytest.raises(SceneError) as e:
+        _vdb_bricks(dataclasses.replace(vg, values=values), "f.vdb", "medium.density")
+    assert str(e.value) == ("f.vdb: medium.density: grid 'density' contains 1 NaN, 1 infinite "
+                            "and 1 negative values (minimum -0.25)")

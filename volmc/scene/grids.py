@@ -154,6 +154,26 @@ def shape_text(shape):
     return "x".join(str(n) for n in reversed(tuple(shape)))
 
 
+def value_problem(v):
+    """What makes a grid's values unfit for a density -- "2 NaN, 1 infinite and 3 negative
+    values (minimum -0.5)", every kind counted at once, a negative infinity as infinite --
+    or None. Its temporaries are a byte a value, one at a time (load_peak_bytes)."""
+    real = v.dtype.kind == "f"
+    n_nan = int(np.isnan(v).sum()) if real else 0
+    n_inf = int(np.isinf(v).sum()) if real else 0
+    n_neg = int((v < 0).sum()) - (int(np.isneginf(v).sum()) if real else 0)
+    parts = [f"{n} {what}" for n, what in ((n_nan, "NaN"), (n_inf, "infinite"),
+                                           (n_neg, "negative")) if n]
+    if not parts:
+        return None
+    text = (", ".join(parts[:-1]) + " and " if len(parts) > 1 else "") + parts[-1] + \
+        (" value" if n_nan + n_inf + n_neg == 1 else " values")
+    if n_neg:
+        low = np.min(v, where=np.isfinite(v), initial=0) if real else v.min()
+        text += f" (minimum {float(low):g})"
+    return text
+
+
 def validate_grid(arr, file, key="density"):
     """Check a density array (3-D, non-empty, real, finite, >= 0). Returns float32 C-order."""
     arr = np.asarray(arr)
@@ -169,14 +189,9 @@ def validate_grid(arr, file, key="density"):
     copy = not (arr.dtype == np.float32 and arr.flags.c_contiguous)
     require_host(arr.size * (1 + 4 * copy), file, key,
                  f"checking a {'x'.join(map(str, arr.shape[::-1]))} grid")
-    n_nan = int(np.isnan(arr).sum()) if arr.dtype.kind == "f" else 0
-    n_inf = int(np.isinf(arr).sum()) if arr.dtype.kind == "f" else 0
-    if n_nan or n_inf:
-        raise SceneError(file, key, f"grid contains {n_nan} NaN and {n_inf} infinite values")
-    n_neg = int((arr < 0).sum())
-    if n_neg:
-        raise SceneError(file, key, f"grid contains {n_neg} negative values "
-                                    f"(minimum {float(arr.min()):g})")
+    problem = value_problem(arr)
+    if problem:
+        raise SceneError(file, key, f"grid contains {problem}")
     if float(arr.max()) > float(np.finfo(np.float32).max):
         raise SceneError(file, key, "grid values overflow float32")
     out = np.ascontiguousarray(arr, dtype=np.float32)

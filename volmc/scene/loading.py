@@ -19,7 +19,7 @@ from .hostmem import require_host
 from .errors import SceneError
 from .bricks import BrickGrid
 from .transform import as_tuple
-from .grids import load_grid, load_peak_bytes, shape_text, validate_grid
+from .grids import load_grid, load_peak_bytes, shape_text, validate_grid, value_problem
 from .schema import (FLOAT32_MAX, GENERATORS, ArrayDensity, ConstantDensity, FileDensity,
                      GeneratedDensity, SceneSpec, check_box, validate)
 
@@ -305,14 +305,9 @@ def _vdb_bricks(vg, path, key):
     """A VDB grid (background 0) as a BrickGrid straight from its 8^3 leaves, its stored
     values checked as validate_grid checks an array."""
     v = vg.values
-    n_nan, n_inf = int(np.isnan(v).sum()), int(np.isinf(v).sum())
-    if n_nan or n_inf:
-        raise SceneError(path, key, f"grid '{vg.name}' contains {n_nan} NaN and {n_inf} "
-                                    "infinite values")
-    n_neg = int((v < 0).sum())
-    if n_neg:
-        raise SceneError(path, key, f"grid '{vg.name}' contains {n_neg} negative values "
-                                    f"(minimum {float(v.min()):g})")
+    problem = value_problem(v)
+    if problem:
+        raise SceneError(path, key, f"grid '{vg.name}' contains {problem}")
     lo, hi = (np.asarray(c) for c in vg.bbox)
     dims = tuple(int(x) for x in hi - lo + 1)
     return BrickGrid.from_blocks(dims, np.asarray(vg.origins) - lo, v)
