@@ -66,6 +66,33 @@ def test_written_whole_gives_plain_permissions(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["new.exr", "old.exr"]
 
 
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0,
+                    reason="only root may give a file to another user")
+def test_written_whole_keeps_the_owner(tmp_path):
+    """Root rendering over a user's file leaves it the user's, with its mode."""
+    path = tmp_path / "theirs.exr"
+    write_exr(path, np.zeros((2, 3, 4), np.float32))
+    os.chown(path, 4321, 8765)
+    os.chmod(path, 0o604)
+    write_exr(path, np.ones((2, 3, 4), np.float32))
+    st = path.stat()
+    assert (st.st_uid, st.st_gid, stat.S_IMODE(st.st_mode)) == (4321, 8765, 0o604)
+    assert read_exr(path, alpha=True)[0].min() == 1.0
+
+
+def test_written_whole_keeps_extended_attributes(tmp_path):
+    """ACLs and other extended attributes of a replaced file stay with it."""
+    path = tmp_path / "tagged.exr"
+    write_exr(path, np.zeros((2, 3, 4), np.float32))
+    try:
+        os.setxattr(path, "user.volmc.test", b"kept")
+    except (AttributeError, OSError):
+        pytest.skip("no user extended attributes on this filesystem")
+    write_exr(path, np.ones((2, 3, 4), np.float32))
+    assert os.getxattr(path, "user.volmc.test") == b"kept"
+    assert read_exr(path, alpha=True)[0].min() == 1.0
+
+
 def test_a_render_that_cannot_be_written_is_rescued(tmp_path):
     """Should the EXR fail after all (its directory gone since the check), the image is
     written to the temporary directory and the one-line error names it."""

@@ -74,6 +74,20 @@ def write_json(path, payload, indent=2, default=None):
         json.dump(payload, f, indent=indent, default=default)
 
 
+def _copy_xattrs(src, dst):
+    """The extended attributes of src (POSIX ACLs are system.posix_acl_access) onto dst,
+    each one the filesystem and the user allow."""
+    if not hasattr(os, "listxattr"):
+        return
+    try:
+        names = os.listxattr(src)
+    except OSError:
+        return
+    for name in names:
+        with contextlib.suppress(OSError):
+            os.setxattr(dst, name, os.getxattr(src, name))
+
+
 @contextlib.contextmanager
 def written_whole(path, suffix=""):
     """Yields a temporary path beside ``path`` to write; renames it over ``path`` when the
@@ -81,7 +95,9 @@ def written_whole(path, suffix=""):
     file's (writers that choose the format by suffix need the path's own). A symbolic link
     is written through (the file it names is replaced, in that file's directory); where the
     rename cannot replace the file (a file bind-mounted into a container: EBUSY), the
-    temporary file is copied into it instead."""
+    temporary file is copied into it instead. The new file keeps the mode, the extended
+    attributes (ACLs among them) of the one it replaces, and its owner and group where the
+    user may set them."""
     path = os.path.realpath(os.fspath(path))
     d = os.path.dirname(path)
     fd, tmp = tempfile.mkstemp(prefix=".volmc-", suffix=suffix, dir=d)
@@ -89,10 +105,17 @@ def written_whole(path, suffix=""):
     try:
         yield tmp
         try:
-            mode = stat.S_IMODE(os.stat(path).st_mode)
+            st = os.stat(path)
         except OSError:
-            mode = 0o666 & ~umask()
-        os.chmod(tmp, mode)
+            st = None
+        if st is not None and (st.st_uid, st.st_gid) != (os.getuid(), os.getgid()):
+            # The replaced file's owner and group go on (root rendering into a user's
+            # file); a user who may not give files away keeps the new one, as an editor does.
+            with contextlib.suppress(OSError):
+                os.chown(tmp, st.st_uid, st.st_gid)
+        os.chmod(tmp, stat.S_IMODE(st.st_mode) if st is not None else 0o666 & ~umask())
+        if st is not None:
+            _copy_xattrs(path, tmp)
         try:
             os.replace(tmp, path)
         except OSError as e:
