@@ -123,32 +123,52 @@ static inline lfloat mis_weight(int kind, lfloat pdf_a, lfloat pdf_b) {
     return kind == MIS_POWER ? mis_power(pdf_a, pdf_b) : mis_balance(pdf_a, pdf_b);
 }
 
-/* Equiangular distance sampling towards a point (Kulla & Fajardo 2012; twin of
- * sample_equiangular in sampling.py, where the arguments are described): t in [ta, tb]. */
-static inline lfloat equiangular_pdf(lfloat t, lfloat h, lfloat D, lfloat ta, lfloat tb) {
-    lfloat th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
+/* Equiangular distance sampling towards a point (Kulla & Fajardo 2012; twins of
+ * equiangular_side, equiangular_angle, equiangular_uniform, sample_equiangular,
+ * equiangular_pdf and invert_equiangular_sample in sampling.py, where the arguments and the
+ * two ways of measuring the angle are described): t in [ta, tb]. */
+static inline lint equiangular_side(lfloat h, lfloat ta, lfloat tb) {
+    return select(select((lint)(0), (lint)(-1), tb - h <= 0.0f), (lint)(1), ta - h >= 0.0f);
+}
+
+static inline lfloat equiangular_angle(lfloat t, lfloat h, lfloat D, lint side) {
     lfloat x = t - h;
-    lfloat p = select(D / ((th_b - th_a) * (D * D + x * x)), 1.0f / (tb - ta),
-                      !(th_b > th_a)); /* angles equal to rounding: uniform */
+    lmask one = side != 0;
+    return atan2(select(x, D, one), select(D, to_lfloat(side) * x, one));
+}
+
+static inline lmask equiangular_uniform(lfloat a, lfloat b) {
+    return !(fabs(b - a) > EQUIANGULAR_MIN_WIDTH * fmax(fabs(a), fabs(b)));
+}
+
+static inline lfloat equiangular_pdf(lfloat t, lfloat h, lfloat D, lfloat ta, lfloat tb) {
+    lint side = equiangular_side(h, ta, tb);
+    lfloat a = equiangular_angle(ta, h, D, side), b = equiangular_angle(tb, h, D, side);
+    lfloat x = t - h;
+    lfloat p = select(D / (fabs(b - a) * (D * D + x * x)), 1.0f / (tb - ta),
+                      equiangular_uniform(a, b));
     return select(p, (lfloat)(0.0f), t < ta || t > tb || !(tb > ta));
 }
 
 static inline lfloat sample_equiangular(lfloat u, lfloat h, lfloat D, lfloat ta, lfloat tb,
                                         lfloat *pdf) {
-    lfloat th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
-    lmask uniform = !(th_b > th_a);
-    lfloat t = clamp(h + D * tan(th_a + u * (th_b - th_a)), ta, tb);
+    lint side = equiangular_side(h, ta, tb);
+    lfloat a = equiangular_angle(ta, h, D, side), b = equiangular_angle(tb, h, D, side);
+    lmask uniform = equiangular_uniform(a, b);
+    lfloat tn = tan(a + u * (b - a));
+    lfloat t = clamp(h + select(D * tn, to_lfloat(side) * (D / tn), side != 0), ta, tb);
     lfloat x = t - h;
-    *pdf = select(D / ((th_b - th_a) * (D * D + x * x)),
+    *pdf = select(D / (fabs(b - a) * (D * D + x * x)),
                   select((lfloat)(0.0f), 1.0f / (tb - ta), tb > ta), uniform);
     return select(t, ta + u * (tb - ta), uniform);
 }
 
 static inline lfloat invert_equiangular_sample(lfloat t, lfloat h, lfloat D, lfloat ta,
                                                lfloat tb) {
-    lfloat th_a = atan2(ta - h, D), th_b = atan2(tb - h, D);
-    return select((atan2(t - h, D) - th_a) / (th_b - th_a), (t - ta) / (tb - ta),
-                  !(th_b > th_a));
+    lint side = equiangular_side(h, ta, tb);
+    lfloat a = equiangular_angle(ta, h, D, side), b = equiangular_angle(tb, h, D, side);
+    return select((equiangular_angle(t, h, D, side) - a) / (b - a), (t - ta) / (tb - ta),
+                  equiangular_uniform(a, b));
 }
 
 #endif

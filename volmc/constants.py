@@ -260,6 +260,12 @@ EQUIANGULAR_ALONE = 1
 #: ... or both, combined by MIS (homogeneous grey media, where free flight's density
 #: sigma e^{-sigma t} is known).
 EQUIANGULAR_MIS = 2
+#: Equiangular sampling's narrowest interval of angles, relative to the angles' size
+#: (2^-13: 1024 float32 ulps). A narrower one is sampled uniformly: between a handful of
+#: representable angles the samples would follow a trapezoidal rule of that many points,
+#: not the pdf (an error of order 1 / points^2); an interval this narrow seen from the
+#: light is one whose 1 / r^2 varies by about 2^-12 along it, where uniform is as good.
+EQUIANGULAR_MIN_WIDTH = 2.0 ** -13
 
 # --- Russian roulette ----------------------------------------------------------------------
 

@@ -13,7 +13,8 @@ import math
 
 from numba import njit
 
-from ..constants import INV_4PI, INV_PI, MIS_POWER, PI_OVER_2, PI_OVER_4, TWO_PI
+from ..constants import (EQUIANGULAR_MIN_WIDTH, INV_4PI, INV_PI, MIS_POWER, PI_OVER_2,
+                         PI_OVER_4, TWO_PI)
 
 
 @njit(cache=True, inline="always")
@@ -209,32 +210,75 @@ def mis_weight(kind, pdf_a, pdf_b):
 
 
 @njit(cache=True, inline="always")
+def equiangular_side(h, ta, tb):
+    """Where the foot h lies against the interval [ta, tb]: 1 before it (ta >= h), -1
+    after it (tb <= h), 0 inside. It chooses the angle equiangular sampling measures
+    (``equiangular_angle``)."""
+    if ta - h >= 0.0:
+        return 1
+    if tb - h <= 0.0:
+        return -1
+    return 0
+
+
+@njit(cache=True, inline="always")
+def equiangular_angle(t, h, D, side):
+    """The angle of the point at ray parameter t as equiangular sampling measures it.
+
+    Side 0 (the foot inside the interval): theta = atan2(t - h, D), from the foot, which
+    is accurate there. On one side of the foot, theta tends to +-pi/2 where the point lies
+    near the ray's line, and its float keeps too few digits of the difference: a point
+    light at the camera's pinhole left a path's interval a few ulps wide, so the samples
+    fell on a few angles the pdf did not describe (+21 % in float32, +1.8 % in float64).
+    There the angle is measured from the ray instead, phi = atan2(D, side (t - h)) =
+    pi/2 - |theta|, which keeps its relative precision as D -> 0."""
+    x = t - h
+    if side == 0:
+        return math.atan2(x, D)
+    return math.atan2(D, side * x)
+
+
+@njit(cache=True, inline="always")
+def equiangular_uniform(a, b):
+    """Whether the interval of angles a, b is too narrow for its floats (at most
+    EQUIANGULAR_MIN_WIDTH of their size): sampled uniformly instead, as equal angles."""
+    return not abs(b - a) > EQUIANGULAR_MIN_WIDTH * max(abs(a), abs(b))
+
+
+@njit(cache=True, inline="always")
 def sample_equiangular(u, h, D, ta, tb):
     """Distance t in [ta, tb] along a ray, from the equiangular density towards a point
     (Kulla & Fajardo 2012): t = h + D tan(theta), theta uniform between the angles under
-    which the point sees ta and tb.
+    which the point sees ta and tb (measured as ``equiangular_angle`` says, which is the
+    same map).
 
     h: ray parameter of the point's foot on the ray (world units); D > 0: the point's
     distance from the ray's line; ta < tb: the interval (world units). The density is
-    D / ((theta_b - theta_a) (D^2 + (t - h)^2)) per world unit, proportional to 1 / r^2,
+    D / (|theta_b - theta_a| (D^2 + (t - h)^2)) per world unit, proportional to 1 / r^2,
     the falloff of a point light. Returns (t, pdf); t is clamped into [ta, tb] (rounding
     in tan can overshoot by an ulp).
 
-    An interval so short that its two angles round to the same value (a path segment of
-    1e-7 units seen from the light, in float32) is sampled uniformly instead, pdf
-    1 / (tb - ta): the equiangular density is that to rounding there, and the pdf stays
-    finite. ``equiangular_pdf`` and the inverse make the same switch. An empty interval
-    gives pdf 0."""
-    th_a = math.atan2(ta - h, D)
-    th_b = math.atan2(tb - h, D)
-    if not th_b > th_a:
+    An interval whose angles are too close for their floats to sample between
+    (``equiangular_uniform``: a path segment of 1e-7 units seen from the light, in float32)
+    is sampled uniformly instead, pdf 1 / (tb - ta): the equiangular density is uniform to
+    within that width there, and samples drawn between a handful of representable angles
+    would follow a trapezoidal rule, not the pdf. ``equiangular_pdf`` and the inverse make
+    the same switch. An empty interval gives pdf 0."""
+    side = equiangular_side(h, ta, tb)
+    a = equiangular_angle(ta, h, D, side)
+    b = equiangular_angle(tb, h, D, side)
+    if equiangular_uniform(a, b):
         if not tb > ta:
             return ta, 0.0
         return ta + u * (tb - ta), 1.0 / (tb - ta)
-    t = h + D * math.tan(th_a + u * (th_b - th_a))
+    th = a + u * (b - a)
+    if side == 0:
+        t = h + D * math.tan(th)
+    else:
+        t = h + side * (D / math.tan(th))
     t = min(max(t, ta), tb)
     x = t - h
-    return t, D / ((th_b - th_a) * (D * D + x * x))
+    return t, D / (abs(b - a) * (D * D + x * x))
 
 
 @njit(cache=True, inline="always")
@@ -242,19 +286,21 @@ def equiangular_pdf(t, h, D, ta, tb):
     """Density of ``sample_equiangular`` at t (per world unit); 0 outside [ta, tb]."""
     if t < ta or t > tb or not tb > ta:
         return 0.0
-    th_a = math.atan2(ta - h, D)
-    th_b = math.atan2(tb - h, D)
-    if not th_b > th_a:
+    side = equiangular_side(h, ta, tb)
+    a = equiangular_angle(ta, h, D, side)
+    b = equiangular_angle(tb, h, D, side)
+    if equiangular_uniform(a, b):
         return 1.0 / (tb - ta)
     x = t - h
-    return D / ((th_b - th_a) * (D * D + x * x))
+    return D / (abs(b - a) * (D * D + x * x))
 
 
 @njit(cache=True, inline="always")
 def invert_equiangular_sample(t, h, D, ta, tb):
     """The uniform u that ``sample_equiangular(u, h, D, ta, tb)`` maps to t."""
-    th_a = math.atan2(ta - h, D)
-    th_b = math.atan2(tb - h, D)
-    if not th_b > th_a:
+    side = equiangular_side(h, ta, tb)
+    a = equiangular_angle(ta, h, D, side)
+    b = equiangular_angle(tb, h, D, side)
+    if equiangular_uniform(a, b):
         return (t - ta) / (tb - ta)
-    return (math.atan2(t - h, D) - th_a) / (th_b - th_a)
+    return (equiangular_angle(t, h, D, side) - a) / (b - a)
