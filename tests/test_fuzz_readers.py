@@ -1,5 +1,6 @@
-"""Mutation fuzzing of the OpenVDB / NanoVDB reader and the EXR map reader over the
-committed fixtures (volmc/bench/fuzz.py: truncations, bit flips, byte bursts, 4- and 8-byte
+"""Mutation fuzzing of the OpenVDB / NanoVDB reader, the EXR map reader, the grid readers
+(.npy, .npz, .vol) and the checkpoint reader over the committed fixtures and files volmc
+writes (volmc/bench/fuzz.py: truncations, bit flips, byte bursts, 4- and 8-byte
 words overwritten with huge values, half of them on words that hold counts, lengths and
 offsets). Every case ends in a grid (map) or the one-line SceneError naming the key: never
 another exception, a case past the time limit, or a peak allocation above what the memory
@@ -24,7 +25,7 @@ from volmc.scene.errors import SceneError
 from volmc.scene.vdb import read_vdb
 
 DATA = Path(__file__).resolve().parent / "data"
-VDB_CASES, EXR_CASES = 6000, 3000
+VDB_CASES, EXR_CASES, GRID_CASES, CHECKPOINT_CASES = 6000, 3000, 2000, 1000
 SETTINGS = dict(deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
@@ -59,6 +60,18 @@ def test_vdb_reader_survives_mutations(fixtures, data):
 @given(data=st.data())
 def test_exr_reader_survives_mutations(fixtures, data):
     _case(fixtures, data, "exr")
+
+
+@settings(max_examples=GRID_CASES, **SETTINGS)
+@given(data=st.data())
+def test_grid_readers_survive_mutations(fixtures, data):
+    _case(fixtures, data, "grid")
+
+
+@settings(max_examples=CHECKPOINT_CASES, **SETTINGS)
+@given(data=st.data())
+def test_checkpoint_reader_survives_mutations(fixtures, data):
+    _case(fixtures, data, "checkpoint")
 
 
 def test_the_mutations_reach_the_structure():
@@ -199,3 +212,96 @@ def test_a_transform_beyond_float_range_is_an_error(tmp_path):
         with pytest.raises(SceneError, match="grid 'density': transform values beyond 1e\\+30 "
                                              "world units"):
             read_vdb(bad, "density")
+
+
+def _grid_file(tmp_path, suffix, version=None):
+    from volmc.scene.grids import save_grid
+    path = tmp_path / f"g{suffix}"
+    g = np.arange(210, dtype=np.float32).reshape(5, 6, 7)
+    if version is None:
+        save_grid(path, g)
+    else:
+        with open(path, "wb") as f:
+            np.lib.format.write_array(f, g, version=version)
+    return path, bytearray(path.read_bytes())
+
+
+def _damage_npy(data, how):
+    if how == "length":      # a v2.0 header's 4-byte length: 0x27000000
+        data[8:12] = (0x27000000).to_bytes(4, "little")
+    elif how == "version":   # a version numpy never wrote
+        data[7] = 8
+    else:                    # the dtype ',f4', which numpy's parser rejects with SyntaxError
+        at = data.index(b"'<f4'")
+        data[at + 1] = ord(",")
+    return data
+
+
+@pytest.mark.parametrize("how,words", [
+    ("length", r"\.npy header of 654311424 bytes in a stream of"),
+    ("version", "unsupported .npy format version 2.8"),
+    ("dtype", "cannot read grid: "),
+])
+def test_a_damaged_npy_header_is_one_line_and_allocates_nothing(tmp_path, how, words):
+    """Found by fuzzing the grid readers: a flipped bit in a header's length made numpy
+    read (allocate) 660 MB for it, and a damaged dtype raised SyntaxError past the one-line
+    error."""
+    from volmc.scene.grids import load_grid
+    path, data = _grid_file(tmp_path, ".npy", (2, 0))
+    path.write_bytes(_damage_npy(data, how))
+    tracemalloc.start()
+    try:
+        with pytest.raises(SceneError, match=words) as e:
+            load_grid(path, "medium.density")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert str(e.value).startswith(f"{path}: medium.density: ")
+    assert peak < 4 << 20
+
+
+@pytest.mark.parametrize("field,value,words", [
+    (10, 99, "compression method"),          # NotImplementedError in zipfile
+    (8, 1, "encrypted"),                     # RuntimeError in zipfile
+])
+def test_an_npz_member_zipfile_cannot_open_is_one_line(tmp_path, field, value, words):
+    """Found by fuzzing: zipfile raises NotImplementedError and RuntimeError for members it
+    cannot open; both are the damaged file's one-line error."""
+    from volmc.scene.grids import load_grid
+    path, data = _grid_file(tmp_path, ".npz")
+    at = data.index(b"PK\x01\x02") + field    # the member's central directory entry
+    data[at:at + 2] = value.to_bytes(2, "little")
+    path.write_bytes(data)
+    with pytest.raises(SceneError, match=words) as e:
+        load_grid(path, "medium.density")
+    assert str(e.value).startswith(f"{path}: medium.density: cannot read grid: ")
+
+
+def test_a_checkpoint_member_declaring_more_than_the_file_is_refused(tmp_path):
+    """A checkpoint's arrays are read only after their headers are checked against the
+    file's size: a shape damaged to gigabytes is refused, not allocated (zip's CRC catches
+    the damage only once a member is read to its end)."""
+    from volmc import checkpoint
+    from volmc.film import Film
+    from volmc.params import COUNTER_NAMES
+    from volmc.resources import scenes_dir
+    from volmc.scene import load_scene
+    scene = load_scene(scenes_dir() / "tests" / "absorber.toml", ["camera.resolution=[32, 32]"])
+    film = Film(32, 32)
+    film.spp = 1
+    good = tmp_path / "good.ckpt"
+    checkpoint.save(good, film, {n: 0 for n in COUNTER_NAMES}, 1.0,
+                    checkpoint.identity(scene, "numba"))
+    old = b"(32, 32, 4), }        "
+    assert good.read_bytes().count(old) == 2             # sum and sum_sq
+    path = tmp_path / "damaged.ckpt"
+    path.write_bytes(good.read_bytes().replace(old, b"(32, 32, 400000000), }", 1))
+    tracemalloc.start()
+    try:
+        with pytest.raises(SceneError, match="declares more bytes than the file holds") as e:
+            checkpoint.load(path, scene, "numba")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert str(e.value).startswith(f"{path}: --resume: not a volmc checkpoint (its member ")
+    assert peak < 4 << 20

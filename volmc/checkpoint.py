@@ -23,6 +23,7 @@ seconds, and the identity above.
 
 import hashlib
 import json
+import math
 import os
 
 import numpy as np
@@ -32,6 +33,7 @@ from .outputs import written_whole
 from .params import COUNTER_NAMES
 from .scene.schema import MAX_SPP
 from .scene.errors import SceneError
+from .scene.grids import npy_header
 
 #: Bumped when the layout changes; older files are refused with a message saying so. 2: the
 #: lane counters, and the lane width in the identity. 3: the film's A channel (RGBA sums).
@@ -103,6 +105,19 @@ def missing(path):
     return SceneError(path, "--resume", "no such checkpoint file")
 
 
+def _check_member_sizes(z, path):
+    """Refuse an archive member whose .npy header declares more bytes than the whole file
+    holds, before numpy allocates them: volmc writes checkpoints uncompressed, so such a
+    header is damage (a flipped bit in a shape can declare terabytes)."""
+    limit = os.path.getsize(path)
+    for name in z.zip.namelist():
+        with z.zip.open(name) as m:
+            shape, _, dtype = npy_header(m, z.zip.getinfo(name).file_size)
+        if math.prod(shape) * dtype.itemsize > limit:
+            raise SceneError(path, "--resume", f"not a volmc checkpoint (its member {name} "
+                                               f"declares more bytes than the file holds)")
+
+
 def load(path, scene, backend, lanes=None, albedo=False):
     """(film, counters dict, seconds) of the checkpoint at ``path``, after checking it is a
     checkpoint of a render of ``scene`` on ``backend`` (a backend name) at lane width
@@ -124,8 +139,11 @@ def load(path, scene, backend, lanes=None, albedo=False):
         raise bad("not a volmc checkpoint (an .npy array, not an .npz archive)")
     try:
         with z:
+            _check_member_sizes(z, path)
             header = json.loads(str(z["header"][()]))
             s, sq, cnt = z["sum"], z["sum_sq"], z["counters"]
+    except SceneError:
+        raise
     except Exception as e:   # noqa: BLE001
         raise bad(f"not a volmc checkpoint ({type(e).__name__})") from None
     if not isinstance(header, dict):

@@ -1,11 +1,13 @@
-"""Mutation fuzzing of the grid and map readers: ``python -m volmc.bench.fuzz --cases N``.
+"""Mutation fuzzing of the binary readers: ``python -m volmc.bench.fuzz --cases N``.
 
-Each case takes a fixture (the committed OpenVDB / NanoVDB files of tests/data, and an EXR
-map written by volmc), damages it -- a truncation, bit flips, a byte burst, or a 4- or 8-byte
+Each case takes a fixture (the committed OpenVDB / NanoVDB files of tests/data, an EXR map,
+a density grid as .npy, .npz and .vol, and a render checkpoint, the last four written by
+volmc), damages it -- a truncation, bit flips, a byte burst, or a 4- or 8-byte
 word overwritten with a huge, negative or boundary value (half the time at a word that
 holds a count, a length or an offset of the original, so the damage lands on structure
 rather than on voxel values) -- and reads it with the reader users reach: ``read_vdb`` of
-one of the file's grids, ``list_grids``, ``read_env_map``.
+one of the file's grids, ``list_grids``, ``read_env_map``, ``load_grid``, and
+``checkpoint.load`` (``--resume``) against the scene it was written for.
 
 A case passes when the read ends in a grid (map) or in the readers' one-line SceneError.
 It fails when it raises anything else (a warning included), runs longer than the per-case time limit (a SIGALRM
@@ -49,6 +51,8 @@ VDB_FIXTURES = ["fire/cache_fluid/data/fluid_data_0013.vdb",
                 "vdb/quirks.nvdb", "vdb/blobs_zip.nvdb", "vdb/blobs_blosc.nvdb",
                 "vdb/levelset.nvdb", "vdb/blobs_none.nvdb.gz"]
 KINDS = ("truncate", "flip", "burst", "word4", "word8")
+#: The readers fuzzed, by fixture kind.
+KINDS_READ = ("vdb", "exr", "grid", "checkpoint")
 HUGE4 = (0xFFFFFFFF, 0x7FFFFFFF, 0x80000000, 0x40000000, 0x00010000, 0)
 HUGE8 = ((1 << 64) - 1, (1 << 63) - 1, 1 << 63, 1 << 62, 1 << 40, 1 << 32, 0)
 
@@ -74,13 +78,15 @@ def time_limit(seconds):
 
 @dataclass
 class Fixture:
-    """A file to mutate: its bytes, its kind ("vdb" or "exr"), the grids it holds, and the
-    offsets of its words that look like structure (counts, lengths, in-file offsets)."""
+    """A file to mutate: its bytes, its kind (one of KINDS_READ), the grids it holds, the
+    offsets of its words that look like structure (counts, lengths, in-file offsets), and
+    for a checkpoint the scene it belongs to."""
     name: str
     kind: str
     data: bytes
     grids: list
     structural: np.ndarray
+    scene: object = None
 
 
 @dataclass
@@ -131,6 +137,36 @@ def load_fixtures(tmp, folder=None):
     write_exr(exr, np.random.default_rng(0).random((16, 32, 3)).astype(np.float32) + 0.5)
     data = exr.read_bytes()
     out.append(Fixture("map.exr", "exr", data, [], structural_offsets(data)))
+    out += _volmc_fixtures(Path(tmp))
+    return out
+
+
+def _volmc_fixtures(tmp):
+    """The files volmc writes itself: a grid in each format, and a checkpoint of a 4x4
+    render of scenes/tests/absorber.toml (its sums made up: only the reading is tested)."""
+    from .. import checkpoint
+    from ..film import Film
+    from ..params import COUNTER_NAMES
+    from ..resources import scenes_dir
+    from ..scene import load_scene
+    from ..scene.grids import save_grid
+    rng = np.random.default_rng(1)
+    out = []
+    for suffix in (".npy", ".npz", ".vol"):
+        path = tmp / f"grid{suffix}"
+        save_grid(path, rng.random((5, 6, 7)).astype(np.float32))
+        data = path.read_bytes()
+        out.append(Fixture(path.name, "grid", data, [], structural_offsets(data)))
+    scene = load_scene(scenes_dir() / "tests" / "absorber.toml", ["camera.resolution=[4, 4]"])
+    film = Film(4, 4)
+    film.sum[...] = rng.random(film.sum.shape)
+    film.sum_sq[...] = film.sum ** 2
+    film.spp = 3
+    path = tmp / "render.ckpt"
+    checkpoint.save(path, film, {n: 7 for n in COUNTER_NAMES}, 1.5,
+                    checkpoint.identity(scene, "numba"))
+    data = path.read_bytes()
+    out.append(Fixture(path.name, "checkpoint", data, [], structural_offsets(data), scene))
     return out
 
 
@@ -185,11 +221,14 @@ def _memory_limit(nbytes):
 def run_case(fixture, damaged, path, choice, seconds=CASE_SECONDS):
     """Write ``damaged`` to ``path`` and read it as ``fixture`` is read: grid ``choice`` of
     its grids (len(grids): list_grids instead), or the EXR map. Returns an Outcome."""
+    from .. import checkpoint
     from ..scene import envmap
     from ..scene.errors import SceneError
+    from ..scene.grids import load_grid
     from ..scene.vdb import list_grids, read_vdb
     Path(path).write_bytes(damaged)
-    key = "lights[0].file" if fixture.kind == "exr" else "medium.density"
+    key = {"exr": "lights[0].file", "checkpoint": "--resume"}.get(fixture.kind,
+                                                                   "medium.density")
     tracemalloc.start()
     t = time.perf_counter()
     status, message = "ok", ""
@@ -204,6 +243,15 @@ def run_case(fixture, damaged, path, choice, seconds=CASE_SECONDS):
                 if not (px.ndim == 3 and px.shape[2] == 3 and np.all(np.isfinite(px))
                         and np.all(px >= 0)):
                     status, message = "crash", f"a map of bad texels came back {px.shape}"
+            elif fixture.kind == "grid":
+                g = load_grid(path, key)
+                if not (g.dtype == np.float32 and g.ndim == 3 and np.all(np.isfinite(g))
+                        and np.all(g >= 0)):
+                    status, message = "crash", f"a bad grid came back {g.shape}"
+            elif fixture.kind == "checkpoint":
+                film, counters, secs = checkpoint.load(path, fixture.scene, "numba")
+                if not (np.all(np.isfinite(film.sum)) and film.spp > 0 and secs >= 0):
+                    status, message = "crash", "a damaged film came back"
             elif choice < len(fixture.grids):
                 g = read_vdb(path, fixture.grids[choice], key)
                 if not (g.values.dtype == np.float32 and g.values.shape[1:] == (8, 8, 8)
@@ -233,7 +281,7 @@ def scratch_dir():
     return tempfile.TemporaryDirectory(dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
 
 
-def fuzz(cases, seed=0, kinds=("vdb", "exr"), folder=None):
+def fuzz(cases, seed=0, kinds=KINDS_READ, folder=None):
     """Run ``cases`` cases drawn by a seeded RNG over the fixtures of ``folder`` (see
     load_fixtures); returns (counts, failures, seconds)."""
     rng = np.random.default_rng(seed)
@@ -261,7 +309,7 @@ def main(argv=None):
         "\n\n")[0])
     p.add_argument("--cases", type=int, default=5000, help="cases to run (default 5000)")
     p.add_argument("--seed", type=int, default=0, help="RNG seed (default 0)")
-    p.add_argument("--only", choices=["vdb", "exr"], help="fuzz one reader only")
+    p.add_argument("--only", choices=KINDS_READ, help="fuzz one reader only")
     p.add_argument("--fixtures", type=Path, default=DATA,
                    help="the folder of the test fixtures (default: tests/data of this checkout)")
     args = p.parse_args(argv)
@@ -270,7 +318,7 @@ def main(argv=None):
               "there (the fixtures come with a checkout of volmc, in tests/data)", file=sys.stderr)
         return 2
     counts, failures, seconds = fuzz(args.cases, args.seed,
-                                     (args.only,) if args.only else ("vdb", "exr"), args.fixtures)
+                                     (args.only,) if args.only else KINDS_READ, args.fixtures)
     print(f"{args.cases} cases in {seconds:.1f} s ({args.cases / seconds:.0f}/s): "
           + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
     for name, what, out in failures:

@@ -104,24 +104,42 @@ def read_grid_file(path, key="density", name="density"):
             # np.load lists a member "x.npy" as "x", and one stored without the suffix as is.
             member = name if name in z.zip.namelist() else f"{name}.npy"
             with z.zip.open(member) as m:
-                shape, fortran, dtype = _npy_header(m)
+                shape, fortran, dtype = npy_header(m, z.zip.getinfo(member).file_size)
             require_host(load_peak_bytes(math.prod(shape), dtype, fortran), path, key,
                          f"loading a {shape_text(shape)} grid of {dtype}")
             return z[name]
     except SceneError:
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, tokenize.TokenError,
-            TypeError, OverflowError, MemoryError) as e:
-        # Corrupt headers (numpy raises TypeError for a shape such as (True, 1, 1)) or
-        # compressed data, and sizes too large to allocate.
+            TypeError, OverflowError, MemoryError, NotImplementedError, RuntimeError,
+            SyntaxError) as e:
+        # Corrupt headers (numpy raises TypeError for a shape such as (True, 1, 1), and
+        # SyntaxError for a header dict its literal parser cannot read) or
+        # compressed data, sizes too large to allocate, and zip members of a version or
+        # compression method zipfile does not implement, or marked encrypted (RuntimeError).
         text = (str(e).splitlines() or [type(e).__name__])[0]
         raise SceneError(path, key, f"cannot read grid: {text}") from None
 
 
-def _npy_header(f):
-    """(shape, Fortran order, dtype) of the .npy stream ``f``, left at the start of its
-    data."""
+#: The .npy format versions numpy writes and reads.
+NPY_VERSIONS = ((1, 0), (2, 0), (3, 0))
+
+
+def npy_header(f, size):
+    """(shape, Fortran order, dtype) of the .npy stream ``f`` of ``size`` bytes, left at the
+    start of its data: what numpy would allocate, read before it does. A header that
+    claims more bytes than the stream holds is refused (ValueError) before it is read, since
+    numpy reads a header's declared length in one piece (a flipped bit in a 4-byte length
+    had it allocate 660 MB)."""
     version = np.lib.format.read_magic(f)
+    if version not in NPY_VERSIONS:
+        raise ValueError(f"unsupported .npy format version {version[0]}.{version[1]}")
+    start = f.tell()
+    width = 2 if version == (1, 0) else 4
+    length = int.from_bytes(f.read(width), "little")
+    if length > size - start - width:
+        raise ValueError(f".npy header of {length} bytes in a stream of {size}")
+    f.seek(start)
     read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
                    else np.lib.format.read_array_header_2_0)
     return read_header(f)
@@ -130,7 +148,7 @@ def _npy_header(f):
 def _check_npy_size(f, file_size, path, key):
     """Reject a .npy header that declares more data than the file holds, or than the host
     memory can load (before numpy allocates it)."""
-    shape, fortran, dtype = _npy_header(f)
+    shape, fortran, dtype = npy_header(f, file_size)
     declared = math.prod(shape) * dtype.itemsize
     if declared > file_size - f.tell():
         raise SceneError(path, key, f"truncated .npy data: shape {shape} of {dtype} needs "
