@@ -204,3 +204,38 @@ def test_damaged_checkpoints_are_one_line_errors(tmp_path):
             ckpt.load(str(p), scene, "opencl", lanes)
         assert str(e.value).startswith(f"{p}: --resume: "), (p, e.value)
     assert ckpt.load(str(good), scene, "opencl", lanes)[0].spp == 2
+
+
+def test_a_checkpoint_that_cannot_be_written_does_not_end_the_render(tmp_path, monkeypatch):
+    """A full disk (or a directory gone read-only) under the checkpoint: the render goes on,
+    returns its image, and says once that it has no checkpoint; the API warns. A last
+    checkpoint that succeeds after failed ones leaves nothing to say."""
+    import errno
+    import volmc
+    from volmc import checkpoint as ckpt
+    from volmc.scene.errors import VolmcWarning
+    scene = load_scene(default_scene(), SMALL + ["render.spp=8"])
+    clean = render(scene, backend="numba", progress=False)
+    real_save, calls, full = ckpt.save, [], {"below": 99}
+
+    def save(path, film, *args):   # the disk is full until the render holds `below` spp
+        calls.append(film.spp)
+        if film.spp < full["below"]:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_save(path, film, *args)
+
+    monkeypatch.setattr(ckpt, "save", save)
+    path = tmp_path / "c.npz"
+    kw = dict(backend="numba", progress=False, checkpoint=path, checkpoint_every=0.0,
+              chunk_samples=12 * 10 * 2)
+    res = render(scene, **kw)
+    assert len(calls) >= 4 and not path.exists()
+    assert np.array_equal(res.film.sum, clean.film.sum) and not res.partial
+    assert res.guard_warnings() == [f"{path}: the checkpoint could not be written (No space "
+                                    "left on device); the render went on without it"]
+    with pytest.warns(VolmcWarning, match="the checkpoint could not be written"):
+        volmc.render(scene, backend="numba", checkpoint=path)
+    full["below"] = 8
+    res = render(scene, **kw)
+    assert res.guard_warnings() == [] and path.exists()
+    assert ckpt.load(path, scene, "numba")[0].spp == 8

@@ -87,6 +87,9 @@ class RenderResult:
     spp_requested: int
     seed: int
     extra: dict = field(default_factory=dict)
+    #: What went wrong around the render without spoiling it (a checkpoint that could not
+    #: be written), one message each.
+    notes: list = field(default_factory=list)
 
     @property
     def image(self):
@@ -122,9 +125,11 @@ class RenderResult:
     def guard_warnings(self):
         """One message per guard that fired during the render (lookups above the majorant,
         walks cut by render.max_steps, dropped samples), with its count: the image may then
-        be biased, and a render never is silently. Empty for a clean render."""
+        be biased, and a render never is silently. Then the notes. Empty for a clean
+        render."""
         c = self.counters
-        return [f"{c[key]} {what}" for key, what in GUARD_WARNINGS if c.get(key, 0) > 0]
+        return [f"{c[key]} {what}" for key, what in GUARD_WARNINGS
+                if c.get(key, 0) > 0] + list(self.notes)
 
     def metadata(self):
         """EXR header metadata: spp, seed, backend, time, techniques, partial flag, counters."""
@@ -236,6 +241,20 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
         totals = runner.counter_totals()
         return {n: prior[n] + int(totals[i]) for i, n in enumerate(COUNTER_NAMES)}
 
+    notes = []
+
+    def save(seconds):
+        # A checkpoint is insurance, not the result: a full disk or a directory gone
+        # read-only must not end the render it protects. Tried again at the next interval.
+        try:
+            ckpt.save(checkpoint, film, counters(), seconds, ident)
+        except OSError as e:
+            if not notes:
+                notes.append(f"{checkpoint}: the checkpoint could not be written "
+                             f"({e.strerror or e}); the render went on without it")
+            return False
+        return True
+
     last_save = time.monotonic()
     with _StopFlag() as flag:
         if on_start is not None:
@@ -246,8 +265,7 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
                 film.spp += n
                 bar.update(n)
                 if checkpoint is not None and time.monotonic() - last_save >= checkpoint_every:
-                    ckpt.save(checkpoint, film, counters(), elapsed + time.perf_counter() - t,
-                              ident)
+                    save(elapsed + time.perf_counter() - t)
                     last_save = time.monotonic()
                 if flag.stop:
                     break
@@ -256,10 +274,10 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
         elapsed += time.perf_counter() - t
         stopped = flag.stop and film.spp < spp
     bar.close()
-    if checkpoint is not None:
-        ckpt.save(checkpoint, film, counters(), elapsed, ident)
+    if checkpoint is not None and save(elapsed):
+        notes.clear()   # the last checkpoint holds all the work
     return RenderResult(film, runner.name, elapsed, stopped, counters(), runner.techniques, spp,
-                        scene.render.seed)
+                        scene.render.seed, notes=notes)
 
 
 class LocalChunks:
