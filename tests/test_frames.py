@@ -329,3 +329,60 @@ def test_frame_patterns_that_cannot_name_a_file_are_one_line_errors():
         assert str(e.value).startswith("s.toml: medium.density.file: "), pattern
     assert format_path("d_{frame:04d}.npy", 7, "s.toml", "k") == "d_0007.npy"
     assert format_path("d_{frame:>12}.npy", 7, "s.toml", "k") == "d_" + " " * 11 + "7.npy"
+
+
+def test_frames_cut_short_or_missing_files_render_again(seq):
+    """Found by an outside workflow test: an EXR cut short keeps its header, and was taken
+    for complete; and a run asking for more files (--png, --variance) than the one before
+    skipped every frame without writing them."""
+    d = seq.parent
+    r = run(["render", str(seq), "--frames", "1-2", "-o", "s.exr", "--quiet"], d)
+    assert r.returncode == 0, r.stderr
+    first = read_exr(d / "s.0002.exr", alpha=True)[0]
+    data = (d / "s.0002.exr").read_bytes()
+    (d / "s.0002.exr").write_bytes(data[:len(data) - 200])     # the header is whole
+    r = run(["render", str(seq), "--frames", "1-2", "-o", "s.exr"], d)
+    assert "frame 1/2 (1): s.0001.exr is complete, skipped" in r.stderr
+    assert "frame 2/2 (2): done" in r.stderr
+    np.testing.assert_array_equal(read_exr(d / "s.0002.exr", alpha=True)[0], first)
+    r = run(["render", str(seq), "--frames", "1-2", "-o", "s.exr", "--png", "--variance"], d)
+    assert r.returncode == 0 and "2 rendered, 0 complete already" in r.stderr, r.stderr
+    for f in (1, 2):
+        assert (d / f"s.{f:04d}.png").is_file() and (d / f"s.{f:04d}.var.exr").is_file()
+    r = run(["render", str(seq), "--frames", "1-2", "-o", "s.exr", "--png", "--variance"], d)
+    assert "0 rendered, 2 complete already" in r.stderr, r.stderr
+
+
+def test_a_frame_that_cannot_be_written_is_rescued(seq, tmp_path, monkeypatch):
+    """Found by an outside workflow test: a full disk (or a directory gone read-only)
+    while a sequence wrote a frame ended in a traceback and lost the frame. Now the one-line
+    error names the option and the file, the frame's image is saved in the temporary
+    directory, and the frames before it stay complete."""
+    import errno
+    import volmc.film
+    real, calls = volmc.film.write_png, []
+
+    def write_png(path, *args, **kw):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(path, *args, **kw)
+
+    monkeypatch.setattr(volmc.film, "write_png", write_png)
+    out = tmp_path / "o" / "f.exr"
+    out.parent.mkdir()
+    with pytest.raises(volmc.VolmcError) as e:
+        volmc.render_frames(seq, "1-3", output=out, png=True, progress=False, backend="numba")
+    text = str(e.value)
+    assert text.startswith(f"volmc.render_frames(): png: could not write "
+                           f"{tmp_path / 'o' / 'f.0002.png'} ([Errno 28] No space left on "
+                           "device); frame 2's image is saved as "), text
+    rescued = text.rsplit(" ", 1)[1]
+    try:
+        img, meta = read_exr(rescued, alpha=True)
+    finally:
+        Path(rescued).unlink()
+    one = volmc.render(volmc.load_scene(seq, frame=2), progress=False, backend="numba")
+    np.testing.assert_array_equal(img[..., :3], one.image.astype(np.float32))
+    assert meta["frame"] == 2
+    assert sorted(p.name for p in out.parent.iterdir()) == ["f.0001.exr", "f.0001.png"]

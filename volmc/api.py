@@ -372,7 +372,7 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
         oidn(where, "denoise")
     png = os.path.splitext(output)[0] + ".png" if png else None
     seq = FrameSequence(raw, file, file_dir, frames, "frames")
-    plan = seq.plan(output, name)
+    plan = seq.plan(output, name, png, variance, denoise)
 
     with _client(client, where) as client:
         def render_one(frame_scene, label):
@@ -381,8 +381,9 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
                              albedo=bool(denoise))
             return RenderedImage(result, frame_scene)
         out = {}
+        keys = {role: (where, role) for role in ("png", "variance", "denoise")}
         for done in render_sequence(seq, plan, render_one, png, variance, exposure, tonemap,
-                                    bool(denoise)):
+                                    bool(denoise), {**keys, "exr": (where, "output")}):
             out[done.frame] = done.exr if output else done.image
             if done.image is not None:
                 _warn_guards(done.image.result, f"frame {done.frame}: ")

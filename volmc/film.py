@@ -110,6 +110,22 @@ def write_exr(path, image, metadata=None):
         f.write(tmp)
 
 
+def rescue_exr(path, error, image, metadata=None, what="the image"):
+    """After writing ``path`` failed with ``error`` (a full disk, a directory removed or gone
+    read-only meanwhile), write ``image`` (as write_exr) to a new file in the system's
+    temporary directory, the place of last resort, so that no render is lost. Returns the
+    one-line error to raise, naming the copy."""
+    import tempfile
+    fd, rescue = tempfile.mkstemp(prefix="volmc-rescued-", suffix=".exr")
+    os.close(fd)
+    try:
+        write_exr(rescue, image, metadata)
+    except (OSError, RuntimeError):   # the temporary directory's disk is full too
+        os.unlink(rescue)
+        return f"could not write {path} ({error}), nor a copy in the temporary directory"
+    return f"could not write {path} ({error}); {what} is saved as {rescue}"
+
+
 def read_exr(path, alpha=False):
     """Read an RGB EXR. Returns (image float32 [h, w, 3], metadata dict without the prefix);
     with alpha, the image is [h, w, 4] with the A channel (1 where the file has none)."""

@@ -10,10 +10,13 @@ alike.
 The EXR is written last and atomically (a temporary file, then a rename), and it records
 the frame and an identity of what it is a render of (the scene's raw TOML or dict,
 overrides included, the frame and the backend; not the grid files' bytes, which would
-have to be read for every frame only to skip it). A frame whose EXR exists, is not partial (the
-``partial`` flag an interrupted render writes, as for a single render) and has this
-identity is complete and is skipped, so a killed run resumes at the first frame it had
-not finished.
+have to be read for every frame only to skip it). A frame is complete, and is skipped, when
+its EXR reads whole, is not partial (the ``partial`` flag an interrupted render writes, as
+for a single render) and has this identity, and every other file asked for (PNG, variance,
+denoised preview) is there; so a killed run resumes at the first frame it had not
+finished, and a run that asks for more files than the last renders the frames again. A
+frame's file that cannot be written ends the run with the one-line error, the frame's
+image saved to the temporary directory (film.rescue_exr).
 """
 
 import hashlib
@@ -84,19 +87,30 @@ def identity(raw, frame, backend):
 
 
 def is_complete(exr, ident):
-    """True if ``exr`` holds a finished (not partial) render with identity ``ident``."""
-    from .film import META_PREFIX
+    """True if ``exr`` holds a finished (not partial) render with identity ``ident``, every
+    pixel of it readable (a file cut short keeps its header)."""
+    from .film import read_exr
     if not os.path.isfile(exr):
         return False
     try:
-        import OpenEXR
-        with OpenEXR.File(str(exr), header_only=True) as f:
-            # Read inside: the header is emptied when the file closes.
-            header = f.header()
-            return header.get(META_PREFIX + "partial") == 0 and \
-                header.get(META_PREFIX + "frame_identity") == ident
+        meta = read_exr(exr, alpha=True)[1]
     except Exception:   # noqa: BLE001 -- unreadable for any reason: not complete, render it
         return False
+    return meta.get("partial") == 0 and meta.get("frame_identity") == ident
+
+
+def frame_outputs(exr, png=None, variance=False, denoise=False):
+    """(role, path) of every file a frame writes, its EXR ``exr`` last (the file that marks
+    the frame complete): "png" (``png``, the frame's PNG path, or None), "variance",
+    "denoise" (beside the EXR, and the PNG), "exr"."""
+    from .denoise import denoised_path
+    from .film import variance_path
+    out = [("png", png)] if png else []
+    if variance:
+        out.append(("variance", variance_path(exr)))
+    if denoise:
+        out += [("denoise", denoised_path(p)) for p in (exr, png) if p]
+    return out + [("exr", exr)]
 
 
 class FrameSequence:
@@ -114,9 +128,11 @@ class FrameSequence:
                                         "e.g. file = \"cache/density_{frame:04d}.vdb\"), so "
                                         "every frame would be the same image")
 
-    def plan(self, output, backend):
+    def plan(self, output, backend, png=None, variance=False, denoise=False):
         """[FramePlan] of each frame: its EXR (None without ``output``), its identity and
-        whether that EXR is complete. A frame to render whose grid file is missing raises
+        whether it is complete (its EXR, and the other files asked for by ``png``, the
+        sequence's PNG path, ``variance`` and ``denoise``: frame_outputs). A frame to render
+        whose grid file is missing raises
         SceneError (naming the scene file and key, listing the frames on disk): before
         anything renders, so a run does not end halfway, and only for those frames, since
         the files of complete frames may be gone."""
@@ -125,7 +141,9 @@ class FrameSequence:
         for f in self.frames:
             ident = self.identity(f, backend)
             exr = frame_path(output, f) if output else None
-            complete = bool(exr) and is_complete(exr, ident)
+            complete = bool(exr) and is_complete(exr, ident) and all(
+                os.path.isfile(path) for _, path in
+                frame_outputs(exr, png and frame_path(png, f), variance, denoise))
             if not complete:
                 substitute(self.raw, f, self.file, self.file_dir)
             out.append(FramePlan(f, ident, exr, complete))
@@ -161,16 +179,20 @@ class FrameDone:
 
 
 def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.0,
-                    tonemap="filmic", denoise=False):
-    """Render the frames of FrameSequence ``seq`` by its ``plan`` (``seq.plan``) in order
-    and yield a FrameDone for each. Frame f is written to its EXR (a PNG to
-    ``frame_path(png, f)`` when ``png`` is a path, the variance beside the EXR) when the
-    plan has one, and skipped when that EXR is complete. ``render_one`` (scene, label)
-    renders a scene into an api.RenderedImage. The sequence stops after an interrupted
-    (partial) frame, which is written marked partial. ``denoise``: each frame's denoised
-    preview is written beside its EXR and PNG (denoise.write_denoised; render_one then
-    renders with the albedo AOV), before the EXR that marks the frame complete."""
-    from .film import variance_path, write_exr
+                    tonemap="filmic", denoise=False, keys=None):
+    """Render the frames of FrameSequence ``seq`` by its ``plan`` (``seq.plan``, given the
+    same ``png``, ``variance`` and ``denoise``) in order and yield a FrameDone for each.
+    Frame f is written to its EXR (a PNG to ``frame_path(png, f)`` when ``png`` is a path,
+    the variance beside the EXR) when the plan has one, and skipped when it is complete.
+    ``render_one`` (scene, label) renders a scene into an api.RenderedImage. The sequence
+    stops after an interrupted (partial) frame, which is written marked partial.
+    ``denoise``: each frame's denoised preview is written beside its EXR and PNG
+    (denoise.write_denoised; render_one then renders with the albedo AOV). Every file comes
+    before the EXR that marks the frame complete. ``keys``: role -> (file, key) of the
+    one-line error when a frame's file cannot be written (frame_outputs' roles; default the
+    command line's flags); the frame's image is then saved to the temporary directory."""
+    from .film import rescue_exr, write_exr, write_png
+    keys = {**CLI_KEYS, **(keys or {})}
     n = len(plan)
     for i, p in enumerate(plan, 1):
         f, ident, exr = p.frame, p.identity, p.exr
@@ -180,18 +202,34 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
         img = render_one(seq.scene(f), f"frame {i}/{n}")
         if exr:
             img.result.extra.update(frame=f, frame_identity=ident)
-            meta = img.metadata()
-            if png:
-                img.save(frame_path(png, f), exposure, tonemap)
-            if variance:
-                write_exr(variance_path(exr), img.variance, meta)
-            if denoise:
-                from .denoise import write_denoised
-                write_denoised(img.result.film, meta, exr, frame_path(png, f) if png else None,
-                               exposure, tonemap, img.scene.render.transparent_background)
-            # Written whole (film.write_exr): a kill while writing leaves no EXR that looks
-            # complete.
-            write_exr(exr, img.result.film.rgba(), meta)
+            meta, rgba = img.metadata(), img.result.film.rgba()
+            transparent = img.scene.render.transparent_background
+            outputs = frame_outputs(exr, png and frame_path(png, f), variance, denoise)
+            role, path = outputs[0]
+            try:
+                for role, path in outputs:
+                    if role == "png":
+                        write_png(path, img.image, exposure, tonemap,
+                                  alpha=img.alpha if transparent else None)
+                    elif role == "variance":
+                        write_exr(path, img.variance, meta)
+                    elif role == "denoise" and path.lower().endswith(".exr"):
+                        from .denoise import write_denoised
+                        write_denoised(img.result.film, meta, exr,
+                                       frame_path(png, f) if png else None, exposure, tonemap,
+                                       transparent, *keys["denoise"])
+                    elif role == "exr":
+                        # Written whole (film.write_exr): a kill while writing leaves no
+                        # EXR that looks complete.
+                        write_exr(exr, rgba, meta)
+            except (OSError, RuntimeError) as e:
+                raise SceneError(*keys[role], rescue_exr(path, e, rgba, meta,
+                                                         f"frame {f}'s image")) from None
         yield FrameDone(f, i, n, exr, img)
         if img.partial:
             return
+
+
+#: The (file, key) of the one-line error naming the option that asked for a frame's file.
+CLI_KEYS = {"exr": ("command line", "-o"), "png": ("command line", "--png"),
+            "variance": ("command line", "--variance"), "denoise": ("command line", "--denoise")}

@@ -139,23 +139,12 @@ def cmd_render(args):
 
 def _write_or_rescue(out, rgba, meta):
     """The EXR at ``out``, checked writable before the render; should writing it fail all the
-    same (a full disk, a directory removed meanwhile), the image is written to the system's
-    temporary directory instead and the one-line error names it: a render is not lost."""
-    from ..film import write_exr
+    same, the image is rescued (film.rescue_exr) and the one-line error names the copy."""
+    from ..film import rescue_exr, write_exr
     try:
         write_exr(out, rgba, meta)
     except (OSError, RuntimeError) as e:
-        import tempfile
-        fd, rescue = tempfile.mkstemp(prefix="volmc-rescued-", suffix=".exr")
-        os.close(fd)
-        try:
-            write_exr(rescue, rgba, meta)
-        except (OSError, RuntimeError) as e2:   # the temporary directory's disk is full too
-            os.unlink(rescue)
-            raise SceneError("command line", "-o", f"could not write {out} ({e}), nor a copy "
-                             f"in the temporary directory ({e2})") from None
-        raise SceneError("command line", "-o", f"could not write {out} ({e}); the image is "
-                         f"saved as {rescue}") from None
+        raise SceneError("command line", "-o", rescue_exr(out, e, rgba, meta)) from None
 
 
 def _outputs(args, out, png):
@@ -255,7 +244,7 @@ def cmd_render_frames(args, scene_path, out, png, defines):
                              "for a single render")
     _check_render_device(args)
     seq = FrameSequence(read_raw(scene_path, defines), scene_path, None, frames)
-    plan = seq.plan(out, args.backend)
+    plan = seq.plan(out, args.backend, png, args.variance, args.denoise)
     for p in plan:   # every file of the frames to render, before the first renders
         if not p.complete:
             for path, flag in _outputs(args, p.exr, png and frame_path(png, p.frame)):
