@@ -239,3 +239,36 @@ def test_a_checkpoint_that_cannot_be_written_does_not_end_the_render(tmp_path, m
     res = render(scene, **kw)
     assert res.guard_warnings() == [] and path.exists()
     assert ckpt.load(path, scene, "numba")[0].spp == 8
+
+
+def test_a_checkpoint_is_not_overwritten_by_a_fresh_render(tmp_path):
+    """Found by an outside workflow test: the same --checkpoint command run again (not
+    --resume) replaced a checkpoint of 3775 spp with a fresh one. Now it is refused; the
+    checkpoint goes on with --resume, and a file that is no checkpoint is overwritten as -o
+    would."""
+    import volmc
+    scene = load_scene(default_scene(), SMALL + ["render.spp=4"])
+    path = tmp_path / "c.npz"
+    volmc.render(scene, backend="numba", checkpoint=path)
+    before = path.read_bytes()
+    with pytest.raises(volmc.VolmcError) as e:
+        volmc.render(scene, backend="numba", checkpoint=path)
+    assert str(e.value) == (f"volmc.render(): checkpoint: {path} holds a checkpoint of 4 spp: "
+                            f"continue it with resume={path}, or delete it to start again")
+    assert path.read_bytes() == before
+    volmc.render(scene, backend="numba", spp=6, resume=path)      # goes on in the same file
+    assert _header(path)["spp"] == 6
+    tiny = tmp_path / "s.toml"
+    from volmc.scene.serialize import to_toml
+    tiny.write_text(to_toml(scene.spec))
+    args = ["render", str(tiny), "--backend", "numba", "-o", "x.exr", "--quiet",
+            "--checkpoint", "c.npz"]
+    r = _cli(args, tmp_path)
+    _, err = r.communicate(timeout=300)
+    assert r.returncode == 2 and err.strip() == (
+        "volmc: error: command line: --checkpoint: c.npz holds a checkpoint of 6 spp: "
+        "continue it with --resume c.npz, or delete it to start again"), err
+    (tmp_path / "other.npz").write_bytes(b"not a checkpoint")
+    r = _cli(args[:-1] + ["other.npz"], tmp_path)
+    _, err = r.communicate(timeout=300)
+    assert r.returncode == 0 and _header(tmp_path / "other.npz")["spp"] == 4, err

@@ -259,6 +259,8 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     # As on the command line, a resumed render goes on checkpointing to its file.
     resume = _path(resume, where, "resume", writable=checkpoint is None)
     checkpoint = _path(checkpoint, where, "checkpoint", writable=True) or resume
+    from .checkpoint import refuse_overwrite
+    refuse_overwrite(checkpoint, resume, where, "checkpoint", "resume=")
     every = _seconds(checkpoint_every, where, "checkpoint_every")
     with _client(client, where) as client:
         # By name: the driver checks the memory the scene needs before it builds the backend.

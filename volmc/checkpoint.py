@@ -118,6 +118,35 @@ def _check_member_sizes(z, path):
                                                f"declares more bytes than the file holds)")
 
 
+def held_spp(path):
+    """The spp done of the volmc checkpoint at ``path``, or None when there is none (no
+    file, or a file of another kind)."""
+    if not os.path.isfile(path):
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            _check_member_sizes(z, path)
+            header = json.loads(str(z["header"][()]))
+    except Exception:   # noqa: BLE001 -- not a checkpoint volmc can read
+        return None
+    spp = header.get("spp") if isinstance(header, dict) and "format" in header else None
+    return spp if type(spp) is int else None
+
+
+def refuse_overwrite(path, resume, file, key, resume_hint):
+    """Raise SceneError(file, key) when the checkpoint a render would write to, ``path``,
+    holds another render's work (a checkpoint, not the one it resumes, ``resume``): a
+    command run twice must not replace hours of samples with a fresh start. ``resume_hint``:
+    how the caller continues one ("--resume", "resume=")."""
+    if path is None or (resume is not None and
+                        os.path.realpath(path) == os.path.realpath(resume)):
+        return
+    spp = held_spp(path)
+    if spp is not None:
+        raise SceneError(file, key, f"{path} holds a checkpoint of {spp} spp: continue it with "
+                                    f"{resume_hint}{path}, or delete it to start again")
+
+
 def load(path, scene, backend, lanes=None, albedo=False):
     """(film, counters dict, seconds) of the checkpoint at ``path``, after checking it is a
     checkpoint of a render of ``scene`` on ``backend`` (a backend name) at lane width

@@ -86,6 +86,8 @@ def cmd_render(args):
     checkpoint = args.checkpoint or args.resume
     if checkpoint:
         check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
+        from ..checkpoint import refuse_overwrite
+        refuse_overwrite(checkpoint, args.resume, "command line", "--checkpoint", "--resume ")
         if os.path.abspath(checkpoint) in [os.path.abspath(p) for p, _ in
                                            _outputs(args, out, png)]:
             raise SceneError("command line", "--checkpoint", f"{checkpoint} is also an "
