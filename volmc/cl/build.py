@@ -5,7 +5,9 @@ lines are replaced by the file's text (once each); ``params.h`` is generated fro
 volmc/params.py and volmc/constants.py, ``features.h`` from volmc/scene/features.py. The
 cache key is the SHA-256 of that full text, the build options, and the device identity
 (platform, device name, version, driver), so any change to a header, a flag or the driver
-rebuilds. Binaries live in VOLMC_CACHE_DIR (default ~/.cache/volmc/cl).
+rebuilds. Binaries live in VOLMC_CACHE_DIR (default ~/.cache/volmc/cl), each behind a magic
+and the SHA-256 of its bytes: a file cut short (a full disk, a killed copy) or damaged is
+rebuilt, never handed to the driver, since PoCL aborts or crashes on a truncated binary.
 """
 
 import hashlib
@@ -20,6 +22,9 @@ from .structs import params_header
 CACHE_ENV = "VOLMC_CACHE_DIR"
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)".*$', re.M)
 _memory_cache = {}
+
+#: The start of a cache file, before the binary's SHA-256 and the binary.
+CACHE_MAGIC = b"VOLMCBIN1\0"
 
 #: Options every build gets. No fast-math flags: see docs/numerical_robustness.md, "Fast math".
 BASE_OPTIONS = ("-cl-std=CL1.2",)
@@ -72,22 +77,51 @@ def build_program(context, device, source, options=()):
     if mkey in _memory_cache:
         return _memory_cache[mkey], "memory"
     path = cache_dir() / f"{key}.bin"
-    if path.exists():
+    binary = read_cached(path)
+    if binary is not None:
         try:
-            prg = cl.Program(context, [device], [path.read_bytes()]).build(options=options)
+            prg = cl.Program(context, [device], [binary]).build(options=options)
             _memory_cache[mkey] = prg
             return prg, "disk"
-        except (cl.Error, OSError):
-            pass  # stale or corrupt binary: rebuild below
+        except cl.Error:
+            pass  # stale binary: rebuild below
     prg = cl.Program(context, source).build(options=options, devices=[device])
     try:
-        binary = prg.get_info(cl.program_info.BINARIES)[0]
-        if binary:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".tmp{os.getpid()}")
-            tmp.write_bytes(binary)
-            os.replace(tmp, path)
-    except (cl.Error, OSError):
-        pass  # caching is an optimisation; a read-only home must not stop a render
+        write_cached(path, prg.get_info(cl.program_info.BINARIES)[0])
+    except cl.Error:
+        pass
     _memory_cache[mkey] = prg
     return prg, "compiled"
+
+
+def read_cached(path):
+    """The binary of cache file ``path``, or None when there is none or it is not whole."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError:
+        return None
+    n = len(CACHE_MAGIC)
+    binary = data[n + 32:]
+    if not data.startswith(CACHE_MAGIC) or hashlib.sha256(binary).digest() != data[n:n + 32] \
+            or not binary:
+        return None
+    return binary
+
+
+def write_cached(path, binary):
+    """Store ``binary`` at cache file ``path`` whole (a temporary file, then a rename).
+    Caching is an optimisation: a read-only or full disk must not stop a render, nor leave
+    a temporary file behind."""
+    if not binary:
+        return
+    path = Path(path)
+    tmp = path.with_suffix(f".tmp{os.getpid()}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_bytes(CACHE_MAGIC + hashlib.sha256(binary).digest() + binary)
+        os.replace(tmp, path)
+    except OSError:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
