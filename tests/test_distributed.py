@@ -253,3 +253,48 @@ def test_bench_transmittance_on_the_cluster(cluster, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "running as tasks on the cluster" in r.stdout
     assert len(json.loads(out.read_text())["grids"]) == 2
+
+
+def test_ctrl_c_at_the_terminal_stops_a_local_cluster_render(tmp_path):
+    """A Ctrl-C typed at the terminal reaches the whole process group, the local cluster's
+    workers too. Found by an outside workflow test: the workers died of it mid-task, under
+    screens of tracebacks, and the client could wait for them for ever. They now ignore
+    SIGINT: the render stops after its current chunk, writes the partial image and exits
+    with 130, with nothing else on the terminal."""
+    import pty
+    import select
+    from cli_subprocess import volmc_cli, volmc_env
+    from volmc.scene.serialize import to_toml
+    scene = load_scene(default_scene(), SMALL + ["render.spp=1000000"])
+    (tmp_path / "s.toml").write_text(to_toml(scene.spec))
+    pid, fd = pty.fork()
+    if pid == 0:   # the child: the render, in the pty's process group
+        os.chdir(tmp_path)
+        os.execve(sys.executable, volmc_cli("render", "s.toml", "--workers", "2", "-o",
+                                            "x.exr"), volmc_env())
+    out, sent, t0 = b"", None, time.monotonic()
+    try:
+        while time.monotonic() - t0 < 240:
+            if sent is None and b"volmc: started" in out:
+                time.sleep(2.0)
+                os.write(fd, b"\x03")            # the terminal's Ctrl-C: SIGINT to the group
+                sent = time.monotonic()
+            if select.select([fd], [], [], 0.2)[0]:
+                try:
+                    data = os.read(fd, 4096)
+                except OSError:
+                    break
+                if not data:
+                    break
+                out += data
+    finally:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if not done:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+    text = out.decode(errors="replace")
+    assert done and sent is not None, text
+    assert os.waitstatus_to_exitcode(status) == 130, text
+    assert "volmc: interrupted, partial image: x.exr" in text
+    assert "Traceback" not in text and "WARNING" not in text, text
+    assert read_exr(tmp_path / "x.exr")[1]["partial"] == 1

@@ -19,6 +19,7 @@ Progress, Ctrl-C (stop after the batch being merged; outstanding tasks are cance
 checkpoints work as for a local render (render.py).
 """
 
+import signal
 import threading
 import uuid
 
@@ -171,6 +172,27 @@ def make_client(workers=None, scheduler=None):
         # The connect timeout is Dask's distributed.comm.timeouts.connect (30 s unless
         # configured, e.g. DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=5s).
         return Client(scheduler), None
-    cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                           dashboard_address=None)
-    return Client(cluster), cluster
+    # The workers start with SIGINT ignored, which their interpreters keep: a Ctrl-C at the
+    # terminal reaches the whole process group, and workers that died of it mid-task left
+    # the client waiting for them, under screens of tracebacks. The client alone stops the
+    # render (render._StopFlag), and closing the cluster ends the workers.
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:   # not the main thread: signals are not ours to set
+        old = None
+    try:
+        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGINT, old)
+    client = Client(cluster)
+    client.run(_quiet_cancellations)
+    return client, cluster
+
+
+def _quiet_cancellations():
+    """In a worker of our local cluster: the tasks a stopped render cancels are no news (each
+    one logged a WARNING of CancelledError on the user's terminal)."""
+    import logging
+    logging.getLogger("distributed.worker.state_machine").setLevel(logging.ERROR)
