@@ -299,7 +299,8 @@ def _client(client, where):
         yield client
     finally:
         if own:
-            client.close()
+            from .distributed import close
+            close(client)
 
 
 def _warn_guards(result, prefix=""):

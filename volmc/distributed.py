@@ -22,6 +22,7 @@ checkpoints work as for a local render (render.py).
 import signal
 import threading
 import uuid
+import warnings
 
 import numpy as np
 
@@ -181,14 +182,34 @@ def make_client(workers=None, scheduler=None):
     except ValueError:   # not the main thread: signals are not ours to set
         old = None
     try:
-        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+        with warnings.catch_warnings():
+            # Its HTTP server's "Port 8787 is already in use" beside another volmc: it takes
+            # another port, and a render has no dashboard to find.
+            warnings.filterwarnings("ignore", "Port .* is already in use", UserWarning)
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
+                                   processes=True, dashboard_address=None)
     finally:
         if old is not None:
             signal.signal(signal.SIGINT, old)
     client = Client(cluster)
     client.run(_quiet_cancellations)
     return client, cluster
+
+
+def close(client, cluster=None):
+    """Close ``client`` and the local ``cluster`` it runs on (None: a scheduler's), quietly:
+    tasks a stopped render left behind may still report to the scheduler as it closes, which
+    Dask logs as CRITICAL tracebacks of a closed comm, none of them the user's business."""
+    import logging
+    log = logging.getLogger("distributed")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    finally:
+        log.setLevel(level)
 
 
 def _quiet_cancellations():

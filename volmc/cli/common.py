@@ -230,12 +230,10 @@ def dask_session(args):
     if not (args.workers or args.scheduler):
         yield None
         return
-    from ..distributed import connect
+    from ..distributed import close, connect
     client, cluster = connect(args.workers, args.scheduler, "command line",
                               "--workers" if args.workers else "--scheduler")
     try:
         yield client
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        close(client, cluster)
