@@ -507,3 +507,26 @@ def test_wrong_light_translation_is_detected(wrong, monkeypatch):
     monkeypatch.setattr(pm, "scene_dict", broken)
     agr = _compare(CASES["sphere" if wrong == "sphere_radius" else "spot"])
     assert not agr.passed, agr.summary("Mitsuba")
+
+
+def test_a_sphere_light_close_outside_the_box_is_noted():
+    """Found by an outside check: Mitsuba 3's volume integrators restart a shadow ray at the
+    box's surface offset along the normal but keep the cut ray's length, so near a sphere
+    light just outside the box the ray ends inside the sphere and its light is lost (25 %
+    dark beside it). Such scenes are compared with a note beside the verdict."""
+    from volmc.peers.mitsuba import caveats
+    from volmc.scene import scene_from_dict
+
+    def scene(position, radius=0.5):
+        return scene_from_dict({
+            "camera": {"eye": [0.0, 0.0, 4.0], "resolution": [4, 4]},
+            "medium": {"bounds": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], "density": 1.2},
+            "lights": [{"type": "sphere", "position": position, "radius": radius,
+                        "radiance": 1.0}]})
+
+    notes = caveats(scene([0.0, 1.5, 0.0]))             # touching the top face
+    assert len(notes) == 1 and notes[0].startswith("lights[0] (a sphere) is close outside "
+                                                   "the medium box")
+    assert len(caveats(scene([0.0, 1.6, 0.0]))) == 1    # a gap of 0.1 still showed it
+    assert caveats(scene([0.0, 5.0, 0.0])) == []        # far away
+    assert caveats(scene([0.2, 0.1, 0.0], 0.3)) == []   # inside: no surface between

@@ -214,6 +214,7 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
                     elif role == "variance":
                         write_exr(path, img.variance, meta)
                     elif role == "denoise" and path.lower().endswith(".exr"):
+                        # both previews at once: the EXR's, and the PNG's (the next role)
                         from .denoise import write_denoised
                         write_denoised(img.result.film, meta, exr,
                                        frame_path(png, f) if png else None, exposure, tonemap,

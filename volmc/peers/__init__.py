@@ -8,7 +8,8 @@ ratio. A peer's time is its tracing time: for Cycles, whose every render syncs t
 first (seconds for a grid), the sync is reported apart.
 
 Every peer module has ``probe()`` (its version, or PeerUnavailable saying why it cannot
-run), ``check_translatable(scene)`` and a renderer class whose ``render(spp, seed,
+run), ``check_translatable(scene)``, optionally ``caveats(scene)`` (notes on what the peer
+is known to render wrongly in a scene it translates) and a renderer class whose ``render(spp, seed,
 passes)`` returns (mean, variance of the mean, seconds, [passes, 3] pass image means).
 """
 
@@ -82,9 +83,13 @@ def compare_with_peer(name, scene, spp=None, passes=16, reference_spp=None, devi
                                             f" tracing, {sync:.2f} s scene sync"))
         agr = compare.agreement(mean_v, var_v, mean_p, var_p, pass_means, peer.last_low)
         log("  " + agr.summary(title))
+        notes = mod.caveats(scene) if hasattr(mod, "caveats") else []
+        for note in notes:
+            log(f"  note: {note}")
         report = {"peer": name, "peer_version": version, f"{name}_version": version,
                   "peer_mode": peer.mode, f"{name}_mode": peer.mode, "spp": spp,
                   "passes": passes, "agreement": {**agr.__dict__, "passed": agr.passed},
+                  "caveats": notes,
                   "volmc": {"seconds": rv.seconds, "mean": agr.mean_volmc},
                   name: {"seconds": sec_p, "mean": agr.mean_peer}}
         if sync is not None:
