@@ -184,7 +184,7 @@ def test_checkpoint_and_resume_through_the_api(tmp_path):
     with np.load(ck) as z:   # the resumed render went on checkpointing to its file
         assert '"spp": 8' in str(z["header"])
     np.testing.assert_allclose(res.image, full.image, rtol=1e-6, atol=1e-12)
-    with pytest.raises(volmc.VolmcError, match=r"--resume: .*seed"):
+    with pytest.raises(volmc.VolmcError, match=r": resume: .*seed"):   # the API's name
         volmc.render(scene, spp=8, seed=9, backend="numba", progress=False, resume=ck)
     for kw, key in (({"checkpoint": 3}, "checkpoint"), ({"checkpoint_every": -1},
                                                         "checkpoint_every"),

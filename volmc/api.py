@@ -264,9 +264,16 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     every = _seconds(checkpoint_every, where, "checkpoint_every")
     with _client(client, where) as client:
         # By name: the driver checks the memory the scene needs before it builds the backend.
-        result = _render(scene, backend=name, device=device, progress=bool(progress),
-                         client=client, checkpoint=checkpoint, checkpoint_every=every,
-                         resume=resume, lanes=lanes, albedo=bool(albedo))
+        try:
+            result = _render(scene, backend=name, device=device, progress=bool(progress),
+                             client=client, checkpoint=checkpoint, checkpoint_every=every,
+                             resume=resume, lanes=lanes, albedo=bool(albedo))
+        except Exception as e:
+            from .scene.errors import VolmcError
+            if not isinstance(e, VolmcError) or e.key != "--resume":
+                raise
+            # The checkpoint's errors name the command line's option; here it is resume=.
+            raise _error(e.file, "resume", e.message) from None
     _warn_guards(result)
     return RenderedImage(result, scene)
 
