@@ -83,3 +83,60 @@ def test_maps_figures_with_the_auto_rule(tmp_path):
     plots.segment_maps(report, tmp_path / "m.png")
     assert (tmp_path / "w.png").stat().st_size > 1000
     assert (tmp_path / "m.png").stat().st_size > 1000
+
+
+# ---- what the benchmarks report (found by an outside check of their arithmetic) ----------
+
+def test_efficiency_is_no_measure_without_lookups_or_with_nan():
+    """Track length on a homogeneous segment is Bernoulli(T) at no lookup: 1 / (V x L) was
+    inf and made it the "winner" of every tight constant profile; a NaN variance (non-finite
+    estimates) was inf too. Exact estimators (variance 0) stay infinitely efficient."""
+    from volmc.bench.transmittance import efficiency
+    assert math.isnan(efficiency(0.0862, 0.0))
+    assert math.isnan(efficiency(math.nan, 5.0)) and math.isnan(efficiency(1.0, math.nan))
+    assert efficiency(0.0, 0.0) == efficiency(0.0, 3.0) == math.inf
+    assert efficiency(2.0, 4.0) == 0.125
+
+
+def test_the_most_efficient_is_single_and_measured():
+    assert sm.most_efficient({"a": math.inf, "b": math.inf, "c": 3.0}) is None   # exact tie
+    assert sm.most_efficient({"a": math.inf, "b": 3.0}) == "a"
+    assert sm.most_efficient({"a": math.nan, "b": 2.0, "c": 1.0}) == "b"
+    assert sm.most_efficient({"a": math.nan}) is None and sm.most_efficient({}) is None
+
+
+def test_profile_sweep_counts_exact_ties_apart():
+    from volmc.bench.transmittance import summarise
+    from volmc.techniques import ESTIMATORS
+    names = ["track_length", "residual_ratio", "ratio"]
+
+    def row(**eff):
+        return {"results": {n: {"eff_var_lookups": e} for n, e in eff.items()}}
+    report = {"estimators": names, "unbiased": {n: ESTIMATORS[n].unbiased for n in names},
+              "profiles": [row(track_length=math.nan, residual_ratio=math.inf, ratio=math.inf),
+                           row(track_length=2.0, residual_ratio=5.0, ratio=math.nan),
+                           row(track_length=math.nan, residual_ratio=math.inf, ratio=1.0)]}
+    summary, ties = summarise(report)
+    assert ties == 1
+    assert {n: s["wins"] for n, s in summary.items()} == {"track_length": 0,
+                                                          "residual_ratio": 2, "ratio": 0}
+    assert summary["track_length"]["geomean_eff_var_lookups"] == 2.0
+
+
+def test_render_benchmark_best_is_a_measured_row(capsys):
+    from volmc.bench.convergence import best_volmc, print_report
+    rows = [{"name": n, "backend": "opencl", "majorant": "grid", "free_flight": "delta",
+             "transmittance": t, "mse_seconds": m, "samples_per_second": 1.0, "points": []}
+            for n, t, m in (("a", "ratio", math.nan), ("b", "residual_ratio", 2e-6),
+                            ("c", "track_length", 1e-6))]
+    assert best_volmc(rows)["name"] == "c"
+    assert best_volmc(rows[:1]) is None
+    for r in rows:
+        r["time_to_equal_error_vs_best_volmc"] = r["mse_seconds"] / 1e-6
+    print_report({"resolution": [1, 1], "spp_levels": [16], "repeats": 1,
+                  "reference_spp": 64, "lookup_ceiling": {}, "results": rows,
+                  "best_volmc": "c"})
+    lines = capsys.readouterr().out.splitlines()
+    body = [ln.split()[0] for ln in lines if ln.startswith("  ") and ln.split()[0] in "abc"]
+    assert body == ["c", "b", "a"]                      # measured rows first, NaN last
+    assert "(RMSE 0)" in [ln for ln in lines if ln.split()[:1] == ["a"]][0]

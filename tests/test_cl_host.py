@@ -243,6 +243,19 @@ def test_bench_transmittance_cli(tmp_path):
         assert (tmp_path / name).stat().st_size > 1000
     r = _run(["bench", "transmittance", scene, "--quick", "--estimators", "ratio,nope"])
     assert r.returncode == 2 and "nope" in r.stderr
+    # An empty grid: no shadow ray reaches it, and the report says so instead of dividing by
+    # zero; its camera segments are exact for every estimator, which tie (found by an
+    # outside check). The profile sweep's tight constant profiles tie the same way.
+    np.save(tmp_path / "zero.npy", np.zeros((8, 8, 8), np.float32))
+    r = _run(["bench", "transmittance", scene, "--quick", "--rays", "64", "--estimators",
+              "track_length,residual_ratio,unbiased_raymarch", "--json", str(out),
+              "-D", f"medium.density={{file='{tmp_path / 'zero.npy'}'}}"])
+    assert r.returncode == 0 and "Warning" not in r.stderr, r.stderr
+    assert "no shadow segments recorded: left out" in r.stdout
+    rep = json.loads(out.read_text())
+    assert [g["rays"] for g in rep["grids"]] == ["camera segments"]
+    assert rep["exact_ties"] >= 1 and "several exact" in r.stdout
+    assert rep["summary"]["track_length"]["wins"] == 0
 
 
 def test_bench_render_speed_against_error(tmp_path):

@@ -125,6 +125,13 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["bench", "sparse", "--device", "99"], "--device"),
     # Before the "rendering" line, so that the error is the only line.
     (["render", "{tiny}", "--resume", "missing.ckpt"], "no such checkpoint file"),
+    # A 1-spp reference has no noise estimate: every error came out NaN, silently.
+    (["bench", "render", "{tiny}", "--reference-spp", "1"], "--reference-spp"),
+    (["bench", "lanes", "{tiny}", "--reference-spp", "1"], "--reference-spp"),
+    (["peer", "mitsuba", "{tiny}", "--reference-spp", "1"], "--reference-spp"),
+    # analytic on a grid rendered the majorant's transmittance under the label "analytic".
+    (["bench", "render", "{tiny}", "-D", "medium.density={generator='cloud', resolution=8}",
+      "--transmittances", "analytic,ratio"], "analytic is exact in homogeneous media only"),
     (["render", "{tiny}", "--resume", "."], "not a regular file"),
     (["render", "{tiny}", "--resume", "/dev/zero"], "not a regular file"),
     # Before rendering, not after: /proc takes no new file, whatever os.access says to root.

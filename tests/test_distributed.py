@@ -288,7 +288,12 @@ def test_ctrl_c_at_the_terminal_stops_a_local_cluster_render(tmp_path):
                     break
                 out += data
     finally:
+        # The terminal closes before the process has closed its cluster and exited.
+        deadline = time.monotonic() + 120
         done, status = os.waitpid(pid, os.WNOHANG)
+        while not done and time.monotonic() < deadline:
+            time.sleep(0.2)
+            done, status = os.waitpid(pid, os.WNOHANG)
         if not done:
             os.kill(pid, signal.SIGKILL)
             os.waitpid(pid, 0)

@@ -325,12 +325,13 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
     for runner in runners.values():
         if hasattr(runner, "close"):
             runner.close()
-    best = min((r for r in results if r["backend"] not in NOT_VOLMC),
-               key=lambda r: r["mse_seconds"])
+    best = best_volmc(results)
     for r in results:
-        r["time_to_equal_error_vs_best_volmc"] = r["mse_seconds"] / best["mse_seconds"]
+        r["time_to_equal_error_vs_best_volmc"] = (r["mse_seconds"] / best["mse_seconds"]
+                                                  if best else math.nan)
     report = {"scene": scene.file, "resolution": [w, h], "spp_levels": list(spp_levels),
-              "reference_spp": reference_spp, "repeats": repeats, "best_volmc": best["name"],
+              "reference_spp": reference_spp, "repeats": repeats,
+              "best_volmc": best["name"] if best else None,
               "lookup_ceiling": ceiling or {}, "results": results}
     own = scene.render
     same = [r for r in results if (r["backend"], r["majorant"], r["free_flight"],
@@ -342,7 +343,7 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
     for r in results:
         if r["backend"] in PEER_BACKENDS:
             report[f"{r['backend']}_time_to_equal_error_vs_best_volmc"] = \
-                r["mse_seconds"] / best["mse_seconds"]
+                r["time_to_equal_error_vs_best_volmc"]
     return report
 
 
@@ -361,6 +362,15 @@ def majorant_pairs(report):
     return out
 
 
+def best_volmc(results):
+    """The volmc row of least MSE x time among those that measured an error, or None. A row
+    whose every RMSE was at or below the reference's noise has NaN there, which min() would
+    have kept whenever it came first."""
+    measured = [r for r in results if r["backend"] not in NOT_VOLMC and
+                math.isfinite(r["mse_seconds"])]
+    return min(measured, key=lambda r: r["mse_seconds"]) if measured else None
+
+
 def print_report(report, log=print):
     log(f"\nspeed against error ({report['resolution'][0]}x{report['resolution'][1]}, spp "
         f"{report['spp_levels']} x {report['repeats']}, reference {report['reference_spp']} "
@@ -371,13 +381,20 @@ def print_report(report, log=print):
             f"{b} {v / 1e6:.1f} M/s" for b, v in ceiling.items()))
     log(f"  {'configuration':46s} {'samples/s':>10s} {'lookups/':>9s} {'of ceil.':>8s} "
         f"{'MSE x s':>10s} {'time to equal error':>20s}")
-    for r in sorted(report["results"], key=lambda r: r["mse_seconds"]):
+    for r in sorted(report["results"], key=lambda r: (math.isnan(r["mse_seconds"]),
+                                                      r["mse_seconds"])):
         frac = r.get("fraction_of_lookup_ceiling")
         lps = r.get("lookups_per_sample")
+        ratio = r["time_to_equal_error_vs_best_volmc"]
+        mse = r["mse_seconds"]
+        cost = (f"{mse:10.3e} " if math.isfinite(mse) else f"{'(RMSE 0)':>10s} ") + (
+            f"{ratio:14.2f} x best" if math.isfinite(ratio) else f"{'-':>21s}")
         log(f"  {r['name']:46s} {r['samples_per_second']:10.0f} "
             f"{'' if lps is None else f'{lps:9.1f}':>9s} "
-            f"{'' if frac is None else f'{100 * frac:7.1f}%':>8s} {r['mse_seconds']:10.3e} "
-            f"{r['time_to_equal_error_vs_best_volmc']:14.2f} x best")
+            f"{'' if frac is None else f'{100 * frac:7.1f}%':>8s} {cost}")
+    if report["best_volmc"] is None:
+        log("  no volmc configuration measured an error above the reference's noise: raise "
+            "--reference-spp, or the spp levels' lowest")
     for name, title in (("mitsuba", "Mitsuba 3"), ("cycles", "Cycles")):
         key = f"{name}_time_to_equal_error_vs_best_volmc"
         if key in report:

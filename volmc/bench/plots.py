@@ -22,8 +22,9 @@ def _plt():
 
 def heatmaps(report, path):
     """Per estimator: log10 of 1/(MSE x lookups) over target T x majorant tightness,
-    geometric mean over the 1-D profiles (zero-error cases shown at the colour maximum). MSE,
-    not variance, so the biased ray marcher is charged for its bias."""
+    geometric mean over the 1-D profiles (zero-error cases shown at the colour maximum, cases
+    without a measure left out). MSE, not variance, so the biased ray marcher is charged for
+    its bias."""
     from ..techniques import ESTIMATORS
     names = [n for n in report["estimators"] if not ESTIMATORS[n].homogeneous_only]
     Ts = sorted({r["target_T"] for r in report["profiles"]})
@@ -36,7 +37,9 @@ def heatmaps(report, path):
             if n not in r["results"]:
                 continue
             e = r["results"][n]["eff_mse_lookups"]
-            e = 1e12 if not math.isfinite(e) else e
+            if math.isnan(e):   # no measure: a noisy estimate at no lookup, or non-finite
+                continue
+            e = 1e12 if math.isinf(e) else e
             i, j = ks.index(r["tightness"]), Ts.index(r["target_T"])
             acc[i, j] += math.log10(max(e, 1e-12))
             cnt[i, j] += 1

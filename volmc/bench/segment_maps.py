@@ -198,7 +198,7 @@ def plan(names, replays, seed=41, log=print, min_segments=MIN_SEGMENTS):
            "min_segments": min_segments, "max_segments": MAX_SEGMENTS,
            "per_segment": PER_SEGMENT, "n_pieces": int(n_all), "n_homogeneous": int(n_homog),
            "bins": bins, "auto": rule is not None}
-    if rule is not None:
+    if rule is not None and len(pieces):   # (an empty grid has no majorant segments)
         length = float(np.median(pieces[:, 2] - pieces[:, 1]))
         taus, ratios, grid = rule_regions(rule, rule_names_, length)
         out["auto_regions"] = {"length": length, "tau_bar": taus, "bound_ratio": ratios,
@@ -224,23 +224,27 @@ def _finish_bin(row, truths):
     return finish
 
 
+def most_efficient(effs):
+    """The name of the largest efficiency in {name: efficiency}, or None when there is no
+    single one: NaN (an estimate went non-finite) is no efficiency, and an infinite one
+    (variance 0: exact) wins only alone; several exact estimators tie."""
+    finite = {n: e for n, e in effs.items() if not math.isnan(e)}
+    if not finite:
+        return None
+    top = max(finite.values())
+    best = [n for n, e in finite.items() if e == top]
+    return best[0] if len(best) == 1 or math.isfinite(top) else None
+
+
 def winners(results):
     """The most efficient unbiased fixed estimator by 1 / (variance x lookups) and by
     1 / (MSE x time). "auto" is not a contender: it runs one of the others (on a lone
     transmittance, unbiased ray marching in these grey media), and the maps are what its
     rule is judged against."""
-    out = {}
-    for key, label in (("eff_var_lookups", "winner_var_lookups"),
-                       ("eff_mse_time", "winner_mse_time")):
-        best, best_e = None, -1.0
-        for n, r in results.items():
-            if not ESTIMATORS[n].unbiased or n == "auto":
-                continue
-            e = r[key] if math.isfinite(r[key]) else 1e300
-            if e > best_e:
-                best, best_e = n, e
-        out[label] = best
-    return out
+    return {label: most_efficient({n: r[key] for n, r in results.items()
+                                   if ESTIMATORS[n].unbiased and n != "auto"})
+            for key, label in (("eff_var_lookups", "winner_var_lookups"),
+                               ("eff_mse_time", "winner_mse_time"))}
 
 
 def win_counts(maps):

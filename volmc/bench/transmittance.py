@@ -111,6 +111,18 @@ def _optical_depths(grid, bmin, bmax, scale, rays):
     return out
 
 
+def efficiency(error, cost):
+    """1 / (error x cost): inf for an exact estimator (error 0), NaN where it is not a
+    measure -- an error that is NaN (an estimate went non-finite), or a noisy estimator
+    that made no lookups (track length on a homogeneous segment: Bernoulli(T) at no
+    lookup), which 1 / (V x L) cannot weigh against the others."""
+    if math.isnan(error) or math.isnan(cost):
+        return math.nan
+    if error == 0.0:
+        return math.inf
+    return 1.0 / (error * cost) if cost > 0.0 else math.nan
+
+
 def stats(est, exact, counters, seconds, n_per_ray):
     """Metrics of estimates ``est`` [n_rays * n_per_ray] against per-ray truths ``exact``;
     ``counters`` [n, N_COUNTERS] per estimate. The guard counts (estimates that hit the step
@@ -138,9 +150,9 @@ def stats(est, exact, counters, seconds, n_per_ray):
         "mean": float(e.mean()), "truth": float(np.mean(exact)), "bias": mean_err,
         "stderr": se, "bias_z": z, "variance": var, "mse": mse, "lookups": lk,
         "seconds_per_estimate": t,
-        "eff_var_lookups": 1.0 / (var * lk) if var * lk > 0 else math.inf,
-        "eff_mse_time": 1.0 / (mse * t) if mse * t > 0 else math.inf,
-        "eff_mse_lookups": 1.0 / (mse * lk) if mse * lk > 0 else math.inf,
+        "eff_var_lookups": efficiency(var, lk),
+        "eff_mse_time": efficiency(mse, t),
+        "eff_mse_lookups": efficiency(mse, lk),
         "variance_at_budget": var * max(lk, 1.0) / BUDGET,
         "guards": guards,
     }
@@ -283,6 +295,9 @@ def run(names=None, scenes=(), n_per_case=2048, n_rays=1024, n_per_ray=64, quick
         cases = replay_cases(rec, n, seed=3)
         replays.append((rec, np.concatenate([c[1] for c in cases])))
         for label, rays, exact in cases:
+            if not len(rays):   # no shadow ray reached the medium (an empty grid), say
+                log(f"  {scene.file}: no {label} recorded: left out")
+                continue
             pieces = segment_maps.majorant_pieces(
                 rec.medium, np.asarray(rec.grid, np.float64), np.asarray(rec.maj, np.float64),
                 np.asarray(rec.mnr, np.float64), rec.nodes, rays)
@@ -314,7 +329,7 @@ def run(names=None, scenes=(), n_per_case=2048, n_rays=1024, n_per_ray=64, quick
         finish(launches, res)
         if (i + 1) % step == 0 or i + 1 == len(plan):
             log(f"  {i + 1} of {len(plan)} cases done")
-    report["summary"] = summarise(report)
+    report["summary"], report["exact_ties"] = summarise(report)
     return report
 
 
@@ -346,25 +361,27 @@ def convergence(est, exact, lookups, seconds, n_per_ray):
 
 
 def summarise(report):
-    """Per estimator: geometric-mean efficiency over the profile sweep and the number of
-    sweep points where it is the most efficient unbiased estimator."""
+    """(per estimator: geometric-mean efficiency over the profile sweep and the number of
+    sweep points where it is the most efficient unbiased estimator; the number of sweep
+    points with no single one, where several are exact)."""
     names = report["estimators"]
     eff = {n: [] for n in names}
     wins = {n: 0 for n in names}
+    ties = 0
     for row in report["profiles"]:
-        best, best_eff = None, -1.0
         for n, r in row["results"].items():
-            e = r["eff_var_lookups"]
-            if math.isfinite(e):
-                eff[n].append(e)
-            e_rank = e if math.isfinite(e) else 1e300
-            if (report["unbiased"][n] and not ESTIMATORS[n].homogeneous_only and n != "auto"
-                    and e_rank > best_eff):   # auto runs one of the others
-                best, best_eff = n, e_rank
+            if math.isfinite(r["eff_var_lookups"]):
+                eff[n].append(r["eff_var_lookups"])
+        best = segment_maps.most_efficient({   # auto runs one of the others
+            n: r["eff_var_lookups"] for n, r in row["results"].items()
+            if report["unbiased"][n] and not ESTIMATORS[n].homogeneous_only and n != "auto"})
         if best:
             wins[best] += 1
-    return {n: {"geomean_eff_var_lookups": float(np.exp(np.mean(np.log(eff[n]))))
-                if eff[n] else None, "wins": wins[n]} for n in names}
+        else:
+            ties += 1
+    out = {n: {"geomean_eff_var_lookups": float(np.exp(np.mean(np.log(eff[n]))))
+               if eff[n] else None, "wins": wins[n]} for n in names}
+    return out, ties
 
 
 def print_report(report, log=print):
@@ -389,6 +406,8 @@ def print_report(report, log=print):
     for n, s in report["summary"].items():
         g = s["geomean_eff_var_lookups"]
         log(f"{n:>17s} {('%.3e' % g) if g else '     n/a':>10s}  best in {s['wins']}")
+    if report.get("exact_ties"):
+        log(f"{'':>17s} {'':>10s}  no single best in {report['exact_ties']} (several exact)")
     if report.get("maps"):
         maps = report["maps"]
         wins = segment_maps.win_counts(maps)

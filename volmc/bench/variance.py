@@ -295,7 +295,7 @@ def print_combined(full, log=print):
     names = scene_names(full["scenes"])
     width = max([12] + [len(n) for n in names])
     log("\nrelative efficiency against plain ((MSE x s)_plain / (MSE x s); > 1 is better, "
-        "- = skipped)")
+        "- = skipped, or no error measured above the reference's noise)")
     log(f"  {'switch':16s} " + " ".join(f"{n:>{width}s}" for n in names))
     for label, row in table.items():
         log(f"  {label:16s} " + " ".join(f"{_num(row[n], '.3f'):>{width}s}" for n in names))

@@ -138,12 +138,17 @@ def cmd_bench_render(args):
         check_checkout(b)
     path = scene_path(args)
     scene = load_scene(path, args.defines)
-    homogeneous = isinstance(scene.spec.medium.density, ConstantDensity)
+    homogeneous = all(isinstance(m.density, ConstantDensity) for m in scene.spec.media)
     if args.transmittances == "scene":
         ests = [scene.render.transmittance]
     elif args.transmittances:
         from ..techniques import ESTIMATORS
         ests = comma_list(args.transmittances, "--transmittances", tuple(ESTIMATORS))
+        exact = [n for n in ests if ESTIMATORS[n].homogeneous_only]
+        if exact and not homogeneous:   # it would render the majorant's transmittance
+            raise SceneError("command line", "--transmittances",
+                             f"{exact[0]} is exact in homogeneous media only, and {path} has "
+                             f"a medium whose density is not a constant")
     else:
         from ..techniques import ESTIMATORS
         exact = [n for n, e in ESTIMATORS.items() if e.homogeneous_only]

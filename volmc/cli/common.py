@@ -64,6 +64,17 @@ def spp_count(text):
     return v
 
 
+def reference_spp_count(text):
+    """The samples per pixel of a reference whose own noise is subtracted: an spp_count of
+    at least 2, since its variance is estimated from its samples (one sample has none, and
+    every error would come out NaN)."""
+    v = spp_count(text)
+    if v < 2:
+        raise argparse.ArgumentTypeError(f"must be at least 2 (the reference's own noise is "
+                                         f"estimated from its samples), got {v}")
+    return v
+
+
 WORKERS_PER_CPU = 4
 
 
@@ -156,8 +167,9 @@ def add_ladder_arguments(p, repeats, levels="4,16,64", reference_spp=1024):
     p.add_argument("--spp-levels", default=levels,
                    help=f"comma-separated samples per pixel of the timed renders (default "
                         f"{levels})")
-    p.add_argument("--reference-spp", type=spp_count, default=reference_spp,
-                   help=f"samples per pixel of the reference (default {reference_spp})")
+    p.add_argument("--reference-spp", type=reference_spp_count, default=reference_spp,
+                   help=f"samples per pixel of the reference, at least 2 (default "
+                        f"{reference_spp})")
     p.add_argument("--repeats", type=positive_int, default=repeats,
                    help=f"passes over the spp ladder (default {repeats})")
 

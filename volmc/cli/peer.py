@@ -35,9 +35,10 @@ def add_peer_parser(sub):
 def cmd_peer(args):
     from ..peers import PeerUnavailable, compare_with_peer
     from ..scene import load_scene
-    if args.reference_spp is not None and args.reference_spp < 0:
+    if args.reference_spp is not None and (args.reference_spp < 0 or args.reference_spp == 1):
         raise SceneError("command line", "--reference-spp",
-                         f"must be 0 or a positive integer, got {args.reference_spp}")
+                         f"must be 0 (agreement only) or at least 2 (the reference's own "
+                         f"noise is estimated from its samples), got {args.reference_spp}")
     if args.json:
         check_writable(args.json, "--json")
     if args.images:
