@@ -110,6 +110,26 @@ static inline lfloat unbiased_raymarch_segment(const MediumData *med, lvec3 o, l
     return select((lfloat)(1.0f), urm_series(x0, ys, n, on), on);
 }
 
+/* Twins of cmf_rescale and cmf_scaled_result in power_series.py: acc and prod times the
+ * same exact power of two when |acc| leaves [CMF_RESCALE_LO, CMF_RESCALE_HI], e counting it;
+ * and acc 2^(CMF_RESCALE_BITS e) exp(-left tau_per_order) in the log domain. */
+static inline void cmf_rescale(lfloat *acc, lfloat *prod, lint *e, lmask active) {
+    lfloat a = fabs(*acc);
+    lmask big = active & (a > CMF_RESCALE_HI);
+    lmask small = active & (a > 0.0f) & (a < CMF_RESCALE_LO);
+    lfloat f = select(select((lfloat)(1.0f), (lfloat)(CMF_RESCALE_HI), small),
+                      (lfloat)(CMF_RESCALE_LO), big);
+    *acc = *acc * f;
+    *prod = *prod * f;
+    *e = *e + (big & 1) - (small & 1);
+}
+
+static inline lfloat cmf_scaled_result(lfloat acc, lint e, lint left, lfloat tau_per_order) {
+    lfloat r = copysign(exp(log(fabs(acc)) + to_lfloat(e) * CMF_RESCALE_LN -
+                            to_lfloat(left) * tau_per_order), acc);
+    return select(r, (lfloat)(0.0f), acc == 0.0f || !finite_bits(acc));
+}
+
 static inline lfloat power_series_segment(const MediumData *med, lvec3 o, lvec3 d, lfloat t0,
                                           lfloat t1, lfloat mbar, lfloat mu_c, Rng *rng,
                                           lulong *counters, int max_steps, lmask active) {
@@ -124,6 +144,7 @@ static inline lfloat power_series_segment(const MediumData *med, lvec3 o, lvec3 
     lfloat g = exp(-tau_bar / to_lfloat(n_det));
     lfloat acc = (lfloat)(1.0f);
     lfloat prod = (lfloat)(1.0f);
+    lint e = (lint)(0);
     lint k = (lint)(0);
     /* The deterministic orders: a lane that stops early returns acc g^(n_det - k). */
     lmask more = on & (k < n_det), early = (lmask)(0);
@@ -139,9 +160,10 @@ static inline lfloat power_series_segment(const MediumData *med, lvec3 o, lvec3 
         acc = select(acc, acc * g + prod, more);
         lmask zero = more & (prod == 0.0f);
         early = early | zero;
+        cmf_rescale(&acc, &prod, &e, more & !zero);
         more = more & !zero & (k < n_det);
     }
-    lfloat result = acc * pown(g, n_det - k);
+    lfloat result = cmf_scaled_result(acc, e, n_det - k, tau_bar / to_lfloat(n_det));
     /* The random orders (Russian roulette on the series). */
     more = on & !early;
     lfloat q = (lfloat)(1.0f);
@@ -157,7 +179,9 @@ static inline lfloat power_series_segment(const MediumData *med, lvec3 o, lvec3 
         prod = select(prod, prod * (y / to_lfloat(k)), more);
         acc = select(acc, acc + prod / q, more);
         more = more & (prod != 0.0f);
+        cmf_rescale(&acc, &prod, &e, more);
     }
+    acc = ldexp(acc, e * CMF_RESCALE_BITS);
     acc = select((lfloat)(0.0f), acc, finite_bits(acc));
     return select((lfloat)(1.0f), select(acc, result, early), on);
 }

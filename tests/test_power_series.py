@@ -360,17 +360,11 @@ def _kernel_cases():
     return grid, out
 
 
-@pytest.mark.parametrize("kind", ESTIMATORS, ids=IDS)
-def test_kernel_matches_reference(cl_prog, kind):
-    """Same rays, media and streams on both sides: per-estimate values and lookup counts agree
-    for the vast majority (float32 can flip a rare roulette or rounding branch), and each
-    ray's mean agrees with the reference's and with the exact transmittance."""
+def _kernel_estimates(kernel, kind, grid, cases, n_per, seed):
+    """(estimates float32 [cases x n_per], lookups) of the kernel on ``cases`` (as
+    _kernel_cases gives them); estimate i of case r on stream (seed, r, i, STREAM_TEST)."""
     import cl_harness
     from cl_harness import clc, out_buf, to_dev
-    kernel = cl_prog
-    grid, cases = _kernel_cases()
-    n_per = 2000
-    seed = 17
     meds = np.zeros(len(cases), medium_dtype(np.float32))
     rays = np.zeros((len(cases), RAY_STRIDE), np.float32)
     for r, (med, o, d, t0, t1, mbar, mu_c) in enumerate(cases):
@@ -383,8 +377,42 @@ def test_kernel_matches_reference(cl_prog, kind):
                    to_dev(grid.ravel()), to_dev(rays.ravel()), np.int32(n_per),
                    np.uint64(seed), np.int32(MAX_STEPS), ob, cb, np.int32(n),
                    outs=[(out, ob), (counts, cb)])
-    lk_cl = counts[0::2].astype(np.int64)
     assert counts[1::2].sum() == 0
+    return out, counts[0::2].astype(np.int64)
+
+
+def test_pseries_thick_segment_stays_in_float_range(cl_prog):
+    """A majorant segment of optical depth 500 (LAMBDA = 500 with no control) over a medium
+    of optical depth 60: the deterministic partial products grow like e^(500 / e), past
+    float32, and the kernel's estimates were NaN wherever an inf met a zero factor (found
+    on a scale-2000 grid by an outside check: 2 % of rays NaN). Rescaled by powers of two
+    (cmf_rescale), kernel and reference give e^-60 to their precision, estimate by
+    estimate."""
+    med = _profile("constant", 60.0)
+    mbar = float(med["density"]) * 500.0 / 60.0
+    f32 = lambda x: np.float64(np.float32(x))  # noqa: E731
+    med32 = np.asarray(med).astype(medium_dtype(np.float32)).astype(medium_dtype(np.float64))
+    cases = [(med32, O, D, T0, T1, f32(mbar), 0.0)]
+    grid = np.zeros((1, 1, 1), np.float32)
+    cl, _ = _kernel_estimates(cl_prog, PSERIES, grid, cases, 500, 23)
+    ref, _, _ = _estimates(PSERIES, med32, grid.astype(np.float64), O, D, T0, T1, f32(mbar),
+                           0.0, 500, 23, MAX_STEPS)
+    exact = math.exp(-optical_depth_profile(med32, T0, T1))
+    assert np.all(np.isfinite(cl)) and np.all(cl > 0)
+    np.testing.assert_allclose(cl, ref, rtol=2e-3)
+    se = ref.std(ddof=1) / math.sqrt(ref.size)
+    assert abs(ref.mean() - exact) <= z_bound(ALPHA, 1) * se + 1e-9 * exact
+
+
+@pytest.mark.parametrize("kind", ESTIMATORS, ids=IDS)
+def test_kernel_matches_reference(cl_prog, kind):
+    """Same rays, media and streams on both sides: per-estimate values and lookup counts agree
+    for the vast majority (float32 can flip a rare roulette or rounding branch), and each
+    ray's mean agrees with the reference's and with the exact transmittance."""
+    grid, cases = _kernel_cases()
+    n_per = 2000
+    seed = 17
+    out, lk_cl = _kernel_estimates(cl_prog, kind, grid, cases, n_per, seed)
 
     g64 = grid.astype(np.float64)
     bound = z_bound(ALPHA, 2 * len(cases))

@@ -302,6 +302,14 @@ CMF_GOAL = 0.99
 CMF_FIT_0 = 0.015
 CMF_FIT_1 = 0.65
 CMF_FIT_2 = 60.3
+#: The p-series CMF estimator's running sums are kept between 2^-CMF_RESCALE_BITS and
+#: 2^CMF_RESCALE_BITS by exact power-of-two rescaling (their partial products grow like
+#: e^(lam / e) before exp(-tau_bar) brings them down: past float32 from lam ~ 240 on) ...
+CMF_RESCALE_BITS = 64
+#: ... these two factors, and the natural log of the first, apply it.
+CMF_RESCALE_HI = 2.0 ** CMF_RESCALE_BITS
+CMF_RESCALE_LO = 2.0 ** -CMF_RESCALE_BITS
+CMF_RESCALE_LN = CMF_RESCALE_BITS * math.log(2.0)
 
 
 def _urm_mean_order(p_zero, k_det, c):

@@ -34,8 +34,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ..constants import (CMF_FIT_0, CMF_FIT_1, CMF_FIT_2, CMF_GOAL, URM_C, URM_K,  # noqa: F401
-                         URM_MAX_ORDER, URM_MEAN_ORDER, URM_P_ZERO)
+from ..constants import (CMF_FIT_0, CMF_FIT_1, CMF_FIT_2, CMF_GOAL,  # noqa: F401
+                         CMF_RESCALE_BITS, CMF_RESCALE_HI, CMF_RESCALE_LN, CMF_RESCALE_LO,
+                         URM_C, URM_K, URM_MAX_ORDER, URM_MEAN_ORDER, URM_P_ZERO)
 from ..params import C_CAPPED
 from .medium import extinction, optical_depth_comb, segment_degenerate
 from .guards import finite_bits
@@ -240,9 +241,14 @@ def power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps
     unbiased for any LAMBDA > 0; LAMBDA = 0 (mu_c >= mbar) is correct only when mu = mbar.
 
     Numerics: exp(-tau_bar) is split evenly over the deterministic orders (factor
-    g = exp(-tau_bar / n) per order, summed Horner-style), so neither it nor the growing
-    partial products over- or underflow in float32 for tau_bar in the hundreds. A zero
-    factor (mu = mbar at a sample) makes every later term zero, so the walk stops there.
+    g = exp(-tau_bar / n) per order, summed Horner-style), so it never underflows alone. The
+    partial products still grow like e^(LAMBDA / e) before the g's bring them down, past
+    float32 from LAMBDA ~ 240 on (a majorant segment of optical depth 500: NaN estimates
+    once an inf met a zero factor). So the running sum and product are rescaled together by
+    exact powers of two (``cmf_rescale``) whenever the sum leaves [2^-64, 2^64], the
+    exponent counted apart and applied at the end (``cmf_scaled_result``); where nothing
+    leaves that range the numbers are those of the plain sums bit for bit. A zero factor
+    (mu = mbar at a sample) makes every later term zero, so the walk stops there.
 
     Expected lookups: n + sum_{k > n} P(N >= k): 1 at LAMBDA = 0, 4.1 at 0.5, 5.2 at 1,
     9.4 at 3, 19.9 at 10, 45.8 at 30 (``cmf_lookup_budget`` fits this); fewer when a factor
@@ -263,18 +269,20 @@ def power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps
     g = math.exp(-tau_bar / n_det)
     acc = 1.0      # sum_{j <= k} V_j g^(k - j); equals the estimate once k = n_det
     prod = 1.0     # V_k = g^min(k, n_det) prod_{j <= k} Y_j / j
+    e = 0          # both are 2^(-CMF_RESCALE_BITS e) times their value
     k = 0
     while k < n_det:
         if k == max_steps:
             counters[C_CAPPED] += 1
-            return acc * g ** (n_det - k)
+            return cmf_scaled_result(acc, e, n_det - k, tau_bar / n_det)
         k += 1
         x = t0 + rng_next(rng) * L
         y = (mbar - extinction(med, madd3(o, d, x), mbar, counters)) * L
         prod *= g * y / k
         acc = acc * g + prod
         if prod == 0.0:
-            return acc * g ** (n_det - k)
+            return cmf_scaled_result(acc, e, n_det - k, tau_bar / n_det)
+        acc, prod, e = cmf_rescale(acc, prod, e)
     q = 1.0
     while True:
         q *= min(1.0, lam / (k + 1))
@@ -290,6 +298,33 @@ def power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps
         acc += prod / q
         if prod == 0.0:
             break
+        acc, prod, e = cmf_rescale(acc, prod, e)
+    acc = math.ldexp(acc, CMF_RESCALE_BITS * e)
     if not finite_bits(acc):
         return 0.0
     return acc
+
+
+@njit(cache=True, inline="always")
+def cmf_rescale(acc, prod, e):
+    """(acc, prod, e) with acc and prod multiplied by the same exact power of two, and e
+    counting it, when |acc| leaves [CMF_RESCALE_LO, CMF_RESCALE_HI] (0 stays 0): the sums are
+    linear in both, so a common factor carries through to the end."""
+    a = abs(acc)   # (negative only under a majorant too low)
+    if a > CMF_RESCALE_HI:
+        return acc * CMF_RESCALE_LO, prod * CMF_RESCALE_LO, e + 1
+    if 0.0 < a < CMF_RESCALE_LO:
+        return acc * CMF_RESCALE_HI, prod * CMF_RESCALE_HI, e - 1
+    return acc, prod, e
+
+
+@njit(cache=True, inline="always")
+def cmf_scaled_result(acc, e, left, tau_per_order):
+    """acc 2^(CMF_RESCALE_BITS e) g^left, g = exp(-tau_per_order): the estimate of a walk
+    that stopped ``left`` deterministic orders early, in the log domain (each factor alone
+    may be out of range where the product is not); 0 for a non-finite acc."""
+    if acc == 0.0 or not finite_bits(acc):
+        return 0.0
+    # (negative only under a majorant too low, counted in C_OVER_MAJORANT)
+    return math.copysign(math.exp(math.log(abs(acc)) + e * CMF_RESCALE_LN -
+                                  left * tau_per_order), acc)
