@@ -264,13 +264,13 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     every = _seconds(checkpoint_every, where, "checkpoint_every")
     with _client(client, where) as client:
         # By name: the driver checks the memory the scene needs before it builds the backend.
+        from .scene.errors import VolmcError
         try:
             result = _render(scene, backend=name, device=device, progress=bool(progress),
                              client=client, checkpoint=checkpoint, checkpoint_every=every,
                              resume=resume, lanes=lanes, albedo=bool(albedo))
-        except Exception as e:
-            from .scene.errors import VolmcError
-            if not isinstance(e, VolmcError) or e.key != "--resume":
+        except VolmcError as e:
+            if e.key != "--resume":
                 raise
             # The checkpoint's errors name the command line's option; here it is resume=.
             raise _error(e.file, "resume", e.message) from None
@@ -526,9 +526,8 @@ class RenderedImage:
         # Before the image: a render's files are written all or none.
         if variance:
             check_output(variance_path(path), "variance", where)
-        if denoised:
-            check_output(denoised_path(path), "denoised", where)
         if denoised:   # before any file: a missing denoiser leaves nothing half written
+            check_output(denoised_path(path), "denoised", where)
             from .denoise import denoise_film, denoised_metadata
             film = self.result.film
             rgba = denoise_film(film, where, "denoised")

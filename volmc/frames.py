@@ -99,10 +99,10 @@ def is_complete(exr, ident):
     return meta.get("partial") == 0 and meta.get("frame_identity") == ident
 
 
-def frame_outputs(exr, png=None, variance=False, denoise=False):
-    """(role, path) of every file a frame writes, its EXR ``exr`` last (the file that marks
-    the frame complete): "png" (``png``, the frame's PNG path, or None), "variance",
-    "denoise" (beside the EXR, and the PNG), "exr"."""
+def render_outputs(exr, png=None, variance=False, denoise=False):
+    """(role, path) of every file a render (a frame, or ``volmc render``) writes, its EXR
+    ``exr`` last (the file that marks a frame complete): "png" (``png``, the PNG's path, or
+    None), "variance", "denoise" (beside the EXR, and the PNG), "exr"."""
     from .denoise import denoised_path
     from .film import variance_path
     out = [("png", png)] if png else []
@@ -131,7 +131,7 @@ class FrameSequence:
     def plan(self, output, backend, png=None, variance=False, denoise=False):
         """[FramePlan] of each frame: its EXR (None without ``output``), its identity and
         whether it is complete (its EXR, and the other files asked for by ``png``, the
-        sequence's PNG path, ``variance`` and ``denoise``: frame_outputs). A frame to render
+        sequence's PNG path, ``variance`` and ``denoise``: render_outputs). A frame to render
         whose grid file is missing raises
         SceneError (naming the scene file and key, listing the frames on disk): before
         anything renders, so a run does not end halfway, and only for those frames, since
@@ -143,7 +143,7 @@ class FrameSequence:
             exr = frame_path(output, f) if output else None
             complete = bool(exr) and is_complete(exr, ident) and all(
                 os.path.isfile(path) for _, path in
-                frame_outputs(exr, png and frame_path(png, f), variance, denoise))
+                render_outputs(exr, png and frame_path(png, f), variance, denoise))
             if not complete:
                 substitute(self.raw, f, self.file, self.file_dir)
             out.append(FramePlan(f, ident, exr, complete))
@@ -189,7 +189,7 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
     ``denoise``: each frame's denoised preview is written beside its EXR and PNG
     (denoise.write_denoised; render_one then renders with the albedo AOV). Every file comes
     before the EXR that marks the frame complete. ``keys``: role -> (file, key) of the
-    one-line error when a frame's file cannot be written (frame_outputs' roles; default the
+    one-line error when a frame's file cannot be written (render_outputs' roles; default the
     command line's flags); the frame's image is then saved to the temporary directory."""
     from .film import rescue_exr, write_exr, write_png
     keys = {**CLI_KEYS, **(keys or {})}
@@ -204,10 +204,9 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
             img.result.extra.update(frame=f, frame_identity=ident)
             meta, rgba = img.metadata(), img.result.film.rgba()
             transparent = img.scene.render.transparent_background
-            outputs = frame_outputs(exr, png and frame_path(png, f), variance, denoise)
-            role, path = outputs[0]
             try:
-                for role, path in outputs:
+                for role, path in render_outputs(exr, png and frame_path(png, f), variance,
+                                                 denoise):
                     if role == "png":
                         write_png(path, img.image, exposure, tonemap,
                                   alpha=img.alpha if transparent else None)
@@ -231,6 +230,7 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
             return
 
 
-#: The (file, key) of the one-line error naming the option that asked for a frame's file.
+#: The (file, key) of the one-line error naming the option that asked for a render's file
+#: (render_outputs' roles).
 CLI_KEYS = {"exr": ("command line", "-o"), "png": ("command line", "--png"),
             "variance": ("command line", "--variance"), "denoise": ("command line", "--denoise")}

@@ -152,11 +152,9 @@ def _write_or_rescue(out, rgba, meta):
 def _outputs(args, out, png):
     """(path, flag) of every file ``volmc render`` writes for EXR ``out`` and PNG ``png``
     (or None), the flag that asks for it."""
-    from ..denoise import denoised_path
-    from ..film import variance_path
-    images = [(out, "-o")] + ([(png, "--png")] if png else [])
-    return (images + ([(variance_path(out), "--variance")] if args.variance else [])
-            + ([(denoised_path(p), "--denoise") for p, _ in images] if args.denoise else []))
+    from ..frames import CLI_KEYS, render_outputs
+    files = render_outputs(out, png, args.variance, args.denoise)
+    return [(path, CLI_KEYS[role][1]) for role, path in files[-1:] + files[:-1]]   # EXR first
 
 
 def _render_paths(args):
