@@ -8,19 +8,31 @@
 #include "params.h"
 #include "lanes.h"
 
-/* The map-frame direction of texture coordinates (u, v). */
-static inline lvec3 env_direction(lfloat u, lfloat v) {
-    lfloat cp, sp = sincos(TWO_PI * u, &cp);
-    lfloat ct, st = sincos(PI * v, &ct);
-    return v3(sp * st, ct, -cp * st);
+/* sin(pi v) for v in [0, 1], from the nearer pole (reference: env_sin_theta). */
+static inline lfloat env_sin_theta(lfloat v) {
+    return sin(PI * fmin(v, 1.0f - v));
 }
 
-/* Texture coordinates (u, v) of map-frame unit direction w. */
-static inline lvec2 env_uv(lvec3 w) {
+/* The map-frame direction of texture coordinates (u, v); theta from the nearer pole. */
+static inline lvec3 env_direction(lfloat u, lfloat v) {
+    lfloat cp, sp = sincos(TWO_PI * u, &cp);
+    lfloat ct, st = sincos(PI * fmin(v, 1.0f - v), &ct);
+    return v3(sp * st, select(ct, -ct, v > 0.5f), -cp * st);
+}
+
+/* Texture coordinates (u, v) of map-frame unit direction w; writes sin theta. atan2, not
+ * acos(w.y), which is 0 or pi within 2.4e-4 rad of a pole in float32 (environment.py). */
+static inline lvec2 env_uv_sin(lvec3 w, lfloat *sin_theta) {
     lfloat phi = atan2(w.x, -w.z);
     phi = select(phi, phi + TWO_PI, phi < 0.0f);
-    lvec2 uv = {phi / TWO_PI, acos(clamp(w.y, -1.0f, 1.0f)) / PI};
+    *sin_theta = sqrt(w.x * w.x + w.z * w.z);
+    lvec2 uv = {phi / TWO_PI, atan2(*sin_theta, w.y) / PI};
     return uv;
+}
+
+static inline lvec2 env_uv(lvec3 w) {
+    lfloat s;
+    return env_uv_sin(w, &s);
 }
 
 /* Scene direction w in the map's frame, and back. */
@@ -84,7 +96,7 @@ static inline lvec3 sample_environment(const Params *prm, global const float *en
     a = gather_float(conditional, base + c);
     b = gather_float(conditional, base + c + 1);
     lfloat u = (to_lfloat(c) + fmin((u2 - a) / (b - a), 1.0f)) / (float)w;
-    lfloat s = sin(PI * v);
+    lfloat s = env_sin_theta(v);
     *pdf = select((lfloat)(0.0f), gather_float(pdfs, r * w + c) / (2.0f * PI * PI * s),
                   s > 0.0f);
     return env_from_map(prm, env_direction(u, v));
@@ -92,10 +104,10 @@ static inline lvec3 sample_environment(const Params *prm, global const float *en
 
 /* Density per steradian of sample_environment at scene direction w (unit). */
 static inline lfloat environment_pdf(const Params *prm, global const float *env, lvec3 w) {
-    lvec2 uv = env_uv(env_to_map(prm, w));
+    lfloat s;
+    lvec2 uv = env_uv_sin(env_to_map(prm, w), &s);
     lint row;
     lint k = env_texel(prm, uv.x, uv.y, &row);
-    lfloat s = sin(PI * uv.y);
     global const float *pdfs = env + 3 * prm->env_res[0] * prm->env_res[1];
     return select((lfloat)(0.0f), gather_float(pdfs, k) / (2.0f * PI * PI * s), s > 0.0f);
 }
