@@ -270,6 +270,11 @@ def test_transmittance_on_a_grid_matches_the_optical_depth(backend):
     miss = volmc.estimate_transmittance(scene, [[5.0, 5.0, 5.0]], [[1.0, 0.0, 0.0]],
                                         backend=backend)
     assert miss.estimates[0] == 1.0 and miss.lookups[0] == 0
+    # "analytic" would give the majorant's transmittance here (8.6e-6 where T = 1 on the
+    # cloud): refused
+    with pytest.raises(volmc.VolmcError, match="estimator: 'analytic' is exact in a "
+                       "homogeneous medium only"):
+        volmc.estimate_transmittance(scene, o, d, estimator="analytic", backend=backend)
 
 
 def test_transmittance_same_seed_same_estimates():

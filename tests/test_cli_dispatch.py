@@ -86,3 +86,22 @@ def test_console_script_turns_an_early_ctrl_c_into_the_interrupt_line(monkeypatc
     monkeypatch.setattr(cli, "main", interrupted)
     assert console.main() == 130
     assert capsys.readouterr().err == "volmc: interrupted\n"
+
+
+def test_output_into_a_closed_pipe_ends_quietly():
+    """Found by an outside test: `volmc info | head -2` ended in a BrokenPipeError traceback
+    when head left first. The console script ends with 141 (128 + SIGPIPE) and says
+    nothing. The pipe here is closed before volmc writes its first line."""
+    import os
+    import subprocess
+    import sys
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        run = subprocess.run([sys.executable, "-c", "import sys; from volmc.console import "
+                              "main; sys.exit(main())", "info"],
+                             stdout=write, stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write)
+    assert run.returncode == 141, run.stderr
+    assert run.stderr == ""

@@ -211,3 +211,18 @@ def test_bench_denoise_reports_errors_that_fall(tmp_path):
     assert rows[1]["mse_noisy"] < rows[0]["mse_noisy"]
     assert rows[0]["mse_denoised"] < rows[0]["mse_noisy"]
     assert rows[0]["worth_spp"] > 2
+
+
+def test_normal_study_refuses_a_scene_without_a_grid(capsys):
+    """Found by an outside test: `python -m volmc.bench.denoise_normal` on a homogeneous
+    scene was a numpy broadcasting traceback after its reference render, and `--help` was
+    read as a scene path. Now the one-line error, exit status 2, before rendering."""
+    from volmc.bench.denoise_normal import main
+    with pytest.raises(SystemExit) as e:
+        main([str(scenes_dir() / "homogeneous.toml")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("volmc: error: ") and "medium.density" in err and err.count("\n") == 1
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0 and capsys.readouterr().out.startswith("usage:")

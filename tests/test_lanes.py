@@ -358,6 +358,11 @@ def test_cli_lanes(tmp_path):
         assert r.stderr.strip().splitlines() == [f"volmc: error: {what} must be one of 1, 4, 8, "
                                                  f"16, got {'3' if args else '64'!r}"]
         assert not bad.exists()
+    # (as the API's lanes=: the numba backend has no lanes, and ignored the flag before)
+    r = _cli("render", str(scene), "-o", str(bad), "--backend", "numba", "--lanes", "8")
+    assert r.returncode == 2 and not bad.exists()
+    assert r.stderr.strip().splitlines() == [
+        "volmc: error: command line: --lanes: a lane width applies to the opencl backend only"]
     r = _cli("info")
     assert r.returncode == 0 and "lanes: " in r.stdout and "paths per work-item" in r.stdout
     assert "gathers: " in r.stdout

@@ -671,7 +671,8 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     against each other. Each ray is clipped to the medium box and to [0, t_max], as the
     renderer clips its rays, and estimated in the renderer's scene frame (pack.scene_frame).
     estimator: a name in ``volmc.techniques.ESTIMATORS`` ("auto": volmc's choice for a
-    fixed ray; "analytic" is exact only in a homogeneous medium). n: estimates per ray.
+    fixed ray; "analytic", exact only in a homogeneous medium, is refused for a grid). n:
+    estimates per ray.
     backend: "opencl" or "numba"; seed: in [0, 2^64) (same seed, same estimates); device,
     lanes: as for ``render``. Homogeneous media, and homogeneous majorant cells, are traversed exactly.
 
@@ -683,6 +684,7 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     from .pack import pack_scene, scene_frame
     from .params import COUNTER_NAMES, C_LOOKUPS
     from .scene.bricks import stores_bricks
+    from .scene.schema import ConstantDensity
     from .techniques import ESTIMATORS
     where = "volmc.estimate_transmittance()"
     scene = _medium_scene(scene_or_medium, where)
@@ -693,6 +695,10 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
         raise _error(where, "estimator", f"unknown estimator {estimator!r} (have "
                                              f"{', '.join(ESTIMATORS)})")
     est = ESTIMATORS[estimator]
+    if est.homogeneous_only and not isinstance(scene.spec.media[0].density, ConstantDensity):
+        # it would return the majorant's transmittance, not the medium's
+        raise _error(where, "estimator", f"'{estimator}' is exact in a homogeneous medium "
+                     "only, and this medium's density is not a constant")
     chromatic = scene.medium.chromatic
     if chromatic and not est.chromatic:
         raise _error(where, "estimator", f"'{estimator}' estimates grey transmittance only; "

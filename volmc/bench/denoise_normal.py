@@ -60,25 +60,41 @@ def _view_normals(scene, steps=400):
 
 
 def main(argv=None):
+    import argparse
     import volmc
     from ..denoise import denoise
+    from ..scene.errors import SceneError
+    from ..scene.loading import load_scene
     from .denoise import mse, scene_and_reference
-    argv = sys.argv[1:] if argv is None else argv
-    path = argv[0]
-    width = int(argv[1]) if len(argv) > 1 else 128
-    scene, _, ref_img, ref_var, _ = scene_and_reference(path, width)
+    p = argparse.ArgumentParser(prog="python -m volmc.bench.denoise_normal",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("scene", help="a scene of one medium whose density is a grid")
+    p.add_argument("width", nargs="?", type=int, default=128,
+                   help="pixels across (default 128)")
+    args = p.parse_args(argv)
+    try:
+        scene = load_scene(args.scene)
+    except SceneError as e:
+        p.exit(2, f"volmc: error: {e}\n")
+    if len(scene.media) != 1 or scene.grid is None:   # (before the reference's minutes)
+        p.exit(2, f"volmc: error: {args.scene}: medium.density: the normal is the gradient "
+                  "of one medium's density grid, and this scene has none\n")
+    if args.width < 1:
+        p.error(f"width: at least 1, got {args.width}")
+    scene, _, ref_img, ref_var, _ = scene_and_reference(args.scene, args.width)
     normal, share = _view_normals(scene)
 
     def rmse(a):
         return float(np.sqrt(max(mse(a, ref_img, ref_var), 0.0)))
-    print(f"{path}: {share:.2f} of the pixels reach optical depth 1")
+    print(f"{args.scene}: {share:.2f} of the pixels reach optical depth 1")
     print("spp | noisy | albedo | albedo + normal | ratio")
     for spp in (4, 16, 64):
         img = volmc.render(scene, spp=spp, progress=False, albedo=True)
         a = rmse(denoise(img.image, img.albedo))
         b = rmse(denoise(img.image, img.albedo, normal=normal))
         print(f"{spp} | {rmse(img.image):.4g} | {a:.4g} | {b:.4g} | {b / a:.3f}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

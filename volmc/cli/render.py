@@ -198,6 +198,9 @@ def _render_defines(args):
 def _check_render_device(args):
     if args.backend == "opencl":
         check_opencl_choices(args.device, args.lanes)
+    elif args.lanes is not None:   # as the API's lanes= (the numba backend has no lanes)
+        raise SceneError("command line", "--lanes", "a lane width applies to the opencl "
+                                                    "backend only")
 
 
 def _warn_out_of_view(scene, scene_path, prefix=""):
