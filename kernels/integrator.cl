@@ -667,6 +667,10 @@ static inline STAGE void flight_begin(const Params *prm, global const Light *lig
     lmask outside = m & !inside;
     wk->event = select(wk->event, (lint)(EVENT_ESCAPE), outside);
     wk->t_end = select(wk->t_end, t1, outside);
+    if (FEATURE_CHROMATIC ? med->m[0].spectral == SPECTRAL_CHANNEL : 0)
+        /* A camera ray that meets no medium sees the same light in every channel: its path
+         * carries all three, not 3x one (integrator.py) */
+        path->beta = sel3(path->beta, v3s(1.0f), outside & (path->depth == 0));
     if (!ANY(inside)) return;
     lvec3 d = path->d;
     record_segment(med, o, d, t0, t1, RECORD_CAMERA, inside & (path->depth == 0));

@@ -95,6 +95,28 @@ def test_chromatic_white_furnace(backend, spectral):
     assert res.counters["dropped"] == 0 and res.counters["capped"] == 0
 
 
+def test_channel_mode_background_is_the_sky_exactly(backend):
+    """Found by an outside test: with render.spectral = "channel" a camera ray that missed
+    the box still carried 3x one random channel, so the background was noise around the
+    sky's colour (0.71 to 1.30 for a sky of 1). It carries all three now: exactly the sky,
+    variance 0; the box's pixels stay unbiased (a two-sample z-test against "tracking")."""
+    raw = _slab({"scale": [3.0, 1.0, 0.3], "albedo": 0.8, "density": 1.0},
+                spp=128, res=8, lights=[{"type": "environment", "radiance": [0.2, 0.5, 0.9]}],
+                render_keys={"spectral": "channel"})
+    raw["camera"]["size"] = 3.0   # the box covers the middle of the view
+    res = render(scene_from_dict(raw), progress=False, backend=backend)
+    miss = res.film.alpha() == 0.0
+    assert 8 <= miss.sum() < 64
+    sky = np.broadcast_to(np.float32([0.2, 0.5, 0.9]), res.film.mean()[miss].shape)
+    assert np.array_equal(res.film.mean()[miss].astype(np.float32), sky)
+    assert np.all(res.film.variance_of_mean()[miss] < 1e-15)   # 0 but for the sums' rounding
+    raw["render"] = dict(raw["render"], spectral="tracking", seed=9)
+    ref = render(scene_from_dict(raw), progress=False, backend=backend)
+    d = (res.film.mean() - ref.film.mean())[~miss]
+    z = d / np.sqrt(res.film.variance_of_mean()[~miss] + ref.film.variance_of_mean()[~miss])
+    assert np.abs(z).max() < z_bound(ALPHA, z.size)
+
+
 def test_grey_rgb_scale_renders_the_same_image(backend):
     """scale = [s, s, s] is grey: the same image as scale = s, bit for bit."""
     a = render(load_scene(FURNACE, ["render.spp=8", "medium.scale=4.0"]), progress=False,

@@ -150,6 +150,12 @@ def test_scene_keys_and_errors():
     with pytest.raises(SceneError, match=r"media\[1\]\.scale"):
         scene_from_dict(_scene([dict(SLAB_A, scale=[1, 2, 3]), dict(SLAB_B, scale=[3, 2, 1])],
                                lights))
+    # A black medium has no ratios to share, first or not (it set (1, 1, 1) when first)
+    for order in ((0.0, [1, 2, 3], [2, 4, 6]), ([1, 2, 3], 0.0, [2, 4, 6])):
+        scene_from_dict(_scene([dict(SLAB_A, scale=k) for k in order], lights))
+    with pytest.raises(SceneError, match=r"media\[2\]\.scale: .* differ from media\[1\]'s"):
+        scene_from_dict(_scene([dict(SLAB_A, scale=k) for k in (0.0, [1, 2, 3], [3, 2, 1])],
+                               lights))
     with pytest.raises(SceneError, match=r"media\[1\]\.density"):
         scene_from_dict(_scene([SLAB_A, dict(SLAB_B, density=-1.0)], lights))
     with pytest.raises(SceneError, match="non-empty"):

@@ -79,6 +79,8 @@ def test_scale_rotate_translate_compose_in_that_order():
 
 def test_rotation_is_right_handed():
     assert np.allclose(rotation((0, 0, 1), 90) @ [1, 0, 0], [0, 1, 0])
+    # any non-zero length: the norm of this one underflowed to 0 (a NaN matrix)
+    assert np.array_equal(rotation((1e-170, 0, 0), 30), rotation((1, 0, 0), 30))
     assert np.allclose(rotation((0, 2, 0), 90) @ [0, 0, 1], [1, 0, 0])
     assert np.allclose(rotation((1, 1, 1), 120) @ [1, 0, 0], [0, 1, 0])
 
@@ -105,6 +107,10 @@ def test_transform_round_trips_through_the_scene_dict():
     ({"rotate": [0, 0, 1]}, "medium.transform.rotate", "[ax, ay, az, degrees]"),
     ({"translate": [0, float("nan"), 0]}, "medium.transform.translate", "finite"),
     ({"shear": 1}, "medium.transform.shear", "unknown key"),
+    # found by an outside test: a float64 zero-width placed box, then a ZeroDivisionError
+    ({"translate": [1e17, 0, 0]}, "medium.transform", "placed box has zero size along x"),
+    ({"rotate": [0, 0, 1, 30], "translate": [1e17, 0, 0]}, "medium.transform",
+     "placed box has zero size along x"),
 ])
 def test_bad_transforms_name_the_key(transform, key, words):
     with pytest.raises(SceneError) as e:

@@ -690,6 +690,11 @@ def trace_path(prm, lights, env, med, px, py, s, rng, rng_s, counters):
                 pdf_hit = sphere_light_pdf(lights[hit], o, d, t_hit)
         o, t0, t1, shift = enter_media(med, o, d)
         t1 = min(t1, t_hit - shift)
+        if depth == 0 and not t1 > t0 and m.spectral == SPECTRAL_CHANNEL:
+            # A camera ray that meets no medium sees the same light in every channel: its
+            # path carries all three, not 3x one (unbiased either way: E[3 e_c] = 1; the
+            # background was noise around the sky's colour).
+            beta = (1.0, 1.0, 1.0)
         event = EVENT_ESCAPE
         t = t1
         if t1 > t0:

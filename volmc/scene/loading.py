@@ -21,7 +21,8 @@ from .bricks import BrickGrid
 from .transform import as_tuple
 from .grids import load_grid, load_peak_bytes, shape_text, validate_grid, value_problem
 from .schema import (FLOAT32_MAX, GENERATORS, ArrayDensity, ConstantDensity, FileDensity,
-                     GeneratedDensity, SceneSpec, check_box, validate)
+                     GeneratedDensity, SceneSpec, check_box, check_placed_box,
+                     validate)
 
 
 @dataclass(frozen=True)
@@ -408,6 +409,8 @@ def _complete_one(spec, cache, p="medium."):
         def fail(key, msg):
             raise SceneError(spec.medium.density.resolved, key, msg)
         check_box(fail, lo, hi, p + "bounds")
+        if transform is not None:
+            check_placed_box(fail, transform, (lo, hi), p + "transform")
         spec = replace(spec, medium=replace(spec.medium, bounds=(tuple(lo), tuple(hi)),
                                             transform=transform))
     return Scene(spec, grid, load_emission(spec, vg, cache, p))

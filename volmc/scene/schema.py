@@ -551,6 +551,8 @@ def _medium(c, raw, file_dir, p="medium."):
         if "emission" in raw else None
     transform = parse_transform(c, raw["transform"], p + "transform") \
         if "transform" in raw else None
+    if transform is not None and bounds is not None:
+        check_placed_box(c.fail, transform, bounds, p + "transform")
     return Medium(bounds, density, scale, albedo, Phase(ptype, g), emission, transform)
 
 
@@ -574,6 +576,14 @@ def check_box(fail, lo, hi, key="medium.bounds"):
         if 1.0 / (hi[a] - lo[a]) > FLOAT32_MAX:   # the kernels hold 1 / extent in float32
             fail(key, f"box is too thin along {name} (extent {_fmt(hi[a] - lo[a])}); "
                       "1 / extent overflows float32")
+
+
+def check_placed_box(fail, transform, bounds, key):
+    """check_box for the world box around ``bounds`` placed by ``transform``: a translation
+    far beyond the box's size rounds its extent to 0 in float64 (1e17 + 1 == 1e17)."""
+    from .transform import world_box
+    lo, hi = world_box(transform, *bounds)
+    check_box(lambda _, msg: fail(key, "the placed " + msg), lo, hi)
 
 
 def _light(c, raw, i, file_dir):
@@ -782,13 +792,16 @@ def _media(c, raw, file_dir):
                         f"{MAX_MEDIA} overlap at one point)")
     media = tuple(_medium(c, c.table(m, f"media[{i}]"), file_dir, f"media[{i}].")
                   for i, m in enumerate(lst))
-    k0 = chroma(media[0].scale)
-    for i, m in enumerate(media[1:], 1):
-        k = chroma(m.scale)
-        if max(m.scale) == 0.0:   # no extinction: nothing to share
+    # The ratios of the first medium with extinction (a black one has none to share)
+    dark = [max(m.scale) == 0.0 for m in media]
+    first = dark.index(False) if False in dark else 0
+    k0 = chroma(media[first].scale)
+    for i, m in enumerate(media):
+        if i <= first or dark[i]:
             continue
+        k = chroma(m.scale)
         if max(abs(a - b) for a, b in zip(k, k0)) > 1e-6 * max(k0):
             c.fail(f"media[{i}].scale", f"per-channel ratios {_show(list(k))} differ from "
-                   f"media[0]'s {_show(list(k0))}: several media must share the ratios of "
-                   "their scale's channels (scale them as a whole)")
+                   f"media[{first}]'s {_show(list(k0))}: several media must share the ratios "
+                   "of their scale's channels (scale them as a whole)")
     return media

@@ -26,6 +26,7 @@ MIN_CONDITION = 1e-6
 def rotation(axis, degrees):
     """3x3 right-handed rotation by ``degrees`` about ``axis`` (any non-zero length)."""
     a = np.asarray(axis, float)
+    a = a / np.max(np.abs(a))   # first: the norm of a 1e-170 axis underflows to 0
     a = a / np.linalg.norm(a)
     th = math.radians(degrees)
     c, s = math.cos(th), math.sin(th)
