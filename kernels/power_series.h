@@ -16,6 +16,7 @@
 /* URM_*, CMF_GOAL and CMF_FIT_* come from the generated params.h (volmc/constants.py). */
 
 static inline lint cmf_lookup_budget(lfloat lam) {
+    lam = fmin(lam, CMF_FIT_MAX_LAMBDA);
     return to_lint(ceil(cbrt((CMF_FIT_0 + lam) * (CMF_FIT_1 + lam) * (CMF_FIT_2 + lam))));
 }
 
@@ -90,7 +91,7 @@ static inline lfloat unbiased_raymarch_segment(const MediumData *med, lvec3 o, l
         n = n + (more & 1);
         q = select(q, q_next, more);
     }
-    lmask over = on & (m * (n + 1) > max_steps);
+    lmask over = on & (m > max_steps / (n + 1)); /* m (n + 1) > max_steps, without overflow */
     capped = capped | over;
     lmask too_fine = over & (m > max_steps);
     n = select(n, select(max_steps / max(m, 1) - 1, (lint)(0), too_fine), over);
@@ -138,6 +139,10 @@ static inline lfloat power_series_segment(const MediumData *med, lvec3 o, lvec3 
     lfloat tau_bar = mbar * L;
     lfloat lam = fmax(mbar - fmax(mu_c, 0.0f), 0.0f) * L;
     lint n_det = cmf_deterministic_terms(lam, max_steps, on);
+    /* The CMF goal past the step cap (power_series.py): counted here, since g may underflow
+     * and end the walk before it reaches the cap. */
+    lmask short_of_goal = on & (n_det > max_steps);
+    counters[C_CAPPED] += lane_ones(short_of_goal);
     lfloat v = 1.0f - rng_next(rng, on);
     /* exp(-tau_bar) spread over the deterministic orders keeps every partial product in
      * float range. */
@@ -149,8 +154,7 @@ static inline lfloat power_series_segment(const MediumData *med, lvec3 o, lvec3 
     /* The deterministic orders: a lane that stops early returns acc g^(n_det - k). */
     lmask more = on & (k < n_det), early = (lmask)(0);
     while (ANY(more)) {
-        lmask cap = more & (k == max_steps);
-        counters[C_CAPPED] += lane_ones(cap);
+        lmask cap = more & (k == max_steps); /* (counted above) */
         early = early | cap;
         more = more & !cap;
         k = k + (more & 1);

@@ -360,9 +360,11 @@ def _kernel_cases():
     return grid, out
 
 
-def _kernel_estimates(kernel, kind, grid, cases, n_per, seed):
+def _kernel_estimates(kernel, kind, grid, cases, n_per, seed, max_steps=MAX_STEPS,
+                      capped=None):
     """(estimates float32 [cases x n_per], lookups) of the kernel on ``cases`` (as
-    _kernel_cases gives them); estimate i of case r on stream (seed, r, i, STREAM_TEST)."""
+    _kernel_cases gives them); estimate i of case r on stream (seed, r, i, STREAM_TEST).
+    Asserts no estimate was capped, or, given a list ``capped``, appends their count."""
     import cl_harness
     from cl_harness import clc, out_buf, to_dev
     meds = np.zeros(len(cases), medium_dtype(np.float32))
@@ -375,9 +377,12 @@ def _kernel_estimates(kernel, kind, grid, cases, n_per, seed):
     counts, cb = out_buf(2 * n, np.uint64)
     clc().run_rays(kernel, len(cases), n_per, cl_harness.LANES, np.int32(kind), to_dev(meds),
                    to_dev(grid.ravel()), to_dev(rays.ravel()), np.int32(n_per),
-                   np.uint64(seed), np.int32(MAX_STEPS), ob, cb, np.int32(n),
+                   np.uint64(seed), np.int32(max_steps), ob, cb, np.int32(n),
                    outs=[(out, ob), (counts, cb)])
-    assert counts[1::2].sum() == 0
+    if capped is None:
+        assert counts[1::2].sum() == 0
+    else:
+        capped.append(int(counts[1::2].sum()))
     return out, counts[0::2].astype(np.int64)
 
 
@@ -402,6 +407,36 @@ def test_pseries_thick_segment_stays_in_float_range(cl_prog):
     np.testing.assert_allclose(cl, ref, rtol=2e-3)
     se = ref.std(ddof=1) / math.sqrt(ref.size)
     assert abs(ref.mean() - exact) <= z_bound(ALPHA, 1) * se + 1e-9 * exact
+
+
+@pytest.mark.parametrize("kind", ESTIMATORS, ids=IDS)
+def test_absurd_majorant_is_capped_and_counted(cl_prog, kind):
+    """Found by an outside test (one voxel of 1e10 in a grid): at a majorant optical depth of
+    1e20 unbiased ray marching's lookup budget left int32 (in the kernel; int64 in the
+    reference), its comb size became 1 and its step cap never fired: pixels of -1e7 in
+    the kernel, uncounted. The p-series CMF estimator, its CMF goal past max_steps, spread
+    exp(-tau_bar) over max_steps + 1 orders, which underflowed to 0, and returned T = 0 after
+    one lookup, also uncounted. Now both count every such estimate as capped and stay
+    finite; unbiased ray marching, cut to one comb of max_steps lookups, is exp(-tau) on a
+    constant medium."""
+    med = _profile("constant", 1.0)
+    f32 = lambda x: np.float64(np.float32(x))  # noqa: E731
+    med32 = np.asarray(med).astype(medium_dtype(np.float32)).astype(medium_dtype(np.float64))
+    mbar = f32(1e20 / (T1 - T0))
+    grid = np.zeros((1, 1, 1), np.float32)
+    n, steps = 200, 1000
+    capped = []
+    cl, lk = _kernel_estimates(cl_prog, kind, grid, [(med32, O, D, T0, T1, mbar, 0.0)], n, 29,
+                               steps, capped)
+    ref, lk_ref, cnt = _estimates(kind, med32, grid.astype(np.float64), O, D, T0, T1, mbar,
+                                  0.0, n, 29, steps)
+    assert capped == [n] and cnt[C_CAPPED] == n
+    assert lk.max() <= steps and lk_ref.max() <= steps
+    exact = math.exp(-optical_depth_profile(med32, T0, T1))
+    for est in (cl.astype(np.float64), ref):
+        assert np.all(np.isfinite(est)) and np.all(np.abs(est) <= 1.0)
+        if kind == URM:
+            np.testing.assert_allclose(est, exact, rtol=1e-4)
 
 
 @pytest.mark.parametrize("kind", ESTIMATORS, ids=IDS)

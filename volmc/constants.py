@@ -302,6 +302,11 @@ CMF_GOAL = 0.99
 CMF_FIT_0 = 0.015
 CMF_FIT_1 = 0.65
 CMF_FIT_2 = 60.3
+#: The fit is evaluated at min(lam, CMF_FIT_MAX_LAMBDA): its cube overflowed float32 from
+#: lam ~ 7e12 and its integer int32 from ~ 2e9 (a negative comb size of unbiased ray
+#: marching, whose step cap then never fired: pixels of -1e7). A budget of ~2^30 lookups is
+#: past any step cap that matters and still an int32.
+CMF_FIT_MAX_LAMBDA = 2.0 ** 30
 #: The p-series CMF estimator's running sums are kept between 2^-CMF_RESCALE_BITS and
 #: 2^CMF_RESCALE_BITS by exact power-of-two rescaling (their partial products grow like
 #: e^(lam / e) before exp(-tau_bar) brings them down: past float32 from lam ~ 240 on) ...

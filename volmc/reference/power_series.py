@@ -34,9 +34,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ..constants import (CMF_FIT_0, CMF_FIT_1, CMF_FIT_2, CMF_GOAL,  # noqa: F401
-                         CMF_RESCALE_BITS, CMF_RESCALE_HI, CMF_RESCALE_LN, CMF_RESCALE_LO,
-                         URM_C, URM_K, URM_MAX_ORDER, URM_MEAN_ORDER, URM_P_ZERO)
+from ..constants import (CMF_FIT_0, CMF_FIT_1, CMF_FIT_2, CMF_FIT_MAX_LAMBDA,  # noqa: F401
+                         CMF_GOAL, CMF_RESCALE_BITS, CMF_RESCALE_HI, CMF_RESCALE_LN,
+                         CMF_RESCALE_LO, URM_C, URM_K, URM_MAX_ORDER, URM_MEAN_ORDER, URM_P_ZERO)
 from ..params import C_CAPPED
 from .medium import extinction, optical_depth_comb, segment_degenerate
 from .guards import finite_bits
@@ -49,6 +49,7 @@ def cmf_lookup_budget(lam):
     """Expected lookups of the p-series CMF estimator for Poisson parameter (majorant optical
     depth) lam, as the cubic fit used by Kettunen et al. (2021) to give unbiased ray marching
     an equal budget: ceil(cbrt((0.015 + lam) (0.65 + lam) (60.3 + lam)))."""
+    lam = min(lam, CMF_FIT_MAX_LAMBDA)   # (its cube and integer stay in range)
     x = (CMF_FIT_0 + lam) * (CMF_FIT_1 + lam) * (CMF_FIT_2 + lam)
     return int(math.ceil(x ** (1.0 / 3.0)))
 
@@ -186,7 +187,7 @@ def unbiased_raymarch_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_
             break
         n += 1
         q = q_next
-    if m * (n + 1) > max_steps:
+    if m > max_steps // (n + 1):   # m (n + 1) > max_steps, as the kernel's int32 can test it
         capped = True
         if m > max_steps:
             m = max_steps
@@ -265,6 +266,11 @@ def power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps
     tau_bar = mbar * L
     lam = max(mbar - max(mu_c, 0.0), 0.0) * L
     n_det = cmf_deterministic_terms(lam, max_steps)
+    if n_det > max_steps:
+        # The CMF goal lies past the step cap: the estimate is cut short, and counted here,
+        # since g below may underflow (tau_bar / n_det > 745) and end the walk at its first
+        # order, before it reaches the cap (a voxel of 2e8 gave T = 0, uncounted).
+        counters[C_CAPPED] += 1
     v = 1.0 - rng_next(rng)
     g = math.exp(-tau_bar / n_det)
     acc = 1.0      # sum_{j <= k} V_j g^(k - j); equals the estimate once k = n_det
@@ -272,8 +278,7 @@ def power_series_segment(med, o, d, t0, t1, mbar, mu_c, rng, counters, max_steps
     e = 0          # both are 2^(-CMF_RESCALE_BITS e) times their value
     k = 0
     while k < n_det:
-        if k == max_steps:
-            counters[C_CAPPED] += 1
+        if k == max_steps:   # (counted above)
             return cmf_scaled_result(acc, e, n_det - k, tau_bar / n_det)
         k += 1
         x = t0 + rng_next(rng) * L
