@@ -372,6 +372,9 @@ def test_light_and_phase_sampling_combine_without_bias():
     (dict(SPOT, blend=1.5), "blend", "[0, 1]"),
     ({k: v for k, v in SPOT.items() if k != "angle"}, "angle", "missing"),
     (dict(SPHERE, radius=0.0), "radius", "> 0"),
+    # squared in float32 by the kernels: 1e20 rendered black, 1e-20 NaN
+    (dict(SPHERE, radius=1e20), "radius", "a normal float32"),
+    (dict(SPHERE, radius=1e-20), "radius", "a normal float32"),
     (dict(SPHERE, power=3.0), "radiance", "exactly one"),
     ({k: v for k, v in SPHERE.items() if k != "radiance"}, "radiance", "exactly one"),
     (dict(SPOT, direction=[0, 0, 0]), "direction", ""),

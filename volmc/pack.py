@@ -162,6 +162,11 @@ MediumArrays = namedtuple("MediumArrays", ["medium", "grid", "maj", "mnr", "emis
                                            "bricks", "pool", "nodes"])
 
 
+#: Sphere light radii the kernels take, in units of the scene frame: their squares, 2^-120
+#: to 2^120, stay normal float32 numbers with room for the products around them.
+SPHERE_RADIUS_RANGE = (2.0 ** -60, 2.0 ** 60)
+
+
 def pack_scene(scene, real=np.float64, spp_seed=None):
     """A ``Packed`` scene with reals of type ``real`` (float64: the reference; float32: the
     kernels). Environment lights are summed into params.env; the light array holds the
@@ -257,8 +262,15 @@ def _pack_scene(scene, real, spp_seed):
                            [c / (unit * unit) for c in lt.intensity], lt.direction, cos_outer,
                            cos_outer + lt.blend * (1.0 - cos_outer)))
         elif isinstance(lt, SphereLight):
-            lights.append((LIGHT_SPHERE, local(lt.position), lt.radiance, (0, 0, 0),
-                           lt.radius / unit, 0))
+            r = lt.radius / unit
+            if not SPHERE_RADIUS_RANGE[0] <= r <= SPHERE_RADIUS_RANGE[1]:
+                # the kernels' intersections and cone pdfs square it in float32: a radius of
+                # 1e20 rendered black, one of 1e-20 NaN (an outside test)
+                raise SceneError(scene.file, f"lights[{i}].radius",
+                                 f"{lt.radius:g} is {r:g} units of the frame volmc renders in "
+                                 f"(units of {unit:g}, the media's box); its square must stay "
+                                 f"a normal float32: keep it within 2^-60 to 2^60 units")
+            lights.append((LIGHT_SPHERE, local(lt.position), lt.radiance, (0, 0, 0), r, 0))
     p["env"] = env
     larr = np.zeros(len(lights), light_dtype(real))
     for i, (t, v, c, axis, size, inner) in enumerate(lights):

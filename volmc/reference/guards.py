@@ -14,6 +14,7 @@ from numba import njit, types
 from numba.core.extending import intrinsic
 
 _EXP64 = np.uint64(0x7FF0000000000000)
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 @intrinsic
@@ -34,7 +35,11 @@ def finite_bits(x):
 
 @njit(cache=True, inline="always")
 def sample_ok(r, g, b, signed_samples):
-    """True if the sample (r, g, b) may be accumulated. Negative zero is kept (it is a zero)."""
+    """True if the sample (r, g, b) may be accumulated. Negative zero is kept (it is a zero).
+    A component past float32's range is not finite in the kernels, so the twins drop it alike
+    (kept, it made the image's float32 EXR infinite: a point light of intensity 3e38)."""
     if not (finite_bits(r) and finite_bits(g) and finite_bits(b)):
+        return False
+    if not (abs(r) <= _F32_MAX and abs(g) <= _F32_MAX and abs(b) <= _F32_MAX):
         return False
     return signed_samples != 0 or not (r < 0.0 or g < 0.0 or b < 0.0)

@@ -10,6 +10,7 @@ import difflib
 import json
 import math
 import re
+import struct
 import sys
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Optional, Union, get_args
@@ -545,6 +546,11 @@ def _medium(c, raw, file_dir, p="medium."):
     if ptype == "hg":
         g = c.number(c.required(ph, "g", p + "phase."), p + "phase.g", -1.0, 1.0,
                      lo_open=True, hi_open=True)
+        if abs(struct.unpack("f", struct.pack("f", g))[0]) == 1.0:
+            # the kernels' HG sampling divides by 1 - g^2 (OpenCL dropped 64 % of the
+            # samples as NaN at g = 0.99999999)
+            c.fail(p + "phase.g", f"{g!r} rounds to {math.copysign(1, g):+g} in float32, the "
+                                  "kernels' precision: |g| at most 0.99999994")
     elif "g" in ph:
         c.fail(p + "phase.g", "only the 'hg' phase function takes g")
     emission = _emission(c, raw["emission"], file_dir, p + "emission.") \
