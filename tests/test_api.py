@@ -390,6 +390,17 @@ def test_api_arguments_found_by_a_hostile_pass(tmp_path):
         # a broadcast view of 2.7e10 voxels: the check's temporaries ran out of memory
         (lambda: volmc.scene_from_dict({"camera": {}, "medium": {**box, "density": huge}}),
          "needs"),
+        # a second pass: truthy strings taken as True, a str width, a TypeError in difflib,
+        # and the device's error keyed for the command line
+        (lambda: volmc.render(scene, albedo="no", progress=False), "albedo: expected True"),
+        (lambda: volmc.render(scene, lanes="8", progress=False), "lanes: expected an integer"),
+        (lambda: volmc.render_frames({"camera": {}, "medium": box}, [1], png="yes"),
+         "png: expected True"),
+        (lambda: volmc.scene_from_dict({"camera": {}, "medium": box, 1: 2}), "1: unknown key"),
+        (lambda: volmc.render(scene, device="99", progress=False),
+         "volmc.render(): device: 99: no such OpenCL platform"),
+        (lambda: volmc.scene_from_dict({"camera": {}, "medium": {**box, "albedo": 1.0000001}}),
+         "got 1.0000001"),
     ]
     for call, words in bad:
         with pytest.raises(volmc.VolmcError) as e:

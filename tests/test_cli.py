@@ -159,6 +159,8 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["bench", "sparse", "--size", "100000"], "--size"),
     (["bench", "sparse", "--lookups", str(2**50)], "--lookups"),
     (["frobnicate"], "invalid choice"),
+    # named "-o: not a usable file name" (the default output after the missing scene's name)
+    (["render", "a" * 300 + ".toml"], "scene file not found"),
     (["convert", "missing.npy", "x.vol"], "missing.npy"),
 ])
 def test_bad_command_lines_one_line_exit_2(tmp_path, tiny, args, words):

@@ -264,8 +264,10 @@ def test_bad_grid_files(tmp_path):
     np.savez(tmp_path / "x.npz", other=np.ones((2, 2, 2)))
     (tmp_path / "x.npy").write_bytes(b"not numpy at all")
     (tmp_path / "x.raw").write_bytes(b"")
+    (tmp_path / "dir.npy").mkdir()   # was "grid file not found", under the grid's path
     for name, words in [("x.vol", "magic"), ("short.vol", "truncated"), ("x.npz", "'density'"),
-                        ("x.npy", "cannot read"), ("x.raw", "unknown grid format")]:
+                        ("x.npy", "cannot read"), ("x.raw", "unknown grid format"),
+                        ("dir.npy", "medium.density.file: not a regular file")]:
         with pytest.raises(SceneError, match=words):
             load_scene(_grid_scene(tmp_path, name))
     # A .vol whose data is shorter than its header promises.

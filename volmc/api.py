@@ -152,6 +152,15 @@ def _integer(v, where, key, lo, hi):
     return int(v)
 
 
+def _flag(v, where, key):
+    """``v`` as a bool: True or False (numpy's too), not any truthy value ("no" is not
+    False)."""
+    import numpy as np
+    if not isinstance(v, (bool, np.bool_)):
+        raise _error(where, key, f"expected True or False, got {type(v).__name__} {v!r}")
+    return bool(v)
+
+
 def _path(p, where, key, writable=False):
     """None, or the path ``p`` as a str (its directory must be writable if ``writable``)."""
     if p is None:
@@ -202,7 +211,13 @@ def _device(device, backend, where, client=None):
         raise _error(where, "device", "a Dask cluster's workers choose their device by a spec "
                                       "such as '0:0', not a pyopencl Device")
     from .cl.device import select_device
-    select_device(device)
+    from .scene.errors import SceneError
+    try:
+        select_device(device)
+    except SceneError as e:   # named for the command line's --device; here it is device=
+        if e.key != "--device":
+            raise
+        raise _error(where, "device", e.message) from None
     return device
 
 
@@ -210,6 +225,10 @@ def _lanes(lanes, backend, where):
     """``lanes`` checked (a width of volmc.cl.lanes.LANE_WIDTHS, or None: the default)."""
     if lanes is None:
         return None
+    import numbers
+    if isinstance(lanes, bool) or not isinstance(lanes, numbers.Integral):
+        raise _error(where, "lanes", f"expected an integer, got {type(lanes).__name__} "
+                                     f"{lanes!r}")
     from .cl.lanes import check_lanes
     if backend != "opencl":
         raise _error(where, "lanes", "a lane width applies to the opencl backend only")
@@ -256,6 +275,7 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     name = _backend_name(backend, device, where)
     device = _device(device, name, where, client)
     lanes = _lanes(lanes, name, where)
+    albedo = _flag(albedo, where, "albedo")
     # As on the command line, a resumed render goes on checkpointing to its file.
     resume = _path(resume, where, "resume", writable=checkpoint is None)
     checkpoint = _path(checkpoint, where, "checkpoint", writable=True) or resume
@@ -268,7 +288,7 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
         try:
             result = _render(scene, backend=name, device=device, progress=bool(progress),
                              client=client, checkpoint=checkpoint, checkpoint_every=every,
-                             resume=resume, lanes=lanes, albedo=bool(albedo))
+                             resume=resume, lanes=lanes, albedo=albedo)
         except VolmcError as e:
             if e.key != "--resume":
                 raise
@@ -367,6 +387,9 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     name = _backend_name(backend, device, where)
     device = _device(device, name, where, client)
     lanes = _lanes(lanes, name, where)
+    png, variance, denoise = (_flag(v, where, k) for v, k in ((png, "png"),
+                                                               (variance, "variance"),
+                                                               (denoise, "denoise")))
     output = _path(output, where, "output", writable=True)
     if output is not None and (not output.lower().endswith(".exr")
                                or os.path.basename(output).lower() == ".exr"):

@@ -162,6 +162,8 @@ def _render_paths(args):
     from ..resources import default_scene
     use_default = args.scene is None
     scene_path = str(default_scene()) if use_default else args.scene
+    if not os.path.lexists(scene_path):   # before the outputs named after it are checked
+        raise SceneError(scene_path, "", "scene file not found")
     stem = os.path.splitext(os.path.basename(scene_path))[0]
     out = args.output or f"{stem}.exr"
     png = args.png   # None, True (--png alone: beside the EXR) or a path

@@ -189,6 +189,8 @@ def _read_source(spec, src, key, vdb_density=None, cache=None):
     if isinstance(src, FileDensity):
         if not os.path.exists(src.resolved):
             raise SceneError(spec.file, key + ".file", f"grid file not found: {src.path}")
+        if not os.path.isfile(src.resolved):   # (a directory or FIFO was "not found" below)
+            raise SceneError(spec.file, key + ".file", f"not a regular file: {src.path}")
         if src.resolved.lower().endswith((".vdb", ".nvdb")):
             from .vdb import read_vdb
             vg = read_vdb(src.resolved, src.grid, key)

@@ -315,7 +315,8 @@ class _Checker:
     def known(self, table, allowed, prefix):
         for k in table:
             if k not in allowed:
-                near = difflib.get_close_matches(k, allowed, n=1)
+                near = difflib.get_close_matches(k, allowed, n=1) if isinstance(k, str) \
+                    else []
                 hint = f" (did you mean '{near[0]}'?)" if near else \
                     f" (allowed: {', '.join(allowed)})"
                 self.fail(f"{prefix}{_key_name(k)}", f"unknown key{hint}")
@@ -383,14 +384,19 @@ class _Checker:
 
 
 def _key_name(k):
-    """A key as TOML writes it: bare if it can be, else quoted (so "" and "a b" show)."""
+    """A key as TOML writes it: bare if it can be, else quoted (so "" and "a b" show); a
+    dict's non-string key as its repr."""
+    if not isinstance(k, str):
+        return repr(k)
     if re.fullmatch(r"[A-Za-z0-9_-]+", k):
         return k
     return json.dumps(k, ensure_ascii=False)
 
 
 def _fmt(x):
-    return f"{x:g}"
+    """x short ("%g"), unless that rounds it: "got 1" for 1.0000001 hid why it was refused."""
+    short = f"{x:g}"
+    return short if float(short) == x else repr(float(x))
 
 
 def _show(v):
@@ -576,8 +582,8 @@ def check_box(fail, lo, hi, key="medium.bounds"):
     float32; else fail(key, message)."""
     for a, name in enumerate("xyz"):
         if not lo[a] < hi[a]:
-            what = "zero size" if lo[a] == hi[a] else "inverted"
-            fail(key, f"box has {what} along {name} ({_fmt(lo[a])} .. {_fmt(hi[a])});"
+            what = "has zero size" if lo[a] == hi[a] else "is inverted"
+            fail(key, f"box {what} along {name} ({_fmt(lo[a])} .. {_fmt(hi[a])});"
                       " need min < max on every axis")
         if 1.0 / (hi[a] - lo[a]) > FLOAT32_MAX:   # the kernels hold 1 / extent in float32
             fail(key, f"box is too thin along {name} (extent {_fmt(hi[a] - lo[a])}); "
