@@ -310,15 +310,15 @@ static inline lvec3 medium_albedo(const MediumData *med, lint i) {
 #endif
 }
 
-/* Medium i's phase function at cos_theta (per lane). */
-static inline lfloat medium_phase_eval(const MediumData *med, lint i, lfloat cos_theta) {
+/* Medium i's phase function between the path's direction d and w (per lane). */
+static inline lfloat medium_phase_eval(const MediumData *med, lint i, lvec3 d, lvec3 w) {
 #if MEDIA_COUNT == 1
-    return phase_eval(med->m[0].phase_kind, med->m[0].g, cos_theta);
+    return phase_eval(med->m[0].phase_kind, med->m[0].g, d, w);
 #else
     lfloat f = (lfloat)(0.0f);
     for (int k = 0; k < MEDIA_COUNT; ++k) {
         lmask at = i == k;
-        if (ANY(at)) f = select(f, phase_eval(med->m[k].phase_kind, med->m[k].g, cos_theta), at);
+        if (ANY(at)) f = select(f, phase_eval(med->m[k].phase_kind, med->m[k].g, d, w), at);
     }
     return f;
 #endif
@@ -343,10 +343,10 @@ static inline lvec3 medium_phase_sample(const MediumData *med, lint i, lfloat u1
 #endif
 }
 
-/* Light scattered at p towards cos_theta off the ray by every medium there: the sum of
- * sigma_s f(cos_theta), RGB, with a counted lookup per medium present (twin in
+/* Light scattered at p from the ray's direction d into w by every medium there: the sum
+ * of sigma_s f(d, w), RGB, with a counted lookup per medium present (twin in
  * integrator.py). */
-static inline lvec3 in_scattering(const MediumData *med, lvec3 p, lfloat cos_theta,
+static inline lvec3 in_scattering(const MediumData *med, lvec3 p, lvec3 d, lvec3 w,
                                   lulong *counters, lmask active) {
     float3 k = (float3)(1.0f) * medium_chroma(med);
     lvec3 out = v3s(0.0f);
@@ -356,7 +356,7 @@ static inline lvec3 in_scattering(const MediumData *med, lvec3 p, lfloat cos_the
         lmask on = has_medium(here, i, active);
         if (!ANY(on)) continue;
         lfloat mu = medium_extinction(med, i, p, counters, on);
-        lfloat f = phase_eval(m->phase_kind, m->g, cos_theta);
+        lfloat f = phase_eval(m->phase_kind, m->g, d, w);
         float3 a = vec3(m->albedo);
         out = add3(out, v3(a.x * (k.x * mu) * f, a.y * (k.y * mu) * f, a.z * (k.z * mu) * f));
     }
@@ -398,7 +398,7 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
         lvec3 sig_s = v3(a.x * (k.x * mu), a.y * (k.y * mu), a.z * (k.z * mu));
 #else
         /* sigma_s times the phase function, summed over the media at p */
-        lvec3 sig_s = in_scattering(med, p, dot3(d, wl), counters, ok);
+        lvec3 sig_s = in_scattering(med, p, d, wl, counters, ok);
 #endif
         ok = ok & (max3(sig_s) > 0.0f);
         if (!ANY(ok)) continue;
@@ -409,7 +409,7 @@ static inline lvec3 sample_equiangular_lights(const Params *prm, global const Li
                        ? mis_weight(prm->mis, pdf, free_flight_pdf(m, t0, t))
                        : (lfloat)(1.0f);
 #if MEDIA_COUNT == 1
-        lfloat f = phase_eval(m->phase_kind, m->g, dot3(d, wl)) * w / (dist * dist * pdf);
+        lfloat f = phase_eval(m->phase_kind, m->g, d, wl) * w / (dist * dist * pdf);
 #else
         lfloat f = w / (dist * dist * pdf);
 #endif
@@ -809,7 +809,7 @@ static inline lmask emitter_ray(const Params *prm, const MediumData *med, lvec3 
     lvec3 src = emission_term(med, media_at(med, y, ok), y, mu, (lfloat)(1.0f), v3s(1.0f),
                               counters, ok);
     ok = ok & (max3(src) > 0.0f);
-    lfloat f = medium_phase_eval(med, k, dot3(d, *w));
+    lfloat f = medium_phase_eval(med, k, d, *w);
     lfloat mis = (lfloat)(1.0f);
     if (prm->emission_sampling == EMISSION_SAMPLING_MIS)
         mis = mis_weight(prm->mis, (float)prm->light_samples * pdf,
@@ -867,7 +867,7 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
                                   take);
                 lfloat pdf_l, le;
                 w = sample_area_light(lt, p, u.x, u.y, &di, &pdf_l, &le);
-                lfloat fp = medium_phase_eval(med, path->medium, dot3(path->d, w));
+                lfloat fp = medium_phase_eval(med, path->medium, path->d, w);
                 f = fp * le * mis_weight(prm->mis, (float)n * pdf_l, fp) * inv_n / pdf_l;
                 dark = dark | (take & !(pdf_l > 0.0f));
                 target = select(target, (lint)(i), take);
@@ -876,7 +876,7 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
                 w = light_ray(prm, md, ea, lt, path->o, path->d, path->t0, path->t1, path->t,
                               &di, &falloff);
                 take = at & (falloff > 0.0f) & (path->sample < n);
-                f = medium_phase_eval(med, path->medium, dot3(path->d, w)) * falloff * inv_n;
+                f = medium_phase_eval(med, path->medium, path->d, w) * falloff * inv_n;
             }
             /* An unlit light, or one whose rays are all done: the next light. */
             path->light = path->light + ((at & !take) & 1);
@@ -896,7 +896,7 @@ static inline STAGE void nee_next(const Params *prm, global const Light *lights,
                               j, count, rng, take);
             lfloat pdf_l;
             lvec3 w = sample_env_light(prm, env, u.x, u.y, &pdf_l, take);
-            lfloat f = medium_phase_eval(med, path->medium, dot3(path->d, w));
+            lfloat f = medium_phase_eval(med, path->medium, path->d, w);
             lfloat mw = mis_weight(prm->mis, (float)n * pdf_l, f) * inv_n;
             /* (pdf 0: a pole of the map, a set of measure zero; the ray carries nothing) */
             lfloat g = select((lfloat)(0.0f), f * mw / pdf_l, pdf_l > 0.0f);

@@ -54,8 +54,19 @@ static inline lvec2 invert_hg_sample(lvec3 w, lvec3 d_in, float g) {
     return u;
 }
 
-static inline lfloat phase_eval(int kind, float g, lfloat cos_theta) {
-    if (kind == PHASE_HG) return hg_eval(cos_theta, g);
+/* HG at the angle between unit directions d and w (twin in phase.py, which says why not
+ * from their cosine). */
+static inline lfloat hg_eval_dirs(lvec3 d, lvec3 w, float g) {
+    lvec3 c = g >= 0.0f ? sub3(w, d) : add3(w, d);
+    lfloat side = 0.5f * dot3(c, c); /* 1 - cos (g >= 0), 1 + cos (g < 0) */
+    float a = fabs(g);
+    lfloat denom = (1.0f - a) * (1.0f - a) + 2.0f * a * side;
+    return INV_4PI * (1.0f - g) * (1.0f + g) / (denom * sqrt(denom));
+}
+
+/* The phase function at the angle between unit directions d (the path's) and w. */
+static inline lfloat phase_eval(int kind, float g, lvec3 d, lvec3 w) {
+    if (kind == PHASE_HG) return hg_eval_dirs(d, w, g);
     return (lfloat)(INV_4PI);
 }
 

@@ -166,8 +166,9 @@ kernel void t_hg_sample(global const float *u, global const float *g, float3 d_i
         lfloat pdf;
         lvec3 w = hg_sample(load_float(u, i, 2, 0), load_float(u, i, 2, 1), v3u(d_in),
                             g[lane_int(i, l)], &pdf);
-        store_float3(out, i, 4, 0, w, one);
-        store_float(out, i, 4, 3, pdf, one);
+        store_float3(out, i, 5, 0, w, one);
+        store_float(out, i, 5, 3, pdf, one);
+        store_float(out, i, 5, 4, phase_eval(PHASE_HG, g[lane_int(i, l)], v3u(d_in), w), one);
     }
 }
 
@@ -184,6 +185,14 @@ kernel void t_hg_sample_cos(global const float *u, global const float *g, global
         store_float(out, i, 3, 1, s, one);
         store_float(out, i, 3, 2, pdf, one);
     }
+}
+
+kernel void t_phase_eval(global const float *d, global const float *w, float g,
+                         global float *out, int n) {
+    lmask on;
+    lint i = lane_element(n, &on);
+    store_float(out, i, 1, 0,
+                phase_eval(PHASE_HG, g, load_float3(d, i, 3, 0), load_float3(w, i, 3, 0)), on);
 }
 
 kernel void t_hg_eval(global const float *mu, global const float *g, global float *out, int n) {

@@ -279,6 +279,21 @@ def test_bad_temperature_remap(emission, words):
     assert e.value.key == "medium.emission.remap" and words in str(e.value)
 
 
+@pytest.mark.parametrize("emission", [{"temperature": 1e34, "scale": 1e-10},
+                                      {"temperature": 1.0, "remap": [0.0, 1.0, 500.0, 1e34],
+                                       "scale": 1e-10}])
+def test_blackbody_past_float32_is_refused(emission):
+    """Found by an outside test: the kernels keep the blackbody table unscaled in float32,
+    so at 1e34 K every sample was infinite and dropped (a black image) while the float64
+    reference rendered scale x B(T) = 1e31. Refused at loading now, naming the key."""
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(_slab({"density": 1.0, "emission": emission}))
+    assert e.value.key == "medium.emission.temperature" and "past float32" in str(e.value)
+    scene_from_dict(_slab({"density": 1.0, "emission": dict(emission, temperature=2e31)
+                           if "remap" not in emission else dict(emission, remap=[
+                               0.0, 1.0, 500.0, 2e31])}))   # 3e38 nits: still in range
+
+
 def test_no_emission_compiles_none_of_it():
     from volmc.scene.features import features
     assert "EMISSION" not in features(load_scene(FURNACE))

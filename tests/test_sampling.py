@@ -127,17 +127,19 @@ def test_hg_hard_inputs(g, u):
     if abs(g) <= 0.9999:
         # Evaluated from cos alone the pdf is accurate to about 1e-16 / (1 - |cos|).
         assert math.isclose(pdf, hg_eval(cos, g), rel_tol=1e-6)
+    # from the directions (their chord), at every g
+    assert math.isclose(pdf, phase_eval(PHASE_HG, g, tuple(AXIS), w), rel_tol=1e-6)
 
 
 def test_phase_dispatch():
     d = (0.0, 0.0, 1.0)
     w, pdf = phase_sample(PHASE_ISOTROPIC, 0.7, 0.3, 0.6, d)
     assert pdf == pytest.approx(1 / (4 * math.pi))
-    assert phase_eval(PHASE_ISOTROPIC, 0.7, 0.2) == pytest.approx(1 / (4 * math.pi))
+    assert phase_eval(PHASE_ISOTROPIC, 0.7, d, w) == pytest.approx(1 / (4 * math.pi))
     w, pdf = phase_sample(PHASE_HG, 0.7, 0.3, 0.6, d)
-    assert pdf == pytest.approx(phase_eval(PHASE_HG, 0.7, w[2]))
+    assert pdf == pytest.approx(phase_eval(PHASE_HG, 0.7, d, w))
     # g > 0 scatters forward: the peak is at cos = 1.
-    assert phase_eval(PHASE_HG, 0.7, 1.0) > phase_eval(PHASE_HG, 0.7, -1.0)
+    assert phase_eval(PHASE_HG, 0.7, d, d) > phase_eval(PHASE_HG, 0.7, d, (0.0, 0.0, -1.0))
 
 
 @njit(cache=True)

@@ -202,10 +202,10 @@ def medium_albedo(med, i):
 
 
 @njit(cache=True)
-def medium_phase_eval(med, i, cos_theta):
-    """Medium i's phase function at cos_theta."""
+def medium_phase_eval(med, i, d, w):
+    """Medium i's phase function between the path's direction d and w (phase_eval)."""
     m = med[i].m
-    return phase_eval(m.phase_kind, m.g, cos_theta)
+    return phase_eval(m.phase_kind, m.g, d, w)
 
 
 @njit(cache=True)
@@ -216,9 +216,9 @@ def medium_phase_sample(med, i, u1, u2, d_in):
 
 
 @njit(cache=True)
-def in_scattering(med, p, cos_theta, counters):
-    """Light scattered at p towards cos_theta off the ray by every medium there: the sum of
-    sigma_s f(cos_theta) over the media, RGB, with a counted lookup per medium present."""
+def in_scattering(med, p, d, w, counters):
+    """Light scattered at p from the ray's direction d into w by every medium there: the sum
+    of sigma_s f(d, w) over the media, RGB, with a counted lookup per medium present."""
     k = medium_chroma(med)
     out = (0.0, 0.0, 0.0)
     here = media_at(med, p)
@@ -227,7 +227,7 @@ def in_scattering(med, p, cos_theta, counters):
         if not has_medium(here, i):
             continue
         mu = medium_extinction(med, i, p, counters)
-        f = phase_eval(m.phase_kind, m.g, cos_theta)
+        f = phase_eval(m.phase_kind, m.g, d, w)
         out = add3(out, (m.albedo[0] * (k[0] * mu) * f, m.albedo[1] * (k[1] * mu) * f,
                          m.albedo[2] * (k[2] * mu) * f))
     return out
@@ -485,7 +485,7 @@ def sample_direct(prm, lights, env, med, k, ea, o, d, t0, t1, t, pix, s, b, rng,
                 wl, dist, pdf_l, le = sample_area_light(lt, p, ua, ub)
                 if not pdf_l > 0.0 or occluded(prm, lights, p, wl, dist, i):
                     continue
-                f = medium_phase_eval(med, k, dot(d, wl))
+                f = medium_phase_eval(med, k, d, wl)
                 g = f * le * mis_weight(prm.mis, n * pdf_l, f) * inv_n / pdf_l
                 tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
                 L = add3(L, mul3(color, scale3(tr, g)))
@@ -493,7 +493,7 @@ def sample_direct(prm, lights, env, med, k, ea, o, d, t0, t1, t, pix, s, b, rng,
         wl, dist, falloff = light_ray(prm, med[0].m, ea, lt, o, d, t0, t1, t)
         if not falloff > 0.0 or occluded(prm, lights, p, wl, dist, -1):
             continue
-        f = medium_phase_eval(med, k, dot(d, wl)) * falloff * inv_n
+        f = medium_phase_eval(med, k, d, wl) * falloff * inv_n
         for _ in range(n):
             tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
             L = add3(L, mul3(color, scale3(tr, f)))
@@ -504,7 +504,7 @@ def sample_direct(prm, lights, env, med, k, ea, o, d, t0, t1, t, pix, s, b, rng,
             wl, pdf_l = sample_env_light(prm, env, ua, ub)
             if occluded(prm, lights, p, wl, math.inf, -1):
                 continue
-            f = medium_phase_eval(med, k, dot(d, wl))
+            f = medium_phase_eval(med, k, d, wl)
             tr = shadow_transmittance(prm, med, p, wl, math.inf, 0, rng_s, counters)
             w = mis_weight(prm.mis, n * pdf_l, f) * inv_n
             # (pdf 0: a pole of the map, a set of measure zero; the ray carries nothing)
@@ -545,7 +545,7 @@ def sample_emitters(prm, lights, med, k, p, d, rng, counters, rng_s):
         src = emission_term(med, media_at(med, y), y, mu, 1.0, (1.0, 1.0, 1.0), counters)
         if not max3(src) > 0.0 or occluded(prm, lights, p, wl, dist, -1):
             continue
-        f = medium_phase_eval(med, k, dot(d, wl))
+        f = medium_phase_eval(med, k, d, wl)
         w = 1.0
         if prm.emission_sampling == EMISSION_SAMPLING_MIS:
             w = mis_weight(prm.mis, n * pdf, f * majorant_at(med, y) / (dist * dist))
@@ -592,7 +592,7 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
             sig = scale3(medium_chroma(med), extinction(med, p, math.inf, counters))
             sig_s = mul3(sig, (m.albedo[0], m.albedo[1], m.albedo[2]))
         else:   # sigma_s times the phase function, summed over the media at p
-            sig_s = in_scattering(med, p, dot(d, wl), counters)
+            sig_s = in_scattering(med, p, d, wl, counters)
         if max3(sig_s) <= 0.0:
             continue
         counters[C_SHADOW] += 1
@@ -604,7 +604,7 @@ def sample_equiangular_lights(prm, lights, med, ea, o, d, t0, t1, pix, s, b, rng
             w = mis_weight(prm.mis, pdf, free_flight_pdf(m, t0, t))
         f = w / (dist * dist * pdf)
         if len(med) == 1:
-            f = phase_eval(m.phase_kind, m.g, dot(d, wl)) * w / (dist * dist * pdf)
+            f = phase_eval(m.phase_kind, m.g, d, wl) * w / (dist * dist * pdf)
         L = add3(L, mul3((lt.color[0], lt.color[1], lt.color[2]),
                          scale3(mul3(sig_s, mul3(t_cam, t_lt)), f * spot)))
     return L

@@ -100,10 +100,30 @@ def invert_hg_sample(w, d_in, g):
 
 
 @njit(cache=True, inline="always")
-def phase_eval(kind, g, cos_theta):
-    """Phase function value (1/sr) of kind PHASE_ISOTROPIC or PHASE_HG."""
+def hg_eval_dirs(d, w, g):
+    """HG (1/sr) at the angle between unit directions d and w, from their chord: 1 - cos =
+    |w - d|^2 / 2 for g >= 0 (1 + cos = |w + d|^2 / 2 for g < 0), not from cos = d . w. Near
+    the peak, 1 - cos must resolve (1 - |g|)^2 (1e-12 at g = 0.999999), and a float32 cosine
+    near 1 moves in steps of 6e-8: the kernels' next-event estimates towards a sun then
+    weighed against phase sampling with a wrong f, +0.22 % at 4 light samples (z = 10), and
+    even float64 was 4.6 % off at g = 0.99999994. The chord of two nearly parallel vectors
+    keeps its relative precision (less (|w| - |d|)^2 / 2, ~1e-14 for unit vectors)."""
+    if g >= 0.0:
+        c = (w[0] - d[0], w[1] - d[1], w[2] - d[2])
+    else:
+        c = (w[0] + d[0], w[1] + d[1], w[2] + d[2])
+    side = 0.5 * dot(c, c)
+    a = abs(g)
+    denom = (1.0 - a) * (1.0 - a) + 2.0 * a * side
+    return INV_4PI * (1.0 - g) * (1.0 + g) / (denom * math.sqrt(denom))
+
+
+@njit(cache=True, inline="always")
+def phase_eval(kind, g, d, w):
+    """Phase function value (1/sr) of kind PHASE_ISOTROPIC or PHASE_HG at the angle between
+    unit directions d (the path's) and w."""
     if kind == PHASE_HG:
-        return hg_eval(cos_theta, g)
+        return hg_eval_dirs(d, w, g)
     return INV_4PI
 
 

@@ -349,11 +349,30 @@ def load_emission(spec: SceneSpec, vdb_density=None, cache=None, p="medium."):
     src, key = (e.field, p + "emission.field") if e.radiance is not None else \
         (e.temperature, p + "emission.temperature")
     if isinstance(src, ConstantDensity):
-        return remap_temperature(np.full((1, 1, 1), src.value, np.float32), e.remap)
+        grid = remap_temperature(np.full((1, 1, 1), src.value, np.float32), e.remap)
+        if e.radiance is None:
+            _check_blackbody_range(grid, spec.file, key)
+        return grid
     raw, vg = _read_source(spec, src, key, vdb_density, cache)
     where = src.resolved if isinstance(src, FileDensity) else spec.file
-    return remap_temperature(validate_grid(_dense(vg, where, key) if raw is None else raw,
+    grid = remap_temperature(validate_grid(_dense(vg, where, key) if raw is None else raw,
                                            where, key), e.remap)
+    if e.radiance is None:
+        _check_blackbody_range(grid, spec.file, key)
+    return grid
+
+
+def _check_blackbody_range(grid, file, key):
+    """The kernels keep the blackbody table unscaled in float32 (scale multiplies after the
+    lookup): a temperature whose radiance passes FLOAT32_MAX (about 2.3e31 K) made every
+    sample there infinite, and dropped, in the kernels alone."""
+    from ..emission import blackbody_rgb
+    hottest = float(grid.max())
+    top = float(blackbody_rgb(np.array(hottest)).max())
+    if not top <= FLOAT32_MAX:
+        raise SceneError(file, key, f"the hottest temperature, {hottest:g} K, radiates "
+                                    f"{top:g} nits, past float32 (the kernels' blackbody "
+                                    "table, before scale)")
 
 
 def remap_temperature(grid, remap):
