@@ -222,6 +222,19 @@ def test_scenes_without_emission_pay_nothing():
         assert np.array_equal(a.film.sum, b.film.sum)
 
 
+def test_a_dim_blackbody_is_sampled_in_both_packs():
+    """Found by an outside test: a 100 K emitter's blackbody radiance (about 1e-80) is 0 in
+    float32, so its emitter weights were 0 and emission sampling off in the kernels' pack
+    alone: the twins then drew different random numbers. The weights come from the float64
+    table in both packs."""
+    dim = dict(GLOW, emission={"temperature": 100.0, "scale": 1.0})
+    scene = _scene([SLAB, dim], "mis")
+    p64, p32 = pack_scene(scene), pack_scene(scene, np.float32)
+    assert p64.params[0]["emission_sampling"] == p32.params[0]["emission_sampling"] != 0
+    assert p32.table.dtype == np.float32 and p64.table.dtype == np.float64
+    assert np.array_equal(p32.medium["emitter_res"], p64.medium["emitter_res"])
+
+
 def test_bad_mode_is_a_one_line_error():
     with pytest.raises(SceneError, match="render.emission_sampling"):
         _scene([SLAB], "sometimes")

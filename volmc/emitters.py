@@ -201,9 +201,10 @@ def _inverse_map(record):
 
 def attach_emitters(records, stored, emis, tables, real):
     """Builds every emitting medium's distribution: sets the emitter fields of ``records``
-    (one ``medium_dtype`` record per medium, in place) and returns the media's tables with the
-    cells appended (``real`` arrays). Returns (tables, total): total is the summed weight x
-    volume, 0 when no medium has anything to sample (emission sampling then stays off)."""
+    (one ``medium_dtype`` record per medium, in place) and returns the media's tables
+    (given in float64, whatever ``real``) with the cells appended, as ``real`` arrays.
+    Returns (tables, total): total is the summed weight x volume, 0 when no medium has
+    anything to sample (emission sampling then stays off)."""
     per = []
     for rec, s, e, t in zip(records, stored, emis, tables):
         rec["emitter_res"] = (0, 0, 0)
@@ -225,7 +226,7 @@ def attach_emitters(records, stored, emis, tables, real):
     out = []
     for rec, t, x in zip(records, tables, per):
         if x is None or not total > 0.0:
-            out.append(t)
+            out.append(np.ascontiguousarray(t, dtype=real))
             continue
         w, res, local_cell, det, power = x
         flat = w.ravel()   # [cz, cy, cx] C order: c = ix + cx (iy + cy iz)

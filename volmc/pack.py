@@ -304,7 +304,7 @@ def _pack_scene(scene, real, spp_seed):
     params = np.zeros(1, params_dtype(real))
     params[0] = p
     from .scene.bricks import density_storage
-    parts = []
+    parts, tables64 = [], []
     storage = []
     for part in scene.media_scenes:
         stored = density_storage(part)
@@ -317,13 +317,18 @@ def _pack_scene(scene, real, spp_seed):
         medium, grid, bricks, pool = pack_medium(part, real, local, unit, maj.shape, stored,
                                                  centre, scene.spec)
         medium[0]["octree_depth"] = depth
-        emis, table = pack_emission(part, medium, real)
-        parts.append(MediumArrays(medium, grid, maj, mnr, emis, table, bricks, pool, nodes))
+        # The emitters' weights come from the float64 table in both packs: a float32 table
+        # of a dim blackbody (100 K: 1e-80) is 0, which turned emission sampling off in the
+        # kernels alone, and the twins drew different random numbers.
+        emis, table64 = pack_emission(part, medium, np.float64)
+        tables64.append(table64)
+        parts.append(MediumArrays(medium, grid, maj, mnr, np.ascontiguousarray(emis, real),
+                                  np.ascontiguousarray(table64, real), bricks, pool, nodes))
     if rnd.emission_sampling != "collision" and any(a.medium[0]["emission_kind"]
                                                     != EMISSION_NONE for a in parts):
         from .emitters import attach_emitters
         tables, total = attach_emitters([a.medium[0] for a in parts], storage,
-                                        [a.emis for a in parts], [a.table for a in parts], real)
+                                        [a.emis for a in parts], tables64, real)
         parts = [a._replace(table=t) for a, t in zip(parts, tables)]
         if total > 0.0:
             params[0]["emission_sampling"] = (EMISSION_SAMPLING_LIGHT
