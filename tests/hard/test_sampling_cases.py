@@ -36,7 +36,7 @@ def hg_directions(backend, u, g):
     if backend == "numba":
         return _hg_samples(u, g, AXIS)
     n = u.size // 2
-    out, ob = out_buf((n, 4))
+    out, ob = out_buf((n, 5))   # direction, pdf, phase_eval there
     run("t_hg_sample", n, to_dev(u.astype(np.float32)), to_dev(np.full(n, g, np.float32)),
         f3(AXIS), ob, outs=[(out, ob)])
     dirs = out[:, :3].astype(np.float64)
@@ -134,10 +134,10 @@ def test_case02_hg_extreme_g_and_u(backend, lanes):
         run("t_hg_sample_cos", n, to_dev(us.astype(np.float32)), to_dev(gs.astype(np.float32)),
             cb, outs=[(csp, cb)])
         uu = np.stack([us, np.full(n, u2)], 1).astype(np.float32)
-        w4, wb = out_buf((n, 4))
+        w5, wb = out_buf((n, 5))   # direction, pdf, phase_eval there
         run("t_hg_sample", n, to_dev(uu.ravel()), to_dev(gs.astype(np.float32)), f3(d_in), wb,
-            outs=[(w4, wb)])
-        csp, w4 = csp.astype(np.float64), w4.astype(np.float64)
+            outs=[(w5, wb)])
+        csp, w4 = csp.astype(np.float64), w5[:, :4].astype(np.float64)
         tol_pdf, tol_dir = 1e-4, 2e-6
     else:
         d_in = AXIS / np.linalg.norm(AXIS)
