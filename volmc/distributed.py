@@ -201,6 +201,13 @@ def close(client, cluster=None):
     tasks a stopped render left behind may still report to the scheduler as it closes, which
     Dask logs as CRITICAL tracebacks of a closed comm, none of them the user's business."""
     import logging
+    if cluster is not None:
+        # Our workers share the terminal: one whose heartbeat meets the scheduler closed
+        # before it logs an ERROR traceback there (seen once in a CI run after Ctrl-C).
+        try:
+            client.run(_quiet_for_close)
+        except Exception:   # a worker already gone: nothing of its to silence
+            pass
     log = logging.getLogger("distributed")
     level = log.level
     log.setLevel(logging.CRITICAL + 1)
@@ -210,6 +217,15 @@ def close(client, cluster=None):
             cluster.close()
     finally:
         log.setLevel(level)
+
+
+def _quiet_for_close():
+    """In a worker of our local cluster that is about to be closed: nothing of Dask's to log
+    any more (close)."""
+    import logging
+    for name in ["distributed"] + [n for n in logging.root.manager.loggerDict
+                                   if n.startswith("distributed.")]:
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
 def _quiet_cancellations():
