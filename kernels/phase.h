@@ -9,10 +9,20 @@
 
 /* PHASE_ISOTROPIC and PHASE_HG come from the generated params.h. */
 
-static inline lfloat hg_eval(lfloat cos_theta, float g) {
-    lfloat denom = g >= 0.0f ? (1.0f - g) * (1.0f - g) + 2.0f * g * (1.0f - cos_theta)
-                             : (1.0f + g) * (1.0f + g) - 2.0f * g * (1.0f + cos_theta);
+/* 1 + g^2 - 2 g cos as a sum of non-negative terms (twin in phase.py): side is 1 - cos for
+ * g >= 0, 1 + cos for g < 0. */
+static inline lfloat hg_denom(lfloat side, float g) {
+    float a = fabs(g);
+    return (1.0f - a) * (1.0f - a) + 2.0f * a * side;
+}
+
+/* HG (1/sr) from its hg_denom. */
+static inline lfloat hg_value(lfloat denom, float g) {
     return INV_4PI * (1.0f - g) * (1.0f + g) / (denom * sqrt(denom));
+}
+
+static inline lfloat hg_eval(lfloat cos_theta, float g) {
+    return hg_value(hg_denom(g >= 0.0f ? 1.0f - cos_theta : 1.0f + cos_theta, g), g);
 }
 
 /* Returns cos(theta); writes sin(theta) and the pdf (1/sr). */
@@ -37,9 +47,7 @@ static inline lvec3 hg_sample(lfloat u1, lfloat u2, lvec3 d_in, float g, lfloat 
 
 /* The uniform hg_sample_cos maps to cos_theta (derivation in phase.py). */
 static inline lfloat hg_invert_cos(lfloat cos_theta, float g) {
-    lfloat denom = g >= 0.0f ? (1.0f - g) * (1.0f - g) + 2.0f * g * (1.0f - cos_theta)
-                             : (1.0f + g) * (1.0f + g) - 2.0f * g * (1.0f + cos_theta);
-    lfloat s = sqrt(denom);
+    lfloat s = sqrt(hg_denom(g >= 0.0f ? 1.0f - cos_theta : 1.0f + cos_theta, g));
     return (1.0f - g) * (1.0f + cos_theta) / (s * (1.0f + g + s));
 }
 
@@ -58,10 +66,7 @@ static inline lvec2 invert_hg_sample(lvec3 w, lvec3 d_in, float g) {
  * from their cosine). */
 static inline lfloat hg_eval_dirs(lvec3 d, lvec3 w, float g) {
     lvec3 c = g >= 0.0f ? sub3(w, d) : add3(w, d);
-    lfloat side = 0.5f * dot3(c, c); /* 1 - cos (g >= 0), 1 + cos (g < 0) */
-    float a = fabs(g);
-    lfloat denom = (1.0f - a) * (1.0f - a) + 2.0f * a * side;
-    return INV_4PI * (1.0f - g) * (1.0f + g) / (denom * sqrt(denom));
+    return hg_value(hg_denom(0.5f * dot3(c, c), g), g); /* 1 - cos, or 1 + cos */
 }
 
 /* The phase function at the angle between unit directions d (the path's) and w. */

@@ -320,9 +320,9 @@ def _pack_scene(scene, real, spp_seed):
         # The emitters' weights come from the float64 table in both packs: a float32 table
         # of a dim blackbody (100 K: 1e-80) is 0, which turned emission sampling off in the
         # kernels alone, and the twins drew different random numbers.
-        emis, table64 = pack_emission(part, medium, np.float64)
+        emis, table64 = pack_emission(part, medium, real)
         tables64.append(table64)
-        parts.append(MediumArrays(medium, grid, maj, mnr, np.ascontiguousarray(emis, real),
+        parts.append(MediumArrays(medium, grid, maj, mnr, emis,
                                   np.ascontiguousarray(table64, real), bricks, pool, nodes))
     if rnd.emission_sampling != "collision" and any(a.medium[0]["emission_kind"]
                                                     != EMISSION_NONE for a in parts):
@@ -374,8 +374,9 @@ def shared_buffers(pk):
 
 
 def pack_emission(scene, medium, real):
-    """(emission field grid, blackbody table) of the scene, and the emission fields of the
-    medium record (set in place). Radiance and temperature are the same in the scene frame
+    """(emission field grid in ``real``, blackbody table in float64: the emitters' weights
+    read it so in both packs) of the scene, and the emission fields of the medium record
+    (set in place). Radiance and temperature are the same in the scene frame
     (pack.scene_frame): only sigma_a scales, and it is in the record's extinction."""
     from .emission import blackbody_table
     e = scene.medium.emission
@@ -383,19 +384,19 @@ def pack_emission(scene, medium, real):
     m["emission_kind"] = EMISSION_NONE
     m["emission_dims"] = (1, 1, 1)
     if e is None:
-        return np.zeros((1, 1, 1), real), np.zeros((2, 3), real)
+        return np.zeros((1, 1, 1), real), np.zeros((2, 3))
     emis = np.ascontiguousarray(scene.emission_grid, dtype=real)
     nz, ny, nx = emis.shape
     m["emission_dims"] = (nx, ny, nz)
     if e.radiance is not None:
         m["emission_kind"] = EMISSION_RADIANCE
         m["emission_rgb"] = e.radiance
-        return emis, np.zeros((2, 3), real)
+        return emis, np.zeros((2, 3))
     m["emission_kind"] = EMISSION_TEMPERATURE
     m["emission_rgb"] = (e.scale, e.scale, e.scale)
     table, per_kelvin = blackbody_table(float(scene.emission_grid.max()))
     m["table_scale"] = per_kelvin
-    return emis, np.ascontiguousarray(table, real)
+    return emis, np.asarray(table, np.float64)
 
 
 def pack_medium(scene, real, local, unit, maj_res, stored=None, centre=None, whole=None):

@@ -32,14 +32,23 @@ from .sampling import coordinate_system, dot, from_frame, sample_uniform_sphere
 
 
 @njit(cache=True, inline="always")
+def hg_denom(side, g):
+    """1 + g^2 - 2 g cos written as a sum of two non-negative terms (no cancellation): side
+    is 1 - cos for g >= 0, 1 + cos for g < 0."""
+    a = abs(g)
+    return (1.0 - a) * (1.0 - a) + 2.0 * a * side
+
+
+@njit(cache=True, inline="always")
+def hg_value(denom, g):
+    """Henyey-Greenstein value (1/sr) from its ``hg_denom``."""
+    return INV_4PI * (1.0 - g) * (1.0 + g) / (denom * math.sqrt(denom))
+
+
+@njit(cache=True, inline="always")
 def hg_eval(cos_theta, g):
     """Henyey-Greenstein phase function value (1/sr) at cos(theta) between propagation directions."""
-    # 1 + g^2 - 2 g cos written as a sum of two non-negative terms (no cancellation).
-    if g >= 0.0:
-        denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - cos_theta)
-    else:
-        denom = (1.0 + g) * (1.0 + g) - 2.0 * g * (1.0 + cos_theta)
-    return INV_4PI * (1.0 - g) * (1.0 + g) / (denom * math.sqrt(denom))
+    return hg_value(hg_denom(1.0 - cos_theta if g >= 0.0 else 1.0 + cos_theta, g), g)
 
 
 @njit(cache=True, inline="always")
@@ -78,12 +87,8 @@ def hg_invert_cos(cos_theta, g):
     From t = 1 - g + 2 g u and s = (1 + g^2 - 2 g cos)^(1/2) = (1 - g^2) / t, u = (t - (1 - g))
     / (2 g); multiplying out 1 + g - s = 2 g (1 + cos) / (1 + g + s) removes the division by g:
     u = (1 - g)(1 + cos) / (s (1 + g + s)), valid for every g in (-1, 1), exact at g = 0
-    (u = (1 + cos) / 2). s^2 is formed as in hg_eval, a sum of non-negative terms."""
-    if g >= 0.0:
-        denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - cos_theta)
-    else:
-        denom = (1.0 + g) * (1.0 + g) - 2.0 * g * (1.0 + cos_theta)
-    s = math.sqrt(denom)
+    (u = (1 + cos) / 2). s^2 is ``hg_denom``, a sum of non-negative terms."""
+    s = math.sqrt(hg_denom(1.0 - cos_theta if g >= 0.0 else 1.0 + cos_theta, g))
     return (1.0 - g) * (1.0 + cos_theta) / (s * (1.0 + g + s))
 
 
@@ -112,10 +117,7 @@ def hg_eval_dirs(d, w, g):
         c = (w[0] - d[0], w[1] - d[1], w[2] - d[2])
     else:
         c = (w[0] + d[0], w[1] + d[1], w[2] + d[2])
-    side = 0.5 * dot(c, c)
-    a = abs(g)
-    denom = (1.0 - a) * (1.0 - a) + 2.0 * a * side
-    return INV_4PI * (1.0 - g) * (1.0 + g) / (denom * math.sqrt(denom))
+    return hg_value(hg_denom(0.5 * dot(c, c), g), g)   # (1 - cos, or 1 + cos)
 
 
 @njit(cache=True, inline="always")

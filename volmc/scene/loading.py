@@ -349,14 +349,12 @@ def load_emission(spec: SceneSpec, vdb_density=None, cache=None, p="medium."):
     src, key = (e.field, p + "emission.field") if e.radiance is not None else \
         (e.temperature, p + "emission.temperature")
     if isinstance(src, ConstantDensity):
-        grid = remap_temperature(np.full((1, 1, 1), src.value, np.float32), e.remap)
-        if e.radiance is None:
-            _check_blackbody_range(grid, spec.file, key)
-        return grid
-    raw, vg = _read_source(spec, src, key, vdb_density, cache)
-    where = src.resolved if isinstance(src, FileDensity) else spec.file
-    grid = remap_temperature(validate_grid(_dense(vg, where, key) if raw is None else raw,
-                                           where, key), e.remap)
+        values = np.full((1, 1, 1), src.value, np.float32)
+    else:
+        raw, vg = _read_source(spec, src, key, vdb_density, cache)
+        where = src.resolved if isinstance(src, FileDensity) else spec.file
+        values = validate_grid(_dense(vg, where, key) if raw is None else raw, where, key)
+    grid = remap_temperature(values, e.remap)
     if e.radiance is None:
         _check_blackbody_range(grid, spec.file, key)
     return grid
