@@ -35,7 +35,8 @@ CASES = ([(f, "density", "blobs_density") for f in BLOBS]
          + [(f, "density", "quirks")
             for f in ("quirks.vdb", "quirks_zip.vdb", "quirks_mask.vdb", "quirks.nvdb")]
          + [(f, "density", "nonuniform") for f in ("nonuniform.vdb", "nonuniform.nvdb")]
-         + [(f, "density", "levelset") for f in ("levelset.vdb", "levelset.nvdb")])
+         + [(f, "density", "levelset") for f in ("levelset.vdb", "levelset.nvdb")]
+         + [(f, "density", "inactive") for f in ("inactive.vdb", "inactive.nvdb")])
 
 
 def fixture_path(name, tmp_path):
@@ -64,6 +65,17 @@ def block_value(grid, ijk):
     assert len(hit) == 1
     x, y, z = ijk - grid.origins[hit[0]]
     return float(grid.values[hit[0], z, y, x])
+
+
+def stored_value(grid, ijk):
+    """The value at index ijk as the grid stores it: its block's, else a fill box's, else
+    the background."""
+    v = block_value(grid, ijk)
+    if v is not None:
+        return v
+    inside = np.all((grid.fill_boxes[:, :3] <= ijk) & (np.asarray(ijk) < grid.fill_boxes[:, 3:]),
+                    axis=1)
+    return float(grid.fill_values[inside][-1]) if inside.any() else grid.background
 
 
 def raises_scene_error(path, match=None, **kw):
@@ -107,8 +119,30 @@ def test_sparse_blocks(name, grid, gt, tmp_path):
     assert len(np.unique(g.origins, axis=0)) == len(g.origins)
     assert np.all(np.diff(g.origins[:, 0]) >= 0)  # sorted by (x, y, z)
     for s in info["samples"]:
-        v = block_value(g, s["index"])
-        assert (v if v is not None else g.background) == s["value"], s
+        assert stored_value(g, s["index"]) == s["value"], s
+
+
+def test_inactive_tiles_hold_their_values():
+    """Inactive tiles of another value than the background, at each level of the tree (8^3
+    in a lower node, 128^3 in an upper node, a 4096^3 root tile), read as OpenVDB's getValue
+    gives them, as boxes cut to the bbox's 8-aligned hull: not as blocks, not as 0."""
+    _, info = truth("inactive")
+    for name in ("inactive.vdb", "inactive.nvdb"):
+        g = read_vdb(DATA / name)
+        lo, hi = np.array(g.bbox[0]) // 8 * 8, np.array(g.bbox[1]) // 8 * 8 + 8
+        assert sorted(set(g.fill_values.tolist())) == [np.float32(v) for v in (0.1, 0.2, 0.6)]
+        assert np.all(g.fill_boxes[:, :3] >= lo) and np.all(g.fill_boxes[:, 3:] <= hi)
+        assert np.all(g.fill_boxes % 8 == 0)
+        assert len(g.origins) == 4     # the leaves of the four active voxels only
+        assert g.n_fill_blocks == sum(np.prod((b[3:] - b[:3]) // 8) for b in g.fill_boxes)
+        o, v = g.fill_blocks()
+        assert len(o) == len(v) == g.n_fill_blocks
+        for s in info["samples"]:
+            if block_value(g, s["index"]) is not None:
+                continue      # a leaf's voxel
+            hit = np.flatnonzero(np.all(o == (np.array(s["index"]) & ~7), axis=1))
+            x, y, z = np.array(s["index"]) - (o[hit[0]] if len(hit) else 0)
+            assert (v[hit[0], z, y, x] if len(hit) else g.background) == s["value"], s
 
 
 def test_quirks_leaf_and_tile_contents():
@@ -126,13 +160,15 @@ def test_quirks_leaf_and_tile_contents():
 @pytest.mark.parametrize("group", [
     BLOBS, ["quirks.vdb", "quirks_zip.vdb", "quirks_mask.vdb", "quirks.nvdb"],
     ["nonuniform.vdb", "nonuniform.nvdb"], ["bigtile.vdb", "bigtile.nvdb"],
-    ["levelset.vdb", "levelset.nvdb"]])
+    ["levelset.vdb", "levelset.nvdb"], ["inactive.vdb", "inactive.nvdb"]])
 def test_vdb_equals_nvdb_exactly(group, tmp_path):
     grids = [read_vdb(fixture_path(n, tmp_path)) for n in group]
     a = grids[0]
     for b in grids[1:]:
         np.testing.assert_array_equal(a.origins, b.origins)
         np.testing.assert_array_equal(a.values, b.values)
+        np.testing.assert_array_equal(a.fill_boxes, b.fill_boxes)
+        np.testing.assert_array_equal(a.fill_values, b.fill_values)
         assert (a.bbox, a.background) == (b.bbox, b.background)
         np.testing.assert_allclose(a.voxel_size, b.voxel_size, rtol=1e-15)
         np.testing.assert_allclose(a.index_to_world, b.index_to_world, atol=1e-15)

@@ -46,6 +46,16 @@ def test_vdb_bounds_come_from_the_file(file):
     assert np.array_equal(np.asarray(s.grid), np.load(DATA / "blobs_density.npy"))
 
 
+@pytest.mark.parametrize("file", ["inactive.vdb", "inactive.nvdb"])
+@pytest.mark.parametrize("storage", ["bricks", "dense"])
+def test_inactive_tiles_are_in_the_medium(file, storage):
+    """Inactive tiles of another value than the background are part of the density in both
+    storages, equal to OpenVDB's getValue over the bbox."""
+    s = _scene({"file": str(DATA / file)}, render_keys={"grid_storage": storage})
+    assert isinstance(s.grid, BrickGrid) == (storage == "bricks")
+    assert np.array_equal(np.asarray(s.grid), np.load(DATA / "inactive.npy"))
+
+
 @pytest.mark.parametrize("file", ["blobs.vdb", "blobs_blosc.nvdb"])
 def test_vdb_renders_the_image_of_the_npy_grid(backend, file):
     """The VDB scene (bricks) and the .npy scene (dense) with the equivalent bounds: the same

@@ -49,7 +49,8 @@ VDB_FIXTURES = ["fire/cache_fluid/data/fluid_data_0013.vdb",
                 "fire/embergen.vdb", "fire/double.vdb", "vdb/quirks.vdb", "vdb/quirks_zip.vdb",
                 "vdb/quirks_mask.vdb", "vdb/half_zip.vdb", "vdb/blobs_zip.vdb",
                 "vdb/quirks.nvdb", "vdb/blobs_zip.nvdb", "vdb/blobs_blosc.nvdb",
-                "vdb/levelset.nvdb", "vdb/blobs_none.nvdb.gz"]
+                "vdb/levelset.nvdb", "vdb/blobs_none.nvdb.gz", "vdb/inactive.vdb",
+                "vdb/inactive.nvdb"]
 KINDS = ("truncate", "flip", "burst", "word4", "word8")
 #: The readers fuzzed, by fixture kind.
 KINDS_READ = ("vdb", "exr", "grid", "checkpoint")

@@ -305,15 +305,24 @@ def _resample(dense, vg, density, shape):
 
 
 def _vdb_bricks(vg, path, key):
-    """A VDB grid (background 0) as a BrickGrid straight from its 8^3 leaves, its stored
-    values checked as validate_grid checks an array."""
-    v = vg.values
-    problem = value_problem(v)
+    """A VDB grid (background 0) as a BrickGrid straight from its 8^3 leaves and tiles, its
+    stored values checked as validate_grid checks an array. Inactive tiles of another value
+    than the background become blocks here, under a memory check, before the leaves (which
+    win where a corrupt file overlaps them)."""
+    problem = value_problem(vg.values) or value_problem(vg.fill_values)
     if problem:
         raise SceneError(path, key, f"grid '{vg.name}' contains {problem}")
     lo, hi = (np.asarray(c) for c in vg.bbox)
     dims = tuple(int(x) for x in hi - lo + 1)
-    return BrickGrid.from_blocks(dims, np.asarray(vg.origins) - lo, v)
+    origins, values = np.asarray(vg.origins), vg.values
+    if len(vg.fill_boxes):
+        n = vg.n_fill_blocks
+        require_host(2 * n * 512 * 4 + len(values) * 512 * 4, path, key,
+                     f"grid '{vg.name}': {n} blocks of inactive tiles")
+        fo, fv = vg.fill_blocks()
+        origins = np.concatenate([fo, origins])
+        values = np.concatenate([fv, values])
+    return BrickGrid.from_blocks(dims, origins - lo, values)
 
 
 def load_density(spec: SceneSpec, cache=None, p="medium."):

@@ -37,15 +37,23 @@ API
                         [imin - 1/2, imax + 1/2] and M the 4x4 index-to-world matrix.
     bbox            ((imin_x, imin_y, imin_z), (imax_x, imax_y, imax_z)) ints: the index
                     bounding box of the active voxels, both corners inclusive.
-    background      float: the value of every voxel outside leaves and active tiles.
+    background      float: the value of every voxel outside leaves and tiles.
     origins         int32 array (n, 3): (x, y, z) index of each 8^3 block's minimum
                     voxel (multiples of 8), sorted by (x, y, z).
     values          float32 array (n, 8, 8, 8) indexed [block][z][y][x]. Inactive
                     voxels inside a leaf hold the value the file stores for them
                     (normally the background).
+    fill_boxes      int64 array (m, 6): (x0, y0, z0, x1, y1, z1), the corners (lower
+                    inclusive, upper exclusive, multiples of 8) of the inactive tiles whose
+                    value is not the background, each cut to the 8-aligned hull of the
+                    bbox; they hold ``fill_values`` (float32 (m,)) and never overlap a
+                    block in a valid file (where they do, the block wins).
     ``shape``           (nz, ny, nx) of the active bbox.
     ``to_dense()``      float32 array [z, y, x] over the active bbox: block values where
-                        there are blocks, the background elsewhere.
+                        there are blocks, fill values in the fill boxes, the background
+                        elsewhere.
+    ``fill_blocks()``   (origins, values) of the fill boxes as 8^3 blocks (``n_fill_blocks``
+                        of them), for a sparse copy; the caller checks the memory.
     ``world_bounds()``  ((xmin, ymin, zmin), (xmax, ymax, zmax)), world units: the box
                         which, under volmc's convention (a grid of n voxels spans its box
                         with voxel i's centre at bmin + (i + 0.5) * extent / n), puts the
@@ -56,9 +64,13 @@ API
 Reading builds no dense array: the blocks are the file's leaf nodes, plus one block per
 8^3 piece of each ACTIVE tile of an internal or root node (a tile stands for a constant
 8^3, 128^3 or 4096^3 region); tiles whose blocks would hold more than ``MAX_TILE_VOXELS``
-voxels are rejected. Inactive tiles are read as the background. The blocks' bytes are
-checked against the host memory available (hostmem.require_host) before they are
-allocated, and a compressed NanoVDB grid's declared size before it is inflated.
+voxels are rejected. Values are OpenVDB's ``getValue``, active or not: an INACTIVE tile
+whose value is not the background (a level set's inside, a ``fill(..., active=False)``)
+holds that value, as an inactive voxel of a leaf keeps its own. Such tiles are kept as
+boxes (``fill_boxes``), not blocks, cut to the active bbox: a file cannot make the reader
+expand them, and a corrupt file's garbage tiles cost one array entry each. The blocks'
+bytes are checked against the host memory available (hostmem.require_host) before they
+are allocated, and a compressed NanoVDB grid's declared size before it is inflated.
 
 Transforms: any affine map (OpenVDB's UniformScaleMap, UniformScaleTranslateMap, ScaleMap,
 ScaleTranslateMap, TranslationMap, AffineMap and UnitaryMap; NanoVDB's matrix), including
@@ -90,7 +102,7 @@ import mmap
 import os
 import struct
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -100,6 +112,10 @@ from .hostmem import require_host
 # Tiles expand into 8^3 blocks: refuse files whose active tiles would need more voxels
 # than this (2^28 voxels = 1 GiB of float32).
 MAX_TILE_VOXELS = 1 << 28
+
+# Inactive tiles of a value other than the background are kept as boxes until the active
+# bbox is known: at most this many (each costs 40 bytes; a 32^3 upper node has 32768).
+MAX_FILL_TILES = 1 << 22
 
 # Peak host bytes per leaf read (its float32 values, its mask, the mask's [z][y][x] copy)
 # and per 8^3 block built (sorted float32 values, origin, the bbox pass's bool masks).
@@ -139,6 +155,8 @@ class VdbGrid:
     background: float
     origins: np.ndarray
     values: np.ndarray
+    fill_boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 6), np.int64))
+    fill_values: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
 
     @property
     def shape(self):
@@ -151,6 +169,10 @@ class VdbGrid:
         lo = np.array(self.bbox[0], np.int64)
         hi = np.array(self.bbox[1], np.int64) + 1  # exclusive
         out = np.full(self.shape, self.background, np.float32)
+        for box, value in zip(self.fill_boxes, self.fill_values):
+            a = np.maximum(box[:3], lo) - lo
+            b = np.minimum(box[3:], hi) - lo
+            out[a[2]:b[2], a[1]:b[1], a[0]:b[0]] = value
         for origin, block in zip(self.origins.astype(np.int64), self.values):
             a = np.maximum(origin, lo)
             b = np.minimum(origin + 8, hi)
@@ -160,6 +182,25 @@ class VdbGrid:
             (sx, sy, sz), (ex, ey, ez) = a - origin, b - origin
             out[az:bz, ay:by, ax:bx] = block[sz:ez, sy:ey, sx:ex]
         return out
+
+    @property
+    def n_fill_blocks(self):
+        """How many 8^3 blocks ``fill_blocks()`` makes."""
+        sides = (self.fill_boxes[:, 3:] - self.fill_boxes[:, :3]) // 8
+        return int(np.prod(sides, axis=1).sum())
+
+    def fill_blocks(self):
+        """(origins int64 (k, 3), values float32 (k, 8, 8, 8)): the fill boxes as 8^3
+        blocks, in box order."""
+        origins, values = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.float32)]
+        for box, value in zip(self.fill_boxes, self.fill_values):
+            g = np.meshgrid(*[np.arange(box[i], box[i + 3], 8, dtype=np.int64)
+                              for i in range(3)], indexing="ij")
+            origins.append(np.stack([x.ravel() for x in g], 1))
+            values.append(np.full(g[0].size, value, np.float32))
+        v = np.concatenate(values)
+        return (np.concatenate(origins),
+                np.broadcast_to(v[:, None, None, None], (len(v), 8, 8, 8)).copy())
 
     @property
     def voxel_size(self):
@@ -363,13 +404,35 @@ def _check_transform(m, t, cur, grid):
 
 
 class _Blocks:
-    """Collects leaf blocks and active tiles, then builds the sorted arrays."""
+    """Collects leaf blocks, active tiles and the inactive tiles that are not the
+    background, then builds the sorted arrays."""
 
-    def __init__(self, cur, grid):
+    def __init__(self, cur, grid, background):
         self.cur, self.grid = cur, grid
+        self.background = np.float32(background)
         self.leaf_origins, self.leaf_values = [], []  # lists of arrays
         self.tiles = []  # (origin xyz, size, value)
         self.tile_voxels = 0
+        self.fills = []  # (origins (k, 3) int64, size, values (k,) float32)
+        self.n_fills = 0
+
+    def add_tiles(self, origins, size, values, active):
+        """One node's tiles: origins (k, 3), their edge ``size`` in voxels, values (k,),
+        active (k,) bool. Active tiles become blocks; inactive ones of another value than
+        the background are kept as fill boxes (to_grid cuts them to the bbox)."""
+        values = np.asarray(values, np.float32).reshape(-1)
+        active = np.asarray(active, bool).reshape(-1)
+        origins = np.asarray(origins, np.int64).reshape(-1, 3)
+        for n in np.flatnonzero(active):
+            self.add_tile(origins[n], size, values[n])
+        # NaN != background too: kept, so validation refuses it where it is read.
+        keep = ~active & (values != self.background)
+        if keep.any():
+            self.n_fills += int(keep.sum())
+            if self.n_fills > MAX_FILL_TILES:
+                raise self.cur.error(f"grid '{self.grid}': more than {MAX_FILL_TILES} "
+                                     "inactive tiles")
+            self.fills.append((origins[keep], size, values[keep]))
 
     def add_tile(self, origin, size, value):
         self.tile_voxels += size ** 3
@@ -406,7 +469,24 @@ class _Blocks:
             act_blocks.append(np.ones((2, 8, 8, 8), bool))
         bbox = _bbox_of_active(np.concatenate(act_origins), np.concatenate(act_blocks),
                                self.cur, self.grid)
-        return VdbGrid(self.grid, linear, translation, bbox, background, origins, vals)
+        boxes, fill_values = self.fill_boxes(bbox)
+        return VdbGrid(self.grid, linear, translation, bbox, background, origins, vals,
+                       boxes, fill_values)
+
+    def fill_boxes(self, bbox):
+        """(int64 (m, 6), float32 (m,)): the inactive tiles of another value than the
+        background, cut to the 8-aligned hull of ``bbox``, those that meet it, file order."""
+        if not self.fills:
+            return np.zeros((0, 6), np.int64), np.zeros(0, np.float32)
+        lo = np.asarray(bbox[0], np.int64) // 8 * 8
+        hi = np.asarray(bbox[1], np.int64) // 8 * 8 + 8
+        o = np.concatenate([f[0] for f in self.fills])
+        size = np.concatenate([np.full(len(f[0]), f[1], np.int64) for f in self.fills])
+        v = np.concatenate([f[2] for f in self.fills])
+        a = np.maximum(o, lo)
+        b = np.minimum(o + size[:, None], hi)
+        meet = np.all(a < b, axis=1)
+        return np.concatenate([a, b], 1)[meet], v[meet]
 
     def build(self):
         """(origins int32 (n, 3), values float32 (n, 8, 8, 8)) sorted by (x, y, z); each
@@ -574,7 +654,7 @@ class _VdbReader:
         if cur.i32() != 1:
             raise cur.error(f"grid '{name}': unsupported tree (buffer count is not 1)")
         self.background = self._value()
-        blocks = _Blocks(cur, name)
+        blocks = _Blocks(cur, name, self.background)
         n_tiles, n_children = cur.u32(), cur.u32()
         if n_tiles > len(cur.buf) // (13 + vsize) or n_children > len(cur.buf) // 12:
             raise cur.error(f"corrupt OpenVDB grid '{name}' (root counts {n_tiles}, "
@@ -582,8 +662,7 @@ class _VdbReader:
         for _ in range(n_tiles):
             x, y, z = cur.unpack("iii")
             value = self._value()
-            if cur.u8():
-                blocks.add_tile((x, y, z), 4096, value)
+            blocks.add_tiles((x, y, z), 4096, value, cur.u8() != 0)
         uppers = []
         for _ in range(n_children):
             origin = cur.unpack("iii")
@@ -657,8 +736,7 @@ class _VdbReader:
         local = np.stack([idx >> 2 * log2, (idx >> log2) & ((1 << log2) - 1),
                           idx & ((1 << log2) - 1)], 1)
         coords = np.asarray(origin, np.int64) + (local << child_log2)
-        for n in np.flatnonzero(value_on & ~child):
-            blocks.add_tile(coords[n], 1 << child_log2, tiles[n])
+        blocks.add_tiles(coords[~child], 1 << child_log2, tiles[~child], value_on[~child])
         kids = coords[child]
         if log2 == 5:
             return [self._read_internal(tuple(c), 4, blocks) for c in kids]
@@ -843,7 +921,7 @@ class _NanoGrid:
         self.leaf_base, self.n_leaf = tree + off_leaf, n_leaf
         if n_leaf and self.leaf_base + n_leaf * self.LEAF_SIZE > len(self.buf):
             raise cur.error(f"corrupt {cur.what} (leaf array outside the grid)")
-        blocks = _Blocks(cur, name)
+        blocks = _Blocks(cur, name, background)
         leaf_index, leaf_origin = [], []
         # Child offsets are free to point at one node many times: count the nodes reached
         # against the tree's own counts, so a corrupt table cannot make the walk (or its
@@ -857,8 +935,7 @@ class _NanoGrid:
             origin = [(((key >> s) & 0x1FFFFF) << 12) & 0xFFFFFFFF for s in (42, 21, 0)]
             origin = [v - (1 << 32) if v >= 1 << 31 else v for v in origin]
             if child == 0:
-                if state:
-                    blocks.add_tile(origin, 4096, value)
+                blocks.add_tiles(origin, 4096, value, state != 0)
                 continue
             self._internal(root + child, origin, 5, blocks, leaf_index, leaf_origin)
         idx = np.array(leaf_index, np.int64)
@@ -897,8 +974,8 @@ class _NanoGrid:
                           idx & ((1 << log2) - 1)], 1)
         child_log2 = 7 if log2 == 5 else 3
         coords = np.asarray(origin, np.int64) + (local << child_log2)
-        for n in np.flatnonzero(value_on & ~child):
-            blocks.add_tile(coords[n], 1 << child_log2, tile_vals[n])
+        blocks.add_tiles(coords[~child], 1 << child_log2, tile_vals[~child],
+                         value_on[~child])
         kids = np.flatnonzero(child)
         if log2 == 5:
             for n in kids:

@@ -118,6 +118,15 @@ def dense_truth(acc, lo, hi, path):
     np.save(path, arr)
 
 
+def out(name):
+    return os.path.join(HERE, name)
+
+
+def nvdb(src, dst, *flags):
+    subprocess.run(["nanovdb_convert", "-f", *flags, src, dst], check=True,
+                   stdout=subprocess.DEVNULL)
+
+
 def gzip_to(src, dst):
     with open(src, "rb") as fi, gzip.GzipFile(dst, "wb", mtime=0) as fo:
         shutil.copyfileobj(fi, fo)
@@ -128,13 +137,6 @@ def main():
     recompress = os.path.join(tmp, "recompress")
     subprocess.run(["g++", "-O1", "-std=c++17", os.path.join(HERE, "recompress.cpp"), "-o",
                     recompress, "-lopenvdb", "-ltbb"], check=True)
-
-    def out(name):
-        return os.path.join(HERE, name)
-
-    def nvdb(src, dst, *flags):
-        subprocess.run(["nanovdb_convert", "-f", *flags, src, dst], check=True,
-                       stdout=subprocess.DEVNULL)
 
     # blobs.vdb: float "density" and "temperature", vec3 "velocity";
     # OpenVDB's default compression (blosc + active mask).
@@ -274,10 +276,38 @@ def main():
     vdb.write(out("negscale.vdb"), grids=[neg])
     nvdb(out("negscale.vdb"), out("negscale.nvdb"), "-z")
 
+    inactive_tiles()
+
     shutil.rmtree(tmp)
     for name in sorted(os.listdir(HERE)):
         print(f"{os.path.getsize(out(name)):8d}  {name}")
 
 
+def inactive_tiles():
+    """inactive.vdb / .nvdb: inactive tiles whose value is not the background, at every
+    level of the tree (eight 8^3 tiles in a lower node, a 128^3 tile in an upper node, a
+    4096^3 root tile), each cut by the active bbox, whose voxels lie outside all three
+    (getValue returns the tile's value there; a reader that took inactive tiles for the
+    background read 0)."""
+    g = vdb.FloatGrid(0.0)
+    g.name = "density"
+    g.transform = vdb.createLinearTransform(voxelSize=0.1)
+    g.fill((0, 0, 0), (15, 15, 15), 0.6, active=False)
+    g.fill((128, 0, 0), (255, 127, 127), 0.2, active=False)
+    g.fill((-4096, 0, 0), (-1, 4095, 4095), 0.1, active=False)
+    acc = g.getAccessor()
+    for ijk, v in [((-3, -2, -1), 1.0), ((140, 10, -1), 0.25), ((-3, -2, 12), 0.5),
+                   ((20, 3, 4), 0.75)]:
+        acc.setValueOn(ijk, v)
+    g.prune()
+    vdb.write(out("inactive.vdb"), grids=[g])
+    truth(out("inactive.vdb"), "density", samples=[(0, 0, 0), (15, 10, 12), (130, 5, 5),
+                                                 (-1, 0, 0), (-3, 10, 12), (16, 0, 0)])
+    nvdb(out("inactive.vdb"), out("inactive.nvdb"), "-z")
+
+
 if __name__ == "__main__":
+    # "inactive": make only the inactive-tile fixtures (added after the others were made).
+    if sys.argv[1:] == ["inactive"]:
+        sys.exit(inactive_tiles())
     sys.exit(main())
