@@ -130,13 +130,16 @@ def test_inactive_tiles_hold_their_values():
     for name in ("inactive.vdb", "inactive.nvdb"):
         g = read_vdb(DATA / name)
         lo, hi = np.array(g.bbox[0]) // 8 * 8, np.array(g.bbox[1]) // 8 * 8 + 8
-        assert sorted(set(g.fill_values.tolist())) == [np.float32(v) for v in (0.1, 0.2, 0.6)]
-        assert np.all(g.fill_boxes[:, :3] >= lo) and np.all(g.fill_boxes[:, 3:] <= hi)
-        assert np.all(g.fill_boxes % 8 == 0)
+        sides = g.fill_boxes[:, 3:] - g.fill_boxes[:, :3]
+        # Each tile whole (as a box, never expanded): its value and its level's edge.
+        assert {(float(v), int(e)) for v, e in zip(g.fill_values, sides[:, 0])} == {
+            (float(np.float32(0.6)), 8), (float(np.float32(0.2)), 128),
+            (float(np.float32(0.1)), 4096)}
+        assert np.all(sides == sides[:, :1]) and np.all(g.fill_boxes % 8 == 0)
         assert len(g.origins) == 4     # the leaves of the four active voxels only
-        assert g.n_fill_blocks == sum(np.prod((b[3:] - b[:3]) // 8) for b in g.fill_boxes)
-        o, v = g.fill_blocks()
+        o, v = g.fill_blocks()         # cut to the bbox's 8-aligned hull
         assert len(o) == len(v) == g.n_fill_blocks
+        assert np.all(o >= lo) and np.all(o + 8 <= hi)
         for s in info["samples"]:
             if block_value(g, s["index"]) is not None:
                 continue      # a leaf's voxel
@@ -445,6 +448,23 @@ def test_reading_builds_no_dense_array():
         assert peak < 16 * 2 ** 20, peak
 
 
+def test_values_outside_the_bbox_are_not_read():
+    """Brick storage keeps, and checks, only the voxels of the active bbox, as dense storage
+    does: a leaf's inactive NaN or negative voxel outside it is not refused by one and
+    accepted by the other."""
+    import dataclasses
+    from volmc.scene.loading import _vdb_bricks
+    vg = read_vdb(DATA / "blobs.vdb")
+    out = np.flatnonzero(np.any(vg.origins < vg.bbox[0], axis=1))[0]
+    x, y, z = np.array(vg.bbox[0]) - vg.origins[out] - 1    # outside along an axis at least
+    values = vg.values.copy()
+    values[out, max(z, 0), max(y, 0), max(x, 0)] = np.nan
+    bad = dataclasses.replace(vg, values=values)
+    assert np.array_equal(np.asarray(_vdb_bricks(bad, "f.vdb", KEY)),
+                          np.asarray(_vdb_bricks(vg, "f.vdb", KEY)))
+    assert np.array_equal(bad.to_dense(), vg.to_dense())
+
+
 def test_bad_values_are_named_all_at_once():
     """A VDB's stored values are checked as an array's are (validate_grid): NaN, infinite
     and negative voxels counted in one message, a negative infinity as infinite."""
@@ -452,7 +472,9 @@ def test_bad_values_are_named_all_at_once():
     from volmc.scene.loading import _vdb_bricks
     vg = read_vdb(DATA / "blobs.vdb")
     values = vg.values.copy()
-    values.reshape(-1)[[3, 70, 600]] = [np.nan, -np.inf, -0.25]
+    whole = np.flatnonzero(np.all((vg.origins >= vg.bbox[0]) & (vg.origins + 7 <= vg.bbox[1]),
+                                  axis=1))      # blocks inside the bbox: every voxel is read
+    values[whole[:3], 1, 2, 3] = [np.nan, -np.inf, -0.25]
     with pytest.raises(SceneError) as e:
         _vdb_bricks(dataclasses.replace(vg, values=values), "f.vdb", "medium.density")
     assert str(e.value) == ("f.vdb: medium.density: grid 'density' contains 1 NaN, 1 infinite "

@@ -56,6 +56,20 @@ def test_inactive_tiles_are_in_the_medium(file, storage):
     assert np.array_equal(np.asarray(s.grid), np.load(DATA / "inactive.npy"))
 
 
+@pytest.mark.parametrize("file", ["inactive.vdb", "inactive.nvdb"])
+def test_a_field_reads_its_values_outside_its_own_active_box(file):
+    """A field of the density's file, on its lattice, reads what OpenVDB's getValue gives at
+    each density voxel: its inactive tile and inactive leaf voxel beyond its own active box
+    too (they were its background)."""
+    s = _scene({"file": str(DATA / file)},
+               extra={"emission": {"temperature": {"file": str(DATA / file), "grid": "flame"},
+                                   "remap": [0.0, 1.0, 0.0, 1000.0], "scale": 1e-4}})
+    flame = np.load(DATA / "inactive_flame.npy")
+    assert np.count_nonzero(flame == np.float32(0.8)) == 512 and np.any(flame == np.float32(0.9))
+    expected = (flame.astype(np.float64) * 1000.0).astype(np.float32)
+    assert np.array_equal(s.emission_grid, expected)
+
+
 @pytest.mark.parametrize("file", ["blobs.vdb", "blobs_blosc.nvdb"])
 def test_vdb_renders_the_image_of_the_npy_grid(backend, file):
     """The VDB scene (bricks) and the .npy scene (dense) with the equivalent bounds: the same
@@ -205,6 +219,22 @@ def test_a_field_on_another_lattice_is_resampled_in_world_space():
     # Moved far from the field's box, the density's voxels read its background.
     far = _vdb_grid("density", lin_d, (50.0, 0.0, 0.0), lo_d, np.ones((4, 4, 4), np.float32))
     assert np.all(_align_vdb(f, far, "f.vdb", "medium.emission.temperature") == -1.0)
+
+
+def test_a_resampled_field_reads_its_tiles_beyond_its_active_box():
+    """On another lattice too, the field's values are its getValue: an inactive tile of 0.7
+    beyond the field's active box, under the density's voxels, interpolates to 0.7 (it was
+    the field's background, 0)."""
+    import dataclasses
+    from volmc.scene.loading import _align_vdb
+    f = _vdb_grid("temperature", np.eye(3) * 0.1, (0.033, 0.0, 0.0), (0, 0, 0),
+                  np.full((8, 8, 8), 0.5, np.float32), background=0.0)
+    f = dataclasses.replace(f, fill_boxes=np.array([[16, 0, 0, 32, 16, 16]], np.int64),
+                            fill_values=np.array([0.7], np.float32))
+    d = _vdb_grid("density", np.eye(3) * 0.1, (0.0, 0.0, 0.0), (17, 1, 1),
+                  np.ones((10, 10, 10), np.float32))
+    out = _align_vdb(f, d, "f.vdb", "medium.emission.temperature")
+    np.testing.assert_allclose(out, 0.7, rtol=1e-6)
 
 
 def test_a_mantaflow_base_grid_lands_on_its_upres_density():

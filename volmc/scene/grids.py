@@ -192,8 +192,9 @@ def value_problem(v):
     return text
 
 
-def validate_grid(arr, file, key="density"):
-    """Check a density array (3-D, non-empty, real, finite, >= 0). Returns float32 C-order."""
+def validate_grid(arr, file, key="density", name=None):
+    """Check a density array (3-D, non-empty, real, finite, >= 0). Returns float32 C-order.
+    ``name``: the grid's name in its file (a VDB file's), for the messages."""
     arr = np.asarray(arr)
     if arr.dtype.kind not in "fiu":
         raise SceneError(file, key, f"grid must hold real numbers, got dtype {arr.dtype}")
@@ -209,11 +210,15 @@ def validate_grid(arr, file, key="density"):
                  f"checking a {'x'.join(map(str, arr.shape[::-1]))} grid")
     problem = value_problem(arr)
     if problem:
-        raise SceneError(file, key, f"grid contains {problem}")
+        raise SceneError(file, key, f"{_grid_words(name)} contains {problem}")
     if float(arr.max()) > float(np.finfo(np.float32).max):
-        raise SceneError(file, key, "grid values overflow float32")
+        raise SceneError(file, key, f"{_grid_words(name)} values overflow float32")
     out = np.ascontiguousarray(arr, dtype=np.float32)
     return out
+
+
+def _grid_words(name):
+    return "grid" if name is None else f"grid '{name}'"
 
 
 def load_grid(path, key="density", name="density"):

@@ -237,7 +237,8 @@ def _dense(vg, path, key):
 def _align_vdb(vg, density, path, key):
     """Grid ``vg`` on the voxels of the VDB density grid, over the density's active box.
     Where the two share their voxel size and lattice (the grids of one simulation cache),
-    the overlap is copied exactly and the rest is vg's background. Otherwise (another
+    each density voxel gets vg's value there exactly, as OpenVDB's getValue gives it (active
+    or not: vg's inactive voxels and tiles outside its own active box count). Otherwise (another
     resolution, a shifted or turned lattice: Mantaflow's upres noise grids beside its
     base-resolution ones, a Pyro field at half resolution) vg is resampled at the density's
     voxel centres by trilinear interpolation in world space, as a renderer that samples each
@@ -247,37 +248,39 @@ def _align_vdb(vg, density, path, key):
     lo_d = np.asarray(density.bbox[0])
     hi_d = np.asarray(density.bbox[1])
     shape = tuple(int(x) for x in (hi_d - lo_d + 1)[::-1])
-    # vg expanded over its own box (and a padded copy to resample), and the array over the
-    # density's box with its validation (an upper bound: vg's arrays are gone by then).
-    require_host(8 * math.prod(vg.shape) + load_peak_bytes(math.prod(shape)), path, key,
-                 f"placing grid '{vg.name}' on the density's {shape_text(shape)} voxels")
-    dense = vg.to_dense()
+    what = f"placing grid '{vg.name}' on the density's {shape_text(shape)} voxels"
     same = np.allclose(vg.linear, lin, rtol=1e-6, atol=1e-6 * float(np.abs(lin).max()))
-    if not (same and np.allclose(shift, np.round(shift), atol=1e-4)):
-        return _resample(dense, vg, density, shape)
-    out = np.full(shape, np.float32(vg.background), np.float32)
-    lo_v = np.asarray(vg.bbox[0]) + np.round(shift).astype(int)
-    a = np.maximum(lo_d, lo_v)
-    b = np.minimum(hi_d, lo_v + np.array(dense.shape[::-1]) - 1)
-    if np.all(b >= a):
-        so = (a - lo_d)[::-1]
-        si = (a - lo_v)[::-1]
-        n = (b - a + 1)[::-1]
-        out[so[0]:so[0] + n[0], so[1]:so[1] + n[1], so[2]:so[2] + n[2]] = \
-            dense[si[0]:si[0] + n[0], si[1]:si[1] + n[1], si[2]:si[2] + n[2]]
-    return out
+    if same and np.allclose(shift, np.round(shift), atol=1e-4):
+        # vg's index of density index j is j - shift: read vg there, active or not (its
+        # inactive leaf voxels and tiles outside its own active box hold their values too).
+        require_host(load_peak_bytes(math.prod(shape)), path, key, what)
+        s = np.round(shift).astype(np.int64)
+        return vg.dense_box(lo_d - s, hi_d - s)
+    # The box of vg's voxels the density's voxel centres interpolate, cut to where vg
+    # stores anything (its background beyond), read with a copy padded by one voxel.
+    to_vg = np.linalg.inv(np.asarray(vg.linear, np.float64))
+    corners = np.array([[(lo_d, hi_d)[(n >> a) & 1][a] for a in range(3)] for n in range(8)])
+    u = (corners @ lin.T + np.subtract(density.index_to_world, vg.index_to_world)) @ to_vg.T
+    s_lo, s_hi = vg.stored_box()
+    lo_f = np.maximum(np.floor(u.min(axis=0)).astype(np.int64), s_lo)
+    hi_f = np.minimum(np.ceil(u.max(axis=0)).astype(np.int64), s_hi)
+    if np.any(lo_f > hi_f):
+        return np.full(shape, np.float32(vg.background), np.float32)
+    require_host(8 * int(np.prod(hi_f - lo_f + 3)) + load_peak_bytes(math.prod(shape)),
+                 path, key, what)
+    return _resample(vg.dense_box(lo_f, hi_f), lo_f, vg, density, shape)
 
 
-def _resample(dense, vg, density, shape):
-    """vg's values (``dense``, [z, y, x] over its active box) trilinearly interpolated at
-    the centres of the density's voxels (``shape``, [z, y, x] over its active box), one
-    z-slab at a time; vg's background outside its box."""
+def _resample(dense, lo_f, vg, density, shape):
+    """vg's values (``dense``, [z, y, x] over its index box from ``lo_f``, outside which it
+    holds its background) trilinearly interpolated at the centres of the density's voxels
+    (``shape``, [z, y, x] over its active box), one z-slab at a time."""
     to_vg = np.linalg.inv(np.asarray(vg.linear, np.float64))
     lin_d = np.asarray(density.linear, np.float64)
-    # vg's index of density index j: A j + c, as an offset from vg's box corner.
+    # vg's index of density index j: A j + c, as an offset from the dense box's corner.
     A = to_vg @ lin_d
     c = to_vg @ (np.asarray(density.index_to_world, np.float64)
-                 - np.asarray(vg.index_to_world, np.float64)) - np.asarray(vg.bbox[0])
+                 - np.asarray(vg.index_to_world, np.float64)) - np.asarray(lo_f)
     n_vg = np.array(dense.shape[::-1])               # x, y, z
     padded = np.pad(dense, 1, constant_values=np.float32(vg.background))
     out = np.empty(shape, np.float32)
@@ -309,7 +312,7 @@ def _vdb_bricks(vg, path, key):
     stored values checked as validate_grid checks an array. Inactive tiles of another value
     than the background become blocks here, under a memory check, before the leaves (which
     win where a corrupt file overlaps them)."""
-    problem = value_problem(vg.values) or value_problem(vg.fill_values)
+    problem = value_problem(vg.values_in_bbox())   # what the bricks keep, as dense reads
     if problem:
         raise SceneError(path, key, f"grid '{vg.name}' contains {problem}")
     lo, hi = (np.asarray(c) for c in vg.bbox)
@@ -339,7 +342,7 @@ def load_density(spec: SceneSpec, cache=None, p="medium."):
         grid = _vdb_bricks(vg, where, p + "density")
     else:
         grid = validate_grid(_dense(vg, where, p + "density") if raw is None else raw, where,
-                             p + "density")
+                             p + "density", None if vg is None else vg.name)
     # The float32 kernels hold the global majorant scale * max(density).
     top = max(spec.medium.scale) * float(grid.max())
     if top > FLOAT32_MAX:
@@ -362,7 +365,8 @@ def load_emission(spec: SceneSpec, vdb_density=None, cache=None, p="medium."):
     else:
         raw, vg = _read_source(spec, src, key, vdb_density, cache)
         where = src.resolved if isinstance(src, FileDensity) else spec.file
-        values = validate_grid(_dense(vg, where, key) if raw is None else raw, where, key)
+        values = validate_grid(_dense(vg, where, key) if raw is None else raw, where, key,
+                               None if vg is None else vg.name)
     grid = remap_temperature(values, e.remap)
     if e.radiance is None:
         _check_blackbody_range(grid, spec.file, key)

@@ -45,15 +45,19 @@ API
                     (normally the background).
     fill_boxes      int64 array (m, 6): (x0, y0, z0, x1, y1, z1), the corners (lower
                     inclusive, upper exclusive, multiples of 8) of the inactive tiles whose
-                    value is not the background, each cut to the 8-aligned hull of the
-                    bbox; they hold ``fill_values`` (float32 (m,)) and never overlap a
-                    block in a valid file (where they do, the block wins).
+                    value is not the background, in file order; they hold ``fill_values``
+                    (float32 (m,)) and never overlap a block in a valid file (where they
+                    do, the block wins).
     ``shape``           (nz, ny, nx) of the active bbox.
-    ``to_dense()``      float32 array [z, y, x] over the active bbox: block values where
+    ``dense_box(lo, hi)``  float32 array [z, y, x] of the values OpenVDB's getValue gives
+                        over the index box lo..hi (corners inclusive): block values where
                         there are blocks, fill values in the fill boxes, the background
-                        elsewhere.
-    ``fill_blocks()``   (origins, values) of the fill boxes as 8^3 blocks (``n_fill_blocks``
-                        of them), for a sparse copy; the caller checks the memory.
+                        elsewhere. ``to_dense()`` is that over the active bbox.
+    ``stored_box()``    (lo, hi): the index box of everything stored; the background beyond.
+    ``values_in_bbox()``  every stored value the bbox reads (for validation).
+    ``fill_blocks()``   (origins, values) of the fill boxes, cut to the 8-aligned hull of
+                        the bbox, as 8^3 blocks (``n_fill_blocks`` of them), for a sparse
+                        copy; the caller checks the memory.
     ``world_bounds()``  ((xmin, ymin, zmin), (xmax, ymax, zmax)), world units: the box
                         which, under volmc's convention (a grid of n voxels spans its box
                         with voxel i's centre at bmin + (i + 0.5) * extent / n), puts the
@@ -67,8 +71,8 @@ Reading builds no dense array: the blocks are the file's leaf nodes, plus one bl
 voxels are rejected. Values are OpenVDB's ``getValue``, active or not: an INACTIVE tile
 whose value is not the background (a level set's inside, a ``fill(..., active=False)``)
 holds that value, as an inactive voxel of a leaf keeps its own. Such tiles are kept as
-boxes (``fill_boxes``), not blocks, cut to the active bbox: a file cannot make the reader
-expand them, and a corrupt file's garbage tiles cost one array entry each. The blocks'
+boxes (``fill_boxes``), not blocks: a file cannot make the reader expand them, and a
+corrupt file's garbage tiles cost one array entry each. The blocks'
 bytes are checked against the host memory available (hostmem.require_host) before they
 are allocated, and a compressed NanoVDB grid's declared size before it is inflated.
 
@@ -165,14 +169,20 @@ class VdbGrid:
         return (z1 - z0 + 1, y1 - y0 + 1, x1 - x0 + 1)
 
     def to_dense(self):
-        """float32 [z, y, x] over the active bbox; the background outside blocks."""
-        lo = np.array(self.bbox[0], np.int64)
-        hi = np.array(self.bbox[1], np.int64) + 1  # exclusive
-        out = np.full(self.shape, self.background, np.float32)
+        """float32 [z, y, x] over the active bbox; the background outside blocks and fills."""
+        return self.dense_box(*self.bbox)
+
+    def dense_box(self, lo, hi):
+        """float32 [z, y, x] over the index box lo..hi (corners inclusive): OpenVDB's
+        getValue of each voxel, active or not."""
+        lo = np.array(lo, np.int64)
+        hi = np.array(hi, np.int64) + 1  # exclusive
+        out = np.full(tuple((hi - lo)[::-1]), self.background, np.float32)
         for box, value in zip(self.fill_boxes, self.fill_values):
             a = np.maximum(box[:3], lo) - lo
             b = np.minimum(box[3:], hi) - lo
-            out[a[2]:b[2], a[1]:b[1], a[0]:b[0]] = value
+            if np.all(a < b):
+                out[a[2]:b[2], a[1]:b[1], a[0]:b[0]] = value
         for origin, block in zip(self.origins.astype(np.int64), self.values):
             a = np.maximum(origin, lo)
             b = np.minimum(origin + 8, hi)
@@ -183,17 +193,49 @@ class VdbGrid:
             out[az:bz, ay:by, ax:bx] = block[sz:ez, sy:ey, sx:ex]
         return out
 
+    def stored_box(self):
+        """(lo, hi) int64, corners inclusive: the index box of everything the grid stores
+        (the active bbox, its blocks, its fill boxes); every voxel beyond holds the
+        background."""
+        lo = [np.asarray(self.bbox[0], np.int64)[None]]
+        hi = [np.asarray(self.bbox[1], np.int64)[None]]
+        lo += [self.origins.astype(np.int64), self.fill_boxes[:, :3]]
+        hi += [self.origins.astype(np.int64) + 7, self.fill_boxes[:, 3:] - 1]
+        return np.concatenate(lo).min(axis=0), np.concatenate(hi).max(axis=0)
+
+    def values_in_bbox(self):
+        """float32 (k,): every stored value the active bbox reads (the voxels of blocks
+        inside it, the values of fill boxes that meet it), for validation."""
+        lo = np.asarray(self.bbox[0], np.int64)
+        hi = np.asarray(self.bbox[1], np.int64)
+        o = self.origins.astype(np.int64)[:, :, None] + np.arange(8)   # (n, axis, 8)
+        inside = (o >= lo[None, :, None]) & (o <= hi[None, :, None])
+        mask = (inside[:, 2, :, None, None] & inside[:, 1, None, :, None]
+                & inside[:, 0, None, None, :])                        # [n][z][y][x]
+        meet = np.all((self.fill_boxes[:, :3] <= hi) & (self.fill_boxes[:, 3:] > lo), axis=1)
+        return np.concatenate([self.values[mask], self.fill_values[meet]])
+
+    def _fills_in_hull(self):
+        """(boxes, values) of the fill boxes cut to the 8-aligned hull of the bbox, those
+        that meet it."""
+        lo = np.asarray(self.bbox[0], np.int64) // 8 * 8
+        hi = np.asarray(self.bbox[1], np.int64) // 8 * 8 + 8
+        a = np.maximum(self.fill_boxes[:, :3], lo)
+        b = np.minimum(self.fill_boxes[:, 3:], hi)
+        meet = np.all(a < b, axis=1)
+        return np.concatenate([a, b], 1)[meet], self.fill_values[meet]
+
     @property
     def n_fill_blocks(self):
         """How many 8^3 blocks ``fill_blocks()`` makes."""
-        sides = (self.fill_boxes[:, 3:] - self.fill_boxes[:, :3]) // 8
-        return int(np.prod(sides, axis=1).sum())
+        boxes, _ = self._fills_in_hull()
+        return int(np.prod((boxes[:, 3:] - boxes[:, :3]) // 8, axis=1).sum())
 
     def fill_blocks(self):
-        """(origins int64 (k, 3), values float32 (k, 8, 8, 8)): the fill boxes as 8^3
-        blocks, in box order."""
+        """(origins int64 (k, 3), values float32 (k, 8, 8, 8)): the fill boxes within the
+        bbox's 8-aligned hull as 8^3 blocks, in file order."""
         origins, values = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.float32)]
-        for box, value in zip(self.fill_boxes, self.fill_values):
+        for box, value in zip(*self._fills_in_hull()):
             g = np.meshgrid(*[np.arange(box[i], box[i + 3], 8, dtype=np.int64)
                               for i in range(3)], indexing="ij")
             origins.append(np.stack([x.ravel() for x in g], 1))
@@ -419,7 +461,7 @@ class _Blocks:
     def add_tiles(self, origins, size, values, active):
         """One node's tiles: origins (k, 3), their edge ``size`` in voxels, values (k,),
         active (k,) bool. Active tiles become blocks; inactive ones of another value than
-        the background are kept as fill boxes (to_grid cuts them to the bbox)."""
+        the background are kept as fill boxes."""
         values = np.asarray(values, np.float32).reshape(-1)
         active = np.asarray(active, bool).reshape(-1)
         origins = np.asarray(origins, np.int64).reshape(-1, 3)
@@ -469,24 +511,15 @@ class _Blocks:
             act_blocks.append(np.ones((2, 8, 8, 8), bool))
         bbox = _bbox_of_active(np.concatenate(act_origins), np.concatenate(act_blocks),
                                self.cur, self.grid)
-        boxes, fill_values = self.fill_boxes(bbox)
+        if self.fills:
+            o = np.concatenate([f[0] for f in self.fills])
+            size = np.concatenate([np.full(len(f[0]), f[1], np.int64) for f in self.fills])
+            boxes = np.concatenate([o, o + size[:, None]], 1)
+            fill_values = np.concatenate([f[2] for f in self.fills])
+        else:
+            boxes, fill_values = np.zeros((0, 6), np.int64), np.zeros(0, np.float32)
         return VdbGrid(self.grid, linear, translation, bbox, background, origins, vals,
                        boxes, fill_values)
-
-    def fill_boxes(self, bbox):
-        """(int64 (m, 6), float32 (m,)): the inactive tiles of another value than the
-        background, cut to the 8-aligned hull of ``bbox``, those that meet it, file order."""
-        if not self.fills:
-            return np.zeros((0, 6), np.int64), np.zeros(0, np.float32)
-        lo = np.asarray(bbox[0], np.int64) // 8 * 8
-        hi = np.asarray(bbox[1], np.int64) // 8 * 8 + 8
-        o = np.concatenate([f[0] for f in self.fills])
-        size = np.concatenate([np.full(len(f[0]), f[1], np.int64) for f in self.fills])
-        v = np.concatenate([f[2] for f in self.fills])
-        a = np.maximum(o, lo)
-        b = np.minimum(o + size[:, None], hi)
-        meet = np.all(a < b, axis=1)
-        return np.concatenate([a, b], 1)[meet], v[meet]
 
     def build(self):
         """(origins int32 (n, 3), values float32 (n, 8, 8, 8)) sorted by (x, y, z); each

@@ -300,7 +300,20 @@ def inactive_tiles():
                    ((20, 3, 4), 0.75)]:
         acc.setValueOn(ijk, v)
     g.prune()
-    vdb.write(out("inactive.vdb"), grids=[g])
+    # "flame", on the same lattice, active only over 2..5: its inactive 8^3 tile and its
+    # inactive leaf voxel lie outside its own active box but inside the density's, so
+    # placed on the density's voxels it reads them (inactive_flame.npy: getValue there).
+    f = vdb.FloatGrid(0.0)
+    f.name = "flame"
+    f.transform = g.transform
+    f.fill((2, 2, 2), (5, 5, 5), 0.5)
+    f.fill((32, 0, 0), (39, 7, 7), 0.8, active=False)
+    f.getAccessor().setValueOff((60, 5, 5), 0.9)
+    f.prune()
+    vdb.write(out("inactive.vdb"), grids=[g, f])
+    lo, hi = g.evalActiveVoxelBoundingBox()
+    dense_truth(vdb.read(out("inactive.vdb"), "flame").getConstAccessor(), lo, hi,
+                out("inactive_flame.npy"))
     truth(out("inactive.vdb"), "density", samples=[(0, 0, 0), (15, 10, 12), (130, 5, 5),
                                                  (-1, 0, 0), (-3, 10, 12), (16, 0, 0)])
     nvdb(out("inactive.vdb"), out("inactive.nvdb"), "-z")
