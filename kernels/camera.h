@@ -49,7 +49,10 @@ static inline lvec3 camera_ray(const Params *prm, lint px, lint py, lfloat u1, l
             return o;
         }
     } else {
-        o = e;
+        /* From the plane at near along f, where the pinhole ray from the camera meets it
+         * (camera.py). */
+        lfloat near = (lfloat)(prm->near);
+        o = madd3(madd3(e, r, sx * near), u, sy * near);
         v = madd3(madd3(f, r, sx), u, sy);
         if (!(prm->aperture > 0.0f)) {
             *dir = scale3(v, rsqrt(dot3(v, v)));
@@ -64,7 +67,7 @@ static inline lvec3 camera_ray(const Params *prm, lint px, lint py, lfloat u1, l
     lvec3 a = madd3(v, q, (lfloat)(-prm->lens_slope));
     a = scale3(a, 1.0f / fmax(fabs(a.x), fmax(fabs(a.y), fabs(a.z)))); /* no overflow below */
     *dir = scale3(a, rsqrt(dot3(a, a)));
-    return madd3(o, q, (lfloat)(prm->aperture));
+    return madd3(o, q, (lfloat)(prm->aperture - prm->near * prm->lens_slope));
 }
 
 #endif

@@ -186,11 +186,51 @@ def test_camera_ray_kernel_matches_reference(name, lanes):
                     for a in inp.astype(np.float64)])
     assert np.allclose(np.linalg.norm(out[:, 3:], axis=1), 1.0, atol=1e-6)
     assert np.allclose(out, ref, rtol=0, atol=3e-6), np.abs(out - ref).max()
-    lens = scene.camera.aperture > 0
-    # The lens moves the origin and turns the ray; a pinhole's rays all leave one point
-    # (the orthographic camera's leave its image plane along forward).
-    spread = np.ptp(ref[:, :3], axis=0).max()
-    assert (spread > 0) == (lens or scene.camera.type == "orthographic")
+    # Rays start on the plane at near along forward, short of the box (pack.camera_near;
+    # a panoramic camera's at the eye), on the lines they have from the camera: a pinhole's
+    # all pass through it.
+    f, eye, near = (np.asarray(prm64[k], np.float64) for k in ("forward", "eye", "near"))
+    if scene.camera.type == "panoramic":
+        assert near == 0.0 and np.all(ref[:, :3] == eye)
+        return
+    focus = scene.camera.focus_distance if scene.camera.aperture > 0 else np.inf
+    assert near == focus or 0.5 < near < 3.6 - 3**0.5     # the box is the frame: unit 1
+    assert np.allclose((ref[:, :3] - eye) @ f, 0.0, rtol=0, atol=1e-12)
+    if scene.camera.aperture == 0 and scene.camera.type != "orthographic":
+        to_camera = eye - near * f - ref[:, :3]
+        assert np.allclose(np.cross(to_camera, ref[:, 3:]), 0.0, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("keys", [{}, {"type": "orthographic", "size": 1.6},
+                                  {"aperture": 1e-5, "focus_distance": 1e12}])
+def test_a_camera_far_away_sees_the_box(keys, backend):
+    """A camera 1e12 box sizes away (a telephoto at 1e8 was enough): the kernels' float32
+    rounded its rays' distances to 8 units and more and rendered a box of 2 as empty sky.
+    Each pixel of an absorbing box seen along its axis is exactly exp(-2)."""
+    d = 1e12
+    scene = scene_from_dict({
+        "camera": {"eye": [0.0, 0.0, d], "target": [0.0, 0.0, 0.0],
+                   "fov": float(np.degrees(2 * np.arctan(0.8 / d))), "resolution": [4, 4],
+                   **keys},
+        "medium": {"bounds": [[-1, -1, -1], [1, 1, 1]], "density": 1.0, "albedo": 0.0},
+        "lights": [{"type": "environment", "radiance": 1.0}], "render": {"spp": 2}})
+    img = np.asarray(render(scene, backend=backend, progress=False).image)
+    assert np.allclose(img, np.exp(-2.0), rtol=2e-6, atol=0)
+
+
+def test_an_orthographic_image_does_not_depend_on_the_distance(backend):
+    """The same orthographic rays from 3 and from 1e10 units: the same image of a cloud to
+    float rounding (the rays start on a plane short of the box either way)."""
+    from volmc.resources import default_scene
+
+    def image(z):
+        scene = load_scene(default_scene(), SMALL_CLOUD + [
+            f"camera.eye=[0.0, 0.0, {z}]", "camera.target=[0.0, 0.0, 0.0]",
+            'camera.type="orthographic"', "camera.size=2.2", "medium.albedo=0.0"])
+        return np.asarray(render(scene, backend=backend, progress=False).image)
+    near, far = image(3.0), image(1e10)
+    assert near.std() > 0.05
+    assert np.allclose(near, far, rtol=2e-5, atol=1e-6)
 
 
 SMALL_CLOUD = ["medium.density.resolution=16", "camera.resolution=[8, 6]", "render.spp=8",

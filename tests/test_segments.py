@@ -94,7 +94,8 @@ def test_camera_segments_are_the_camera_rays(backend):
     rec = record_segments(scene, backend, spp=3, per_pixel=3 * 9 + 1)   # never full
     assert rec.full == 0
     from volmc.pack import pack_scene
-    eye = np.array(pack_scene(scene).params[0]["eye"])
+    prm = pack_scene(scene).params[0]   # the camera: the packed eye less near forward
+    eye = np.array(prm["eye"]) - prm["near"] * np.array(prm["forward"])
     v = rec.camera[:, :3] - eye
     along = np.einsum("ij,ij->i", v, rec.camera[:, 3:6])
     off = np.linalg.norm(v - along[:, None] * rec.camera[:, 3:6], axis=1)

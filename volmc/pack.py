@@ -122,6 +122,33 @@ def scene_frame(scene):
     return box_frame(*min(boxes, key=nearness))
 
 
+def camera_near(scene, forward):
+    """World distance along ``forward`` from the camera to the plane its rays start on
+    (params.near; reference/camera.py): just short of the nearest thing a camera ray can
+    meet, each medium's world box and each sphere light by its bounding sphere, and not
+    beyond a thin lens's plane in focus; 0 for a panoramic camera or one among them. The kernels then form a ray's origin near what it
+    sees: a camera 1e8 box sizes away, whose float32 distances rounded to 8 units, saw a
+    box of 2 as empty sky."""
+    cam = scene.camera
+    if cam.type == "panoramic":
+        return 0.0
+    spheres = []
+    for m in scene.spec.media:
+        lo, hi, _ = placement(m)
+        spheres.append(([0.5 * (lo[a] + hi[a]) for a in range(3)],
+                        0.5 * math.dist(lo, hi)))
+    spheres += [(lt.position, lt.radius) for lt in scene.lights if lt.type == "sphere"]
+    # A sixteenth of each radius short: the plane stays before everything, whatever the
+    # rounding, and as near it as the objects' own sizes allow.
+    gap = min(sum((c[a] - cam.eye[a]) * forward[a] for a in range(3)) - r * (1.0 + 2.0 ** -4)
+              for c, r in spheres)
+    # A thin lens's rays cross beyond the plane in focus: the plane stays before it, where a
+    # ray's origin is within the lens's radius of the pinhole ray's (its rays from a focus
+    # at 1e-30 left the lens almost sideways, and their points on a farther plane were 1e29
+    # away).
+    return max(0.0, min(gap, cam.focus_distance) if cam.aperture > 0.0 else gap)
+
+
 def medium_space(lo, hi, m, centre, unit):
     """(bmin, bmax, xform) of the local box [lo, hi] placed by the 4x4 transform m (the one
     ``placement`` gives the kernels), packed: the box centred and scaled by a power of two
@@ -191,6 +218,7 @@ def check_packed(scene, pk):
         for name in records.dtype.names or ():
             v = records[name]
             if v.dtype.kind == "f" and not np.isfinite(v).all():
+                name = "eye" if name == "near" else name   # the eye's distance, packed apart
                 raise SceneError(scene.file, key, f"{name} overflows float{8 * v.itemsize} in "
                                  f"the frame volmc renders in (positions relative to the "
                                  f"media's box, centre {_show3(centre)}, in units of {unit:g}; "
@@ -214,7 +242,9 @@ def _pack_scene(scene, real, spp_seed):
     p["width"], p["height"] = w, h
     f, r, u = camera_basis(cam)
     p["forward"], p["right"], p["up"] = f, r, u
-    p["eye"] = local(cam.eye)
+    near = camera_near(scene, f)
+    p["near"] = near / unit
+    p["eye"] = local([cam.eye[i] + near * f[i] for i in range(3)])
     if cam.type == "orthographic":
         p["cam_type"] = CAMERA_ORTHOGRAPHIC
         p["half_height"] = 0.5 * cam.size / unit

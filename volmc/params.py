@@ -18,7 +18,7 @@ PARAM_FIELDS = (
     ("height", "i4", 1, "image height in pixels"),
     ("cam_type", "i4", 1, "CAMERA_PERSPECTIVE, CAMERA_ORTHOGRAPHIC or CAMERA_PANORAMIC"),
     ("eye", "real", 3, "camera position (perspective: the lens centre; panoramic) or "
-                       "image-plane centre (orthographic)"),
+                       "image-plane centre (orthographic), moved near along forward"),
     ("forward", "real", 3, "unit viewing direction"),
     ("right", "real", 3, "unit vector along the image's +x (left to right)"),
     ("up", "real", 3, "unit vector along the image's up direction (bottom to top)"),
@@ -27,6 +27,8 @@ PARAM_FIELDS = (
     ("aspect", "real", 1, "width / height"),
     ("aperture", "real", 1, "thin-lens radius; 0: a pinhole (draws no lens sample)"),
     ("lens_slope", "real", 1, "aperture / focus_distance: how far a lens point turns its ray"),
+    ("near", "real", 1, "distance along forward from the camera to eye, the plane camera rays "
+                        "start on (pack.camera_near; 0: they start at the camera)"),
     ("decomposition", "i4", 1, "1: free flight uses each segment's minorant as its control"),
     ("shadow_estimator", "i4", 1, "ESTIMATOR_* id of shadow rays (the kernels build it in)"),
     ("view_estimator", "i4", 1, "ESTIMATOR_* id of camera rays that cannot scatter, whose "

@@ -15,6 +15,14 @@ image's top). Film position (px + u1, py + u2) is in pixels, py = 0 at the top r
   blur into discs. A pinhole (aperture 0) ignores v1, v2, and the integrator draws none.
 * **Panoramic**: equirectangular, 360 x 180 degrees about the eye (``panoramic_direction``).
 
+Rays start on the plane at distance prm.near along forward (``pack.camera_near``: just short
+of everything a camera ray can meet and of a thin lens's plane in focus; 0 for a panoramic
+camera), where the ray described above
+crosses it, and prm.eye is moved there too (the host does it in float64): the same lines, with
+origins near what they see, so a camera 1e8 box sizes away loses no digits in float32. A
+perspective ray's origin is eye + near (sx right + sy up), a thin lens's moves by
+(aperture - near lens_slope) q instead of aperture q, an orthographic ray's is as above.
+
 Every image is of radiance: a pixel is the mean radiance over its film area, with no weight
 for the solid angle a pixel spans (a panoramic pixel near a pole spans less than one at the
 horizon, and its value is still the mean radiance arriving through it).
@@ -73,7 +81,10 @@ def camera_ray(prm, px, py, u1, u2, v1, v2):
             return o, (f[0], f[1], f[2])
         v = (f[0], f[1], f[2])
     else:
-        o = (e[0], e[1], e[2])
+        # From the plane at prm.near along forward (module docstring).
+        n = prm.near
+        o = (e[0] + sx * n * r[0] + sy * n * u[0], e[1] + sx * n * r[1] + sy * n * u[1],
+             e[2] + sx * n * r[2] + sy * n * u[2])
         v = (f[0] + sx * r[0] + sy * u[0], f[1] + sx * r[1] + sy * u[1],
              f[2] + sx * r[2] + sy * u[2])
         if not prm.aperture > 0.0:
@@ -91,4 +102,7 @@ def camera_ray(prm, px, py, u1, u2, v1, v2):
     w = (v[0] - k * q[0], v[1] - k * q[1], v[2] - k * q[2])
     s = 1.0 / max(abs(w[0]), abs(w[1]), abs(w[2]))
     d = normalize((w[0] * s, w[1] * s, w[2] * s))
+    # From the lens point, w has length 1 along forward: it meets the plane at near after
+    # near w, at o + a q + near (v - k q) = (the pinhole ray's point there) + (a - near k) q.
+    a = a - prm.near * k
     return (o[0] + a * q[0], o[1] + a * q[1], o[2] + a * q[2]), d
