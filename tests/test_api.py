@@ -237,6 +237,24 @@ def test_transmittance_homogeneous_is_exact(backend, estimator):
     assert np.allclose(r.t_exit[:3], [58.0, 2.0, 1.5]) and np.isnan(r.t_enter[3])
 
 
+@pytest.mark.parametrize("distance", [1e16, 1e30])
+def test_transmittance_of_a_box_far_from_the_ray_origin(backend, distance):
+    """A box far smaller than its distance from the origin (side 2 at 1e16, where float64
+    spaces numbers 2 apart; side 1e-4 at 1e12): clipped from the ray's nearest approach to
+    it, not from the origin, whose rounding made the box a miss (T = 1, t_enter NaN). A
+    ray that ends before it still misses."""
+    box = {"bounds": [[-1, -1, -1], [1, 1, 1]], "density": 2.0}
+    r = volmc.estimate_transmittance(box, [[0, 0, -distance]] * 2, [[0, 0, 1]] * 2,
+                                     [np.inf, 0.5 * distance], estimator="analytic", n=2,
+                                     backend=backend)
+    assert np.allclose(r.estimates, [np.exp(-4.0), 1.0], rtol=1e-6, atol=0)
+    assert np.isclose(r.t_enter[0], distance, rtol=1e-15) and np.isnan(r.t_enter[1])
+    tiny = {"bounds": [[-5e-5] * 3, [5e-5] * 3], "density": 1e4}
+    r = volmc.estimate_transmittance(tiny, [[0, 0, -1e12]], [[0, 0, 1]], n=2,
+                                     estimator="analytic", backend=backend)
+    assert np.allclose(r.estimates, np.exp(-1.0), rtol=1e-6, atol=0)
+
+
 def test_transmittance_on_a_grid_matches_the_optical_depth(backend):
     """On a random 6^3 grid with its grid majorant, the mean of n ratio-tracking and auto
     estimates per ray agrees with exp(-exact optical depth) (z-test per ray and estimator,

@@ -664,10 +664,14 @@ def _rays(origins, directions, t_max, where):
 
 
 def _clip(o, d, t_max, lo, hi):
-    """(t_enter, t_exit) of rays o + t d (t >= 0) in the box [lo, hi], cut at t_max; the slab
-    test of reference/integrator.ray_box, vectorised (a ray parallel to a slab and outside it
-    misses)."""
+    """(s, t_enter, t_exit) of rays o + t d (t >= 0) in the box [lo, hi], cut at t_max; the
+    slab test of reference/integrator.ray_box, vectorised (a ray parallel to a slab and
+    outside it misses). The distances are from o + s d, the ray's nearest approach to the
+    box's centre (s >= 0): a box far smaller than its distance from o (1e-4 at 1e12) was
+    lost in the rounding of o's own distances and missed."""
     import numpy as np
+    s = np.maximum(((0.5 * (lo + hi) - o) * d).sum(axis=1) / (d * d).sum(axis=1), 0.0)
+    o = o + s[:, None] * d
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / d
         ta, tb = (lo - o) * inv, (hi - o) * inv
@@ -675,9 +679,9 @@ def _clip(o, d, t_max, lo, hi):
     inside = (o >= lo) & (o <= hi)
     t_lo = np.where(par, np.where(inside, -np.inf, np.inf), np.minimum(ta, tb))
     t_hi = np.where(par, np.where(inside, np.inf, -np.inf), np.maximum(ta, tb))
-    t0 = np.maximum(t_lo.max(axis=1), 0.0)
-    t1 = np.minimum(t_hi.min(axis=1), t_max)
-    return t0, np.maximum(t1, t0)
+    t0 = np.maximum(t_lo.max(axis=1), -s)
+    t1 = np.minimum(t_hi.min(axis=1), t_max - s)
+    return s, t0, np.maximum(t1, t0)
 
 
 def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("inf"),
@@ -748,9 +752,10 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     placed = bool(m["transformed"])
     if placed:   # clipped in the medium's own space (pack.medium_space), as the renderer does
         x = np.asarray(m["xform"], np.float64).reshape(3, 4)
-        t0, t1 = _clip(o_local @ x[:, :3].T + x[:, 3], d @ x[:, :3].T, t_max / unit, lo, hi)
+        s, t0, t1 = _clip(o_local @ x[:, :3].T + x[:, 3], d @ x[:, :3].T, t_max / unit, lo,
+                          hi)
     else:
-        t0, t1 = _clip(o_local, d, t_max / unit, lo, hi)
+        s, t0, t1 = _clip(o_local, d, t_max / unit, lo, hi)
     hit = t1 > t0
     t0, t1 = np.where(hit, t0, np.nan), np.where(hit, t1, np.nan)
     k = len(o)
@@ -761,7 +766,7 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
     if hit.any():
         # Each segment starts at its entry point (kept inside the box), as the renderer's
         # entry re-basing does: float32 sees short distances from nearby numbers.
-        start = o_local[hit] + t0[hit, None] * d[hit]
+        start = (o_local[hit] + s[hit, None] * d[hit]) + t0[hit, None] * d[hit]
         if not placed:
             start = np.clip(start, lo, hi)
         rays = np.zeros((int(hit.sum()), 9))
@@ -775,5 +780,5 @@ def estimate_transmittance(scene_or_medium, origins, directions, t_max=float("in
             stderr[hit] = out.std(axis=1, ddof=1) / np.sqrt(n) if n > 1 else np.nan
         lookups[hit] = cnt[:, C_LOOKUPS].reshape(len(rays), n).mean(axis=1)
         counters = {name: int(cnt[:, i].sum()) for i, name in enumerate(COUNTER_NAMES)}
-    return TransmittanceResult(mean, stderr, lookups, t0 * unit, t1 * unit, estimator, n,
-                               backend, counters)
+    return TransmittanceResult(mean, stderr, lookups, (s + t0) * unit, (s + t1) * unit,
+                               estimator, n, backend, counters)
