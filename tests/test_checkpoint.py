@@ -127,6 +127,26 @@ def test_numpy_grid_scene_checkpoints_and_resumes(tmp_path):
             render(scene(other), backend="numba", spp=8, progress=False, resume=str(ck))
 
 
+def test_checkpoint_options_that_would_lose_work_are_refused(tmp_path):
+    """--checkpoint naming an image of the render, also through a symbolic link (found by an
+    outside check: a Ctrl-C then wrote the partial EXR over the saved samples), and
+    --checkpoint-every without a checkpoint file (nothing would be written): one-line
+    errors, exit status 2, before anything renders."""
+    scene = str(default_scene())
+    (tmp_path / "link.exr").symlink_to(tmp_path / "q.exr")
+    for args, key, words in [
+            (["--checkpoint", "q.exr"], "--checkpoint", "also an image"),
+            (["--checkpoint", "link.exr"], "--checkpoint", "also an image"),
+            (["--checkpoint", "q.png", "--png"], "--checkpoint", "also an image"),
+            (["--checkpoint-every", "5"], "--checkpoint-every", "needs --checkpoint")]:
+        p = _cli(["render", scene, "-o", "q.exr", "--quiet", *args], tmp_path)
+        err = p.stderr.read()
+        assert p.wait() == 2, err
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"volmc: error: command line: {key}: ")
+        assert words in lines[0] and not (tmp_path / "q.exr").exists()
+
+
 def test_sigkill_after_a_checkpoint_then_resume(tmp_path):
     """volmc render --checkpoint killed by SIGKILL after its first checkpoints, then
     --resume: the EXR equals an uninterrupted render's bit for bit. Resuming with another
@@ -199,10 +219,15 @@ def test_damaged_checkpoints_are_one_line_errors(tmp_path):
            edited("nan.npz", sum=parts["sum"] * np.nan),
            edited("negsq.npz", sum_sq=-parts["sum_sq"] - 1.0),
            edited("cnt.npz", counters=-parts["counters"] - 1)]
-    for p in bad:
+    # Edits that leave every value plausible: only the digest tells.
+    plausible = [edited("spp.npz", {"spp": 1}), edited("secs2.npz", {"seconds": 0.5}),
+                 edited("sum.npz", sum=parts["sum"] * 0.5),
+                 edited("cnt2.npz", counters=parts["counters"] + 1)]
+    for p in bad + plausible:
         with pytest.raises(SceneError) as e:
             ckpt.load(str(p), scene, "opencl", lanes)
         assert str(e.value).startswith(f"{p}: --resume: "), (p, e.value)
+        assert p not in plausible or "edited or damaged" in str(e.value), (p, e.value)
     assert ckpt.load(str(good), scene, "opencl", lanes)[0].spp == 2
 
 

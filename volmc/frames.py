@@ -23,6 +23,9 @@ import hashlib
 import json
 import os
 import re
+import sys
+import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 from .scene.errors import SceneError
@@ -93,10 +96,29 @@ def is_complete(exr, ident):
     if not os.path.isfile(exr):
         return False
     try:
-        meta = read_exr(exr, alpha=True)[1]
+        with _quiet_stderr():
+            meta = read_exr(exr, alpha=True)[1]
     except Exception:   # noqa: BLE001 -- unreadable for any reason: not complete, render it
         return False
     return meta.get("partial") == 0 and meta.get("frame_identity") == ident
+
+
+@contextmanager
+def _quiet_stderr():
+    """The process's stderr (file descriptor 2) closed to output: OpenEXR's library and its
+    bindings print their own messages about a file cut short, which here is expected (the
+    frame is rendered again), on a run that succeeds."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def render_outputs(exr, png=None, variance=False, denoise=False):
@@ -141,12 +163,16 @@ class FrameSequence:
         for f in self.frames:
             ident = self.identity(f, backend)
             exr = frame_path(output, f) if output else None
+            # A PNG alone missing is toned from the EXR, not rendered (render_sequence):
+            # deleting a sequence's PNGs gives them another exposure or tone curve.
             complete = bool(exr) and is_complete(exr, ident) and all(
-                os.path.isfile(path) for _, path in
-                render_outputs(exr, png and frame_path(png, f), variance, denoise))
+                os.path.isfile(path) for role, path in
+                render_outputs(exr, png and frame_path(png, f), variance, denoise)
+                if role != "png")
+            retone = complete and bool(png) and not os.path.isfile(frame_path(png, f))
             if not complete:
                 substitute(self.raw, f, self.file, self.file_dir)
-            out.append(FramePlan(f, ident, exr, complete))
+            out.append(FramePlan(f, ident, exr, complete, retone))
         return out
 
     def scene(self, frame):
@@ -164,6 +190,7 @@ class FramePlan:
     identity: str
     exr: object
     complete: bool
+    retone: bool = False   # complete, but its PNG is to be written from its EXR
 
 
 @dataclass
@@ -197,6 +224,10 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
     for i, p in enumerate(plan, 1):
         f, ident, exr = p.frame, p.identity, p.exr
         if p.complete:
+            if p.retone:
+                _tone_from_exr(exr, frame_path(png, f), exposure, tonemap,
+                               seq.raw.get("render", {}).get("transparent_background", False),
+                               keys["png"])
             yield FrameDone(f, i, n, exr, None)
             continue
         img = render_one(seq.scene(f), f"frame {i}/{n}")
@@ -228,6 +259,19 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
         yield FrameDone(f, i, n, exr, img)
         if img.partial:
             return
+
+
+def _tone_from_exr(exr, path, exposure, tonemap, transparent, key):
+    """Write the PNG ``path`` of a complete frame from its EXR (RGB, and its coverage as the
+    PNG's alpha when the background is ``transparent``): the PNG its render would write."""
+    from .film import read_exr, write_png
+    rgba = read_exr(exr, alpha=True)[0]
+    try:
+        write_png(path, rgba[..., :3], exposure, tonemap,
+                  alpha=rgba[..., 3] if transparent else None)
+    except (OSError, RuntimeError) as e:
+        raise SceneError(*key, f"cannot write {path}: {getattr(e, 'strerror', None) or e}") \
+            from None
 
 
 #: The (file, key) of the one-line error naming the option that asked for a render's file

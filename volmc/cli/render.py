@@ -45,8 +45,9 @@ def add_render_parser(sub):
     r.add_argument("--checkpoint", metavar="FILE",
                    help="write the accumulated samples to FILE (atomically) every "
                         "--checkpoint-every seconds and at the end")
-    r.add_argument("--checkpoint-every", type=nonnegative_seconds, default=60.0,
-                   metavar="SECONDS", help="checkpoint interval in seconds (default 60)")
+    r.add_argument("--checkpoint-every", type=nonnegative_seconds, default=None,
+                   metavar="SECONDS", help="checkpoint interval in seconds (default 60; "
+                                           "with --checkpoint or --resume)")
     r.add_argument("--resume", metavar="FILE",
                    help="continue the render saved in checkpoint FILE to the requested spp "
                         "(it must be of the same scene, seed, sampler and backend); "
@@ -84,12 +85,17 @@ def cmd_render(args):
         from ..checkpoint import missing
         raise missing(args.resume)
     checkpoint = args.checkpoint or args.resume
+    if args.checkpoint_every is not None and not checkpoint:
+        raise SceneError("command line", "--checkpoint-every", "needs --checkpoint FILE or "
+                         "--resume FILE: without one nothing is written")
     if checkpoint:
         check_writable(checkpoint, "--checkpoint" if args.checkpoint else "--resume")
         from ..checkpoint import refuse_overwrite
         refuse_overwrite(checkpoint, args.resume, "command line", "--checkpoint", "--resume ")
-        if os.path.abspath(checkpoint) in [os.path.abspath(p) for p, _ in
-                                           _outputs(args, out, png)]:
+        # Real paths: a checkpoint reached through a link to the EXR was accepted, and the
+        # partial image of a Ctrl-C then overwrote the samples it held.
+        if os.path.realpath(checkpoint) in [os.path.realpath(p) for p, _ in
+                                            _outputs(args, out, png)]:
             raise SceneError("command line", "--checkpoint", f"{checkpoint} is also an "
                              "image this render writes")
     from ..memory import check_memory
@@ -105,7 +111,8 @@ def cmd_render(args):
         # it builds and compiles the backend.
         res = render(scene, backend=args.backend, progress=False if args.quiet else None,
                      on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
-                     checkpoint_every=args.checkpoint_every, resume=args.resume,
+                     checkpoint_every=(60.0 if args.checkpoint_every is None
+                                       else args.checkpoint_every), resume=args.resume,
                      client=client, device=args.device, lanes=args.lanes,
                      albedo=args.denoise)
     meta = res.metadata()
@@ -242,9 +249,10 @@ def cmd_render_frames(args, scene_path, out, png, defines):
     from ..scene.frames import describe
     from ..scene.loading import read_raw
     frames = parse_frames(args.frames)
-    for flag in ("checkpoint", "resume"):
-        if getattr(args, flag):
-            raise SceneError("command line", f"--{flag}", "a frame sequence resumes by "
+    for flag in ("checkpoint", "resume", "checkpoint_every"):
+        if getattr(args, flag) is not None:
+            raise SceneError("command line", f"--{flag.replace('_', '-')}",
+                             "a frame sequence resumes by "
                              "skipping its complete frames; --checkpoint and --resume are "
                              "for a single render")
     _check_render_device(args)
