@@ -213,7 +213,11 @@ def test_a_camera_far_away_sees_the_box(keys, backend):
                    "fov": float(np.degrees(2 * np.arctan(0.8 / d))), "resolution": [4, 4],
                    **keys},
         "medium": {"bounds": [[-1, -1, -1], [1, 1, 1]], "density": 1.0, "albedo": 0.0},
-        "lights": [{"type": "environment", "radiance": 1.0}], "render": {"spp": 2}})
+        # Behind the camera: no camera ray meets it, and it must not hold the plane back.
+        "lights": [{"type": "environment", "radiance": 1.0},
+                   {"type": "sphere", "position": [0.0, 0.0, d + 10.0], "radius": 1.0,
+                    "radiance": 1.0}],
+        "render": {"spp": 2}})
     img = np.asarray(render(scene, backend=backend, progress=False).image)
     assert np.allclose(img, np.exp(-2.0), rtol=2e-6, atol=0)
 

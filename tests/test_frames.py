@@ -355,6 +355,22 @@ def test_frames_cut_short_or_missing_files_render_again(seq):
     assert "0 rendered, 2 complete already" in r.stderr, r.stderr
 
 
+def test_complete_frames_are_skipped_without_a_stderr(seq):
+    """A run with no stderr at all (2>&-, a service) still skips its complete frames: the
+    check that keeps OpenEXR's messages quiet must not fail there (it did, and every frame
+    was rendered again)."""
+    import os
+    d = seq.parent
+    args = volmc_cli("render", str(seq), "--frames", "1-2", "-o", "s.exr", "--quiet")
+    r = subprocess.run(args, cwd=d, env=volmc_env(), capture_output=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    before = [os.stat(d / f"s.{f:04d}.exr").st_mtime_ns for f in (1, 2)]
+    r = subprocess.run(args, cwd=d, env=volmc_env(), stdout=subprocess.PIPE, timeout=600,
+                       preexec_fn=lambda: os.close(2))
+    assert r.returncode == 0
+    assert [os.stat(d / f"s.{f:04d}.exr").st_mtime_ns for f in (1, 2)] == before
+
+
 def test_a_missing_png_is_toned_from_the_exr(seq):
     """A complete frame whose PNG alone is missing is not rendered again: its PNG is written
     from its EXR with this run's exposure (so deleting a sequence's PNGs re-tones it); the

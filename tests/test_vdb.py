@@ -148,6 +148,22 @@ def test_inactive_tiles_hold_their_values():
             assert (v[hit[0], z, y, x] if len(hit) else g.background) == s["value"], s
 
 
+def test_an_unaligned_tile_is_corrupt(tmp_path):
+    """A tile origin off the multiples of 8 (only a damaged file has one) is refused: cut to
+    the bbox's hull such a fill box was counted as fewer blocks than fill_blocks() made, so
+    the memory check of brick storage could be bypassed. The count is a ceiling anyway."""
+    import dataclasses
+    data = bytearray((DATA / "inactive.vdb").read_bytes())
+    i = data.find(struct.pack("<iii", -4096, 0, 0))      # the root tile's record
+    struct.pack_into("<i", data, i, -4092)
+    (tmp_path / "bad.vdb").write_bytes(bytes(data))
+    raises_scene_error(tmp_path / "bad.vdb", "not a multiple of 8")
+    g = read_vdb(DATA / "inactive.vdb")
+    odd = dataclasses.replace(g, fill_boxes=np.array([[-4, 0, 0, 4, 12, 5]], np.int64),
+                              fill_values=np.array([0.5], np.float32))
+    assert odd.n_fill_blocks == len(odd.fill_blocks()[0]) == 1 * 2 * 1
+
+
 def test_quirks_leaf_and_tile_contents():
     """Inactive values stored in leaves are kept; the empty leaf is a block; the
     lower-node tile became one constant 8^3 block."""

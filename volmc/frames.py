@@ -107,16 +107,23 @@ def is_complete(exr, ident):
 def _quiet_stderr():
     """The process's stderr (file descriptor 2) closed to output: OpenEXR's library and its
     bindings print their own messages about a file cut short, which here is expected (the
-    frame is rendered again), on a run that succeeds."""
-    sys.stderr.flush()
-    saved = os.dup(2)
+    frame is rendered again), on a run that succeeds. Process-wide for its moment (another
+    thread's output then is lost too): used by the command line's frame checks alone."""
+    if sys.stderr is not None:
+        sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:   # no stderr at all (2>&-, a service): nothing to keep quiet
+        yield
+        return
     try:
         with open(os.devnull, "w") as null, warnings.catch_warnings():
             warnings.simplefilter("ignore")
             os.dup2(null.fileno(), 2)
             yield
     finally:
-        sys.stderr.flush()
+        if sys.stderr is not None:
+            sys.stderr.flush()
         os.dup2(saved, 2)
         os.close(saved)
 

@@ -126,9 +126,9 @@ def camera_near(scene, forward):
     """World distance along ``forward`` from the camera to the plane its rays start on
     (params.near; reference/camera.py): just short of the nearest thing a camera ray can
     meet, each medium's world box and each sphere light by its bounding sphere, and not
-    beyond a thin lens's plane in focus; 0 for a panoramic camera or one among them. The kernels then form a ray's origin near what it
-    sees: a camera 1e8 box sizes away, whose float32 distances rounded to 8 units, saw a
-    box of 2 as empty sky."""
+    beyond a thin lens's plane in focus; 0 for a panoramic camera or one among them. The
+    kernels then form a ray's origin near what it sees: a camera 1e8 box sizes away, whose
+    float32 distances rounded to 8 units, saw a box of 2 as empty sky."""
     cam = scene.camera
     if cam.type == "panoramic":
         return 0.0
@@ -139,9 +139,15 @@ def camera_near(scene, forward):
                         0.5 * math.dist(lo, hi)))
     spheres += [(lt.position, lt.radius) for lt in scene.lights if lt.type == "sphere"]
     # A sixteenth of each radius short: the plane stays before everything, whatever the
-    # rounding, and as near it as the objects' own sizes allow.
-    gap = min(sum((c[a] - cam.eye[a]) * forward[a] for a in range(3)) - r * (1.0 + 2.0 ** -4)
-              for c, r in spheres)
+    # rounding, and as near it as the objects' own sizes allow. What lies wholly behind the
+    # camera's own plane no camera ray reaches (a sphere light there had set near to 0).
+    gaps = []
+    for c, r in spheres:
+        ahead = sum((c[a] - cam.eye[a]) * forward[a] for a in range(3))
+        reach = r * (1.0 + 2.0 ** -4)
+        if ahead + reach > 0.0:
+            gaps.append(ahead - reach)
+    gap = min(gaps, default=0.0)
     # A thin lens's rays cross beyond the plane in focus: the plane stays before it, where a
     # ray's origin is within the lens's radius of the pinhole ray's (its rays from a focus
     # at 1e-30 left the lens almost sideways, and their points on a farther plane were 1e29

@@ -258,10 +258,12 @@ def cmd_render_frames(args, scene_path, out, png, defines):
     _check_render_device(args)
     seq = FrameSequence(read_raw(scene_path, defines), scene_path, None, frames)
     plan = seq.plan(out, args.backend, png, args.variance, args.denoise)
-    for p in plan:   # every file of the frames to render, before the first renders
+    for p in plan:   # every file of the frames to render or tone, before the first renders
         if not p.complete:
             for path, flag in _outputs(args, p.exr, png and frame_path(png, p.frame)):
                 check_writable(path, flag)
+        elif p.retone:
+            check_writable(frame_path(png, p.frame), "--png")
     if not args.quiet:
         n_done = sum(p.complete for p in plan)
         print(f"volmc: rendering {scene_path}, {describe(seq.frames)} ({len(plan)} frames, "

@@ -319,8 +319,10 @@ def _vdb_bricks(vg, path, key):
     dims = tuple(int(x) for x in hi - lo + 1)
     origins, values = np.asarray(vg.origins), vg.values
     if len(vg.fill_boxes):
+        # The fill blocks, their concatenation with the leaves (held meanwhile) and the
+        # brick pool, at most a brick per block.
         n = vg.n_fill_blocks
-        require_host(2 * n * 512 * 4 + len(values) * 512 * 4, path, key,
+        require_host(3 * (n + len(values)) * 512 * 4, path, key,
                      f"grid '{vg.name}': {n} blocks of inactive tiles")
         fo, fv = vg.fill_blocks()
         origins = np.concatenate([fo, origins])

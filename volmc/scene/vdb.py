@@ -229,7 +229,7 @@ class VdbGrid:
     def n_fill_blocks(self):
         """How many 8^3 blocks ``fill_blocks()`` makes."""
         boxes, _ = self._fills_in_hull()
-        return int(np.prod((boxes[:, 3:] - boxes[:, :3]) // 8, axis=1).sum())
+        return int(np.prod(-((boxes[:, :3] - boxes[:, 3:]) // 8), axis=1).sum())  # ceiling
 
     def fill_blocks(self):
         """(origins int64 (k, 3), values float32 (k, 8, 8, 8)): the fill boxes within the
@@ -465,6 +465,11 @@ class _Blocks:
         values = np.asarray(values, np.float32).reshape(-1)
         active = np.asarray(active, bool).reshape(-1)
         origins = np.asarray(origins, np.int64).reshape(-1, 3)
+        # Every tile of a valid tree starts on a multiple of its own size, 8 at least: an
+        # unaligned one would straddle blocks (and the fill blocks' count).
+        if np.any(origins % 8):
+            raise self.cur.error(f"corrupt {self.cur.what} (grid '{self.grid}': a tile origin "
+                                 "is not a multiple of 8)")
         for n in np.flatnonzero(active):
             self.add_tile(origins[n], size, values[n])
         # NaN != background too: kept, so validation refuses it where it is read.
