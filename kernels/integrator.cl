@@ -810,11 +810,11 @@ static inline lmask emitter_ray(const Params *prm, const MediumData *med, lvec3 
                               counters, ok);
     ok = ok & (max3(src) > 0.0f);
     lfloat f = medium_phase_eval(med, k, d, *w);
-    lfloat mis = (lfloat)(1.0f);
-    if (prm->emission_sampling == EMISSION_SAMPLING_MIS)
-        mis = mis_weight(prm->mis, (float)prm->light_samples * pdf,
-                         f * majorant_at(med, y, ok) / (*dist * *dist));
-    lfloat g = f * mis / ((float)prm->light_samples * pdf * *dist * *dist);
+    /* f w / (n pdf dist^2), the densities in 1/sr times dist^2 (integrator.py) */
+    lfloat q = (float)prm->light_samples * pdf * *dist * *dist;
+    lfloat g = prm->emission_sampling == EMISSION_SAMPLING_MIS
+                   ? f * mis_weight_over(prm->mis, q, f * majorant_at(med, y, ok))
+                   : f / q;
     *contrib = sel3(*contrib, scale3(src, g), ok);
     return ok;
 }

@@ -123,6 +123,14 @@ static inline lfloat mis_weight(int kind, lfloat pdf_a, lfloat pdf_b) {
     return kind == MIS_POWER ? mis_power(pdf_a, pdf_b) : mis_balance(pdf_a, pdf_b);
 }
 
+/* The weight of strategy a against b divided by pdf_a, without dividing by pdf_a (twin in
+ * sampling.py): finite where pdf_a is tiny or 0 beside pdf_b. */
+static inline lfloat mis_weight_over(int kind, lfloat pdf_a, lfloat pdf_b) {
+    if (kind != MIS_POWER) return 1.0f / (pdf_a + pdf_b);
+    lfloat m = fmax(pdf_a, pdf_b), a = pdf_a / m, b = pdf_b / m;
+    return a / ((a * a + b * b) * m);
+}
+
 /* Equiangular distance sampling towards a point (Kulla & Fajardo 2012; twins of
  * equiangular_side, equiangular_angle, equiangular_uniform, sample_equiangular,
  * equiangular_pdf and invert_equiangular_sample in sampling.py, where the arguments and the

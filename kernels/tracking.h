@@ -103,8 +103,10 @@ static inline lfloat emission_weight(const EmisMis *emis, const MediumData *med,
     lmask weigh = active & (emis->pdf >= 0.0f);
     if (!ANY(weigh)) return (lfloat)(1.0f);
     lfloat pl = emis->n * emitter_pdf(med, p, weigh);
-    lfloat pu = emis->pdf * s_maj / (dist * dist);
-    return select((lfloat)(1.0f), mis_weight(emis->heuristic, pu, pl), weigh & (pl > 0.0f));
+    /* Both densities times dist^2 (tracking.py) */
+    lfloat w = mis_weight(emis->heuristic, emis->pdf * s_maj, pl * dist * dist);
+    w = select(w, (lfloat)(0.0f), emis->pdf == 0.0f); /* "light": even where pl dist^2 is 0 */
+    return select((lfloat)(1.0f), w, weigh & (pl > 0.0f));
 }
 
 /* Hero MIS: balance-heuristic weights R / mean(R) (twin in tracking.py). */

@@ -235,6 +235,38 @@ def test_a_dim_blackbody_is_sampled_in_both_packs():
     assert np.array_equal(p32.medium["emitter_res"], p64.medium["emitter_res"])
 
 
+@pytest.mark.parametrize("scale", [1e15, 1e25])
+def test_a_dense_emitter_gives_finite_weights(backend, scale):
+    """Found by an outside check: in an emitter of extinction 1e15 and more the tentative
+    collisions land 1e-15 from their vertex, and the MIS densities pdf sigma_maj / dist^2
+    overflowed float32 (inf / inf), as did the emitter sample's 1/dist^2 beside its weight,
+    and "light"'s weight 0 / 0: about half the samples were NaN and dropped (the image
+    half as bright). Both densities are now compared times dist^2."""
+    for mode in ("mis", "light"):
+        scene = scene_from_dict({
+            "camera": {"type": "orthographic", "eye": [0.1, 0.05, 3.0],
+                       "target": [0.1, 0.05, 0.0], "size": 1e-5, "resolution": [1, 1]},
+            "medium": {"bounds": [[-1, -1, -1], [1, 1, 1]], "density": 1.0, "scale": scale,
+                       "albedo": 0.5, "emission": {"radiance": [4.0, 2.0, 1.0]}},
+            "render": {"spp": 256, "seed": 5, "max_depth": 4, "emission_sampling": mode}})
+        r = render(scene, backend=backend, progress=False)
+        assert r.counters["dropped"] == 0, (mode, r.counters["dropped"])
+        assert np.all(np.isfinite(r.image)) and r.image[0, 0, 0] >= 2.0 * (1 - 0.5) * 2
+
+
+def test_mis_weight_over_is_the_weight_over_the_density():
+    """mis_weight_over(k, a, b) = mis_weight(k, a, b) / a, and finite where a is 0."""
+    from volmc.constants import MIS_BALANCE, MIS_POWER
+    from volmc.reference.sampling import mis_weight, mis_weight_over
+    rng = np.random.default_rng(4)
+    for a, b in 10.0 ** rng.uniform(-30, 30, (500, 2)):
+        for k in (MIS_BALANCE, MIS_POWER):
+            assert math.isclose(mis_weight_over(k, a, b) * a, mis_weight(k, a, b),
+                                rel_tol=1e-12)
+    assert mis_weight_over(MIS_BALANCE, 0.0, 2.0) == 0.5
+    assert mis_weight_over(MIS_POWER, 0.0, 2.0) == 0.0
+
+
 def test_bad_mode_is_a_one_line_error():
     with pytest.raises(SceneError, match="render.emission_sampling"):
         _scene([SLAB], "sometimes")

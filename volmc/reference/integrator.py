@@ -88,8 +88,8 @@ from .emitters import sample_emitter
 from .tracking import EMIS_PLAIN, emission_term, mis_weights
 from .rng import RNG_STATE_SIZE, rng_drop_preset, rng_init, rng_next, rng_preset
 from .sampler import sampler_pair
-from .sampling import (cone_pdf, dot, equiangular_pdf, mis_weight, sample_equiangular,
-                       sample_uniform_sphere, uniform_sphere_pdf)
+from .sampling import (cone_pdf, dot, equiangular_pdf, mis_weight, mis_weight_over,
+                       sample_equiangular, sample_uniform_sphere, uniform_sphere_pdf)
 from .vec import add3, div3, madd3, max3, mul3, scale3
 
 #: No albedo (the AOV of a camera ray that does not scatter; film.py).
@@ -546,11 +546,15 @@ def sample_emitters(prm, lights, med, k, p, d, rng, counters, rng_s):
         if not max3(src) > 0.0 or occluded(prm, lights, p, wl, dist, -1):
             continue
         f = medium_phase_eval(med, k, d, wl)
-        w = 1.0
+        # f w / (n pdf dist^2), the two densities in 1/sr times dist^2: the weight and the
+        # 1/dist^2 cancel, so a sample next to its vertex in a dense emitter stays finite.
+        q = n * pdf * dist * dist
         if prm.emission_sampling == EMISSION_SAMPLING_MIS:
-            w = mis_weight(prm.mis, n * pdf, f * majorant_at(med, y) / (dist * dist))
+            g = f * mis_weight_over(prm.mis, q, f * majorant_at(med, y))
+        else:
+            g = f / q
         tr = shadow_transmittance(prm, med, p, wl, dist, 0, rng_s, counters)
-        L = add3(L, mul3(src, scale3(tr, f * w / (n * pdf * dist * dist))))
+        L = add3(L, mul3(src, scale3(tr, g)))
     return L
 
 

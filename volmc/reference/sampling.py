@@ -210,6 +210,19 @@ def mis_weight(kind, pdf_a, pdf_b):
 
 
 @njit(cache=True, inline="always")
+def mis_weight_over(kind, pdf_a, pdf_b):
+    """``mis_weight(kind, pdf_a, pdf_b) / pdf_a`` without dividing by pdf_a: finite where
+    pdf_a is tiny or 0 beside pdf_b (an emitter sample next to its vertex in a dense
+    emitter, whose densities in 1/sr are ~1/dist^2: the estimator's f w / pdf_a then needs
+    no 1/dist^2 at all). pdf_a, pdf_b >= 0, not both 0."""
+    if kind != MIS_POWER:
+        return 1.0 / (pdf_a + pdf_b)
+    m = max(pdf_a, pdf_b)
+    a, b = pdf_a / m, pdf_b / m
+    return a / ((a * a + b * b) * m)
+
+
+@njit(cache=True, inline="always")
 def equiangular_side(h, ta, tb):
     """Where the foot h lies against the interval [ta, tb]: 1 before it (ta >= h), -1
     after it (tb <= h), 0 inside. It chooses the angle equiangular sampling measures

@@ -193,7 +193,11 @@ def emission_weight(emis, med, p, s_maj, dist):
     pl = emis[2] * emitter_pdf(med, p)
     if not pl > 0.0:
         return 1.0
-    return mis_weight(int(emis[3]), emis[0] * s_maj / (dist * dist), pl)
+    # Both densities times dist^2: pdf_dir s_maj / dist^2 overflowed float32 at a tentative
+    # collision 1e-15 from the vertex in a dense emitter (inf / inf, a NaN sample).
+    if emis[0] == 0.0:   # "light" (its weight 0 even where pl dist^2 underflows to 0)
+        return 0.0
+    return mis_weight(int(emis[3]), emis[0] * s_maj, pl * dist * dist)
 
 
 @njit(cache=True)
