@@ -414,6 +414,8 @@ def test_api_arguments_found_by_a_hostile_pass(tmp_path):
         (lambda: volmc.render(scene, lanes="8", progress=False), "lanes: expected an integer"),
         (lambda: volmc.render_frames({"camera": {}, "medium": box}, [1], png="yes"),
          "png: expected True"),
+        (lambda: img.save(str(tmp_path / "a.exr"), variance="no"), "variance: expected True"),
+        (lambda: img.save(str(tmp_path / "a.exr"), denoised="no"), "denoised: expected True"),
         (lambda: volmc.scene_from_dict({"camera": {}, "medium": box, 1: 2}), "1: unknown key"),
         (lambda: volmc.render(scene, device="99", progress=False),
          "volmc.render(): device: 99: no such OpenCL platform"),

@@ -147,6 +147,29 @@ def test_checkpoint_options_that_would_lose_work_are_refused(tmp_path):
         assert words in lines[0] and not (tmp_path / "q.exr").exists()
 
 
+def test_every_medium_s_grids_are_in_the_identity(tmp_path):
+    """A checkpoint of a scene whose second medium's grid then changes is refused (found by
+    an outside check: only the first medium's grids were hashed, and the resume mixed two
+    renders of different scenes)."""
+    import volmc
+    first = np.full((8, 8, 8), 1.0, np.float32)
+
+    def two_media(second):
+        return volmc.scene_from_dict({
+            "camera": {"eye": [0, 0, 6], "resolution": [8, 8]},
+            "media": [{"bounds": [[-2, -1, -1], [0, 1, 1]], "density": first, "scale": 2.0,
+                       "albedo": 0.0},
+                      {"bounds": [[0, -1, -1], [2, 1, 1]], "density": second, "scale": 2.0,
+                       "albedo": 0.0}],
+            "lights": [{"type": "environment", "radiance": 1.0}], "render": {"spp": 4}})
+    ck = tmp_path / "ck.npz"
+    volmc.render(two_media(first), spp=2, progress=False, checkpoint=str(ck))
+    with pytest.raises(volmc.VolmcError, match="grids differ"):
+        volmc.render(two_media(first * 5.0), spp=4, progress=False, resume=str(ck))
+    assert volmc.render(two_media(first.copy()), spp=4, progress=False,
+                        resume=str(ck)).spp == 4
+
+
 def test_sigkill_after_a_checkpoint_then_resume(tmp_path):
     """volmc render --checkpoint killed by SIGKILL after its first checkpoints, then
     --resume: the EXR equals an uninterrupted render's bit for bit. Resuming with another

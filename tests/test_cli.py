@@ -143,6 +143,10 @@ def test_seed_and_batching_reproducible(tmp_path, tiny):
     (["convert", "g.npy", "/proc/volmc.vol"], "output"),
     (["convert", "g.npy", "g.vol", "--bounds", "0", "0", "0", "1e39", "1", "1"], "--bounds"),
     (["convert", "g.npy", "g.vol", "--bounds", "1", "1", "1", "0", "0", "0"], "--bounds"),
+    # Not empty in float64, empty in the .vol header's float32.
+    (["convert", "g.npy", "g.vol", "--bounds", "1", "0", "0", "1.00000001", "1", "1"],
+     "--bounds"),
+    (["convert", "g.npy", "g.vol", "--bounds", "0", "0", "0", "1e-46", "1", "1"], "--bounds"),
     (["check", "{tiny}", "--spp", "8"], "--spp"),
     # Before the header line, not after it.
     (["check", "{tiny}", "--spp", "16", "--device", "9"], "command line: --device: 9: "),

@@ -545,6 +545,8 @@ class RenderedImage:
                                             f"{path!r}")
         if suffix == ".png":
             exposure, tonemap = _display(exposure, tonemap, where)
+        variance = _flag(variance, where, "variance")
+        denoised = _flag(denoised, where, "denoised")
         from .denoise import denoised_path
         # Before the image: a render's files are written all or none.
         if variance:

@@ -40,7 +40,7 @@ from .scene.grids import npy_header
 #: Bumped when the layout changes; older files are refused with a message saying so. 2: the
 #: lane counters, and the lane width in the identity. 3: the film's A channel (RGBA sums).
 #: 4: the scene frame in the identity (several media moved to the nearest box's frame).
-#: 5: the content digest.
+#: 5: the content digest, and every medium's grids hashed.
 FORMAT_VERSION = 5
 
 #: What must match for a checkpoint to be resumed, with the words the error uses.
@@ -50,10 +50,16 @@ IDENTITY = (("seed", "seed"), ("sampler", "render.sampler"), ("backend", "backen
 
 
 def grid_hashes(scene):
-    """{name: SHA-256 hex} of the density and emission grids the scene holds (exact bytes,
-    shape and dtype), so a grid file changed on disk is noticed."""
+    """{name: SHA-256 hex} of the density and emission grids the scene holds, of every
+    medium ("density", "emission" for the first, "media[i].density", ... for the others;
+    exact bytes, shape and dtype), so a grid file changed on disk is noticed. (The first
+    medium's alone were hashed: a resume mixed two renders of a changed second medium.)"""
     out = {}
-    for name, arr in (("density", scene.grid), ("emission", scene.emission_grid)):
+    grids = []
+    for i, part in enumerate(scene.media_scenes):
+        at = "" if i == 0 else f"media[{i}]."
+        grids += [(at + "density", part.grid), (at + "emission", part.emission_grid)]
+    for name, arr in grids:
         if arr is not None:
             a = np.ascontiguousarray(arr)
             h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())

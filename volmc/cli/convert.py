@@ -2,6 +2,8 @@
 
 import sys
 
+import numpy as np
+
 from ..scene.errors import SceneError
 from ..scene.schema import FLOAT32_MAX
 from .common import check_writable, finite_float
@@ -28,9 +30,10 @@ def cmd_convert(args):
     if args.bounds is not None:
         b = args.bounds
         bounds = (tuple(b[:3]), tuple(b[3:]))
-        # A .vol header holds float32: the box must be one there, and not empty.
-        if not all(abs(v) <= FLOAT32_MAX for v in b) or not all(lo < hi for lo, hi in
-                                                                 zip(b[:3], b[3:])):
+        # A .vol header holds float32: the box must be one there, and not empty there (a
+        # box of width 1e-8 at 1, or 1e-46, was empty once rounded).
+        if not all(abs(v) <= FLOAT32_MAX for v in b) or not all(
+                np.float32(lo) < np.float32(hi) for lo, hi in zip(b[:3], b[3:])):
             raise SceneError("command line", "--bounds", f"expected XMIN YMIN ZMIN < XMAX "
                              f"YMAX ZMAX within float32's range, got {' '.join(map(str, b))}")
     check_writable(args.output, "output")
