@@ -208,6 +208,30 @@ def test_guards_that_fired_warn():
             "capped"] == 0
 
 
+def test_a_medium_too_dense_for_float32_warns():
+    """Found by an outside check: an emitting cube of extinction 1e7 per unit (the frame's
+    half-size) rendered 2.6 % dark on the float32 kernels, its free paths a few float32
+    steps of the positions, and nothing said so. Now the OpenCL render warns (the scale,
+    not the box's size, decides: the same cube 1000 times larger warns as well); the Numba
+    backend, in float64, and a medium of 1e5 do not."""
+    import warnings
+
+    def scene(scale, half=1.0):
+        return volmc.scene_from_dict({
+            "camera": {"type": "orthographic", "eye": [0.0, 0.0, 3.0 * half],
+                       "size": 1e-5 * half, "resolution": [1, 1]},
+            "medium": {"bounds": [[-half] * 3, [half] * 3], "density": 1.0, "scale": scale,
+                       "albedo": 0.5},
+            "lights": [{"type": "environment", "radiance": 1.0}], "render": {"spp": 4}})
+    for s in (scene(1e7), scene(1e4, half=1000.0)):
+        with pytest.warns(volmc.VolmcWarning, match="float32 steps of the positions"):
+            volmc.render(s, progress=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        volmc.render(scene(1e7), backend="numba", progress=False)
+        volmc.render(scene(1e5), progress=False)
+
+
 def test_save_exr_of_a_numpy_grid_scene(tmp_path):
     """A scene with a numpy grid has no TOML form: the EXR is written without it."""
     scene = volmc.scene_from_dict(_base(np.full((2, 2, 2), 0.5), spp=2))
