@@ -232,6 +232,25 @@ def test_a_medium_too_dense_for_float32_warns():
         volmc.render(scene(1e5), progress=False)
 
 
+def test_png_bytes_and_metadata_are_what_save_and_the_cli_write(tmp_path, monkeypatch):
+    """png_bytes() (a notebook's preview) carries the alpha of a transparent background, as
+    the saved PNG does (it was RGB); metadata()["scene"] is the scene file's absolute path,
+    as volmc render writes it (it was the path as given)."""
+    import io
+    from matplotlib import image as mpimg
+    from volmc.resources import default_scene
+    monkeypatch.chdir(default_scene().parent)
+    scene = volmc.load_scene(default_scene().name, overrides=dict(
+        SMALL, **{"render.transparent_background": True}))
+    img = volmc.render(scene, progress=False)
+    assert img.metadata()["scene"] == str(default_scene().resolve())
+    img.save(tmp_path / "a.png")
+    shown = mpimg.imread(io.BytesIO(img.png_bytes()), format="png")
+    saved = mpimg.imread(tmp_path / "a.png")
+    assert shown.shape == saved.shape == (8, 8, 4) and np.array_equal(shown, saved)
+    assert saved[..., 3].min() == 0.0 and saved[..., 3].max() > 0.5   # sky and cloud
+
+
 def test_save_exr_of_a_numpy_grid_scene(tmp_path):
     """A scene with a numpy grid has no TOML form: the EXR is written without it."""
     scene = volmc.scene_from_dict(_base(np.full((2, 2, 2), 0.5), spp=2))

@@ -516,7 +516,9 @@ class RenderedImage:
         """The EXR metadata ``volmc render`` writes (spp, seed, backend, time, counters, the
         scene as TOML when it has no array grid)."""
         meta = self.result.metadata()
-        meta["scene"] = self.scene.file
+        # As volmc render writes it: a scene file's absolute path ("<dict>" stays as it is).
+        f = self.scene.file
+        meta["scene"] = os.path.abspath(f) if os.path.isfile(f) else f
         try:
             from .scene.serialize import to_toml
             meta["scene_toml"] = to_toml(self.scene.spec)
@@ -574,16 +576,17 @@ class RenderedImage:
         return path
 
     def png_bytes(self, exposure=0.0, tonemap="filmic"):
-        """The tonemapped 8-bit sRGB PNG of the image, as bytes."""
+        """The tonemapped 8-bit sRGB PNG of the image, as bytes: the PNG ``save`` writes
+        (RGBA with ``render.transparent_background``)."""
         import io
 
-        import numpy as np
         from matplotlib import image as mpimg
-        from .film import tonemap as _tonemap
+        from .film import png_pixels
         exposure, tonemap = _display(exposure, tonemap, "RenderedImage.png_bytes()")
-        rgb = (_tonemap(self.image, exposure, tonemap) * 255.0 + 0.5).astype(np.uint8)
+        transparent = self.scene.render.transparent_background
         buf = io.BytesIO()
-        mpimg.imsave(buf, rgb, format="png")
+        mpimg.imsave(buf, png_pixels(self.image, exposure, tonemap,
+                                     self.alpha if transparent else None), format="png")
         return buf.getvalue()
 
     def _repr_png_(self):

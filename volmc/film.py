@@ -180,6 +180,13 @@ def write_png(path, image, exposure=0.0, operator="filmic", alpha=None):
     ([h, w] coverage), the PNG is RGBA: PNG's alpha is straight, so the premultiplied
     colour is divided by the coverage before the tone curve (0 where nothing covers)."""
     from matplotlib import image as mpimg
+    out = png_pixels(image, exposure, operator, alpha)
+    with written_whole(path, os.path.splitext(str(path))[1]) as tmp:
+        mpimg.imsave(tmp, out)
+
+
+def png_pixels(image, exposure=0.0, operator="filmic", alpha=None):
+    """The 8-bit sRGB pixels (uint8 [h, w, 3], or [h, w, 4] with ``alpha``) of write_png."""
     h, w = np.shape(image)[:2]
     out = np.empty((h, w, 3 if alpha is None else 4), np.uint8)
     for y in range(0, h, PNG_BAND_ROWS):
@@ -190,8 +197,7 @@ def write_png(path, image, exposure=0.0, operator="filmic", alpha=None):
             out[y:y + PNG_BAND_ROWS, :, 3] = (a * 255.0 + 0.5).astype(np.uint8)
         out[y:y + PNG_BAND_ROWS, :, :3] = (tonemap(band, exposure, operator) * 255.0 + 0.5) \
             .astype(np.uint8)
-    with written_whole(path, os.path.splitext(str(path))[1]) as tmp:
-        mpimg.imsave(tmp, out)
+    return out
 
 
 def rmse(image, reference):
