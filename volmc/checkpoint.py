@@ -61,11 +61,17 @@ def grid_hashes(scene):
         grids += [(at + "density", part.grid), (at + "emission", part.emission_grid)]
     for name, arr in grids:
         if arr is not None:
-            a = np.ascontiguousarray(arr)
-            h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
-            h.update(memoryview(a).cast("B"))
+            h = hashlib.sha256()
+            _hash_array(h, arr)
             out[name] = h.hexdigest()
     return out
+
+
+def _hash_array(h, arr):
+    """Feed hash ``h`` an array's dtype, shape and exact bytes (C order)."""
+    a = np.ascontiguousarray(arr)
+    h.update(f"{a.dtype.str}{a.shape}".encode())
+    h.update(memoryview(a).cast("B"))
 
 
 def identity(scene, backend, lanes=None):
@@ -98,9 +104,7 @@ def content_digest(header, arrays):
     h = hashlib.sha256(json.dumps({k: v for k, v in header.items() if k != "digest"},
                                   sort_keys=True).encode())
     for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(f"{a.dtype.str}{a.shape}".encode())
-        h.update(a.tobytes())
+        _hash_array(h, a)
     return h.hexdigest()
 
 

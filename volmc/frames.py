@@ -226,6 +226,7 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
     one-line error when a frame's file cannot be written (render_outputs' roles; default the
     command line's flags); the frame's image is then saved to the temporary directory."""
     from .film import rescue_exr, write_exr, write_png
+    from .scene.schema import render_settings
     keys = {**CLI_KEYS, **(keys or {})}
     n = len(plan)
     for i, p in enumerate(plan, 1):
@@ -233,7 +234,7 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
         if p.complete:
             if p.retone:
                 _tone_from_exr(exr, frame_path(png, f), exposure, tonemap,
-                               seq.raw.get("render", {}).get("transparent_background", False),
+                               render_settings(seq.raw, seq.file).transparent_background,
                                keys["png"])
             yield FrameDone(f, i, n, exr, None)
             continue

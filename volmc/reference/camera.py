@@ -17,11 +17,11 @@ image's top). Film position (px + u1, py + u2) is in pixels, py = 0 at the top r
 
 Rays start on the plane at distance prm.near along forward (``pack.camera_near``: just short
 of everything a camera ray can meet and of a thin lens's plane in focus; 0 for a panoramic
-camera), where the ray described above
-crosses it, and prm.eye is moved there too (the host does it in float64): the same lines, with
-origins near what they see, so a camera 1e8 box sizes away loses no digits in float32. A
-perspective ray's origin is eye + near (sx right + sy up), a thin lens's moves by
-(aperture - near lens_slope) q instead of aperture q, an orthographic ray's is as above.
+camera), where the ray described above crosses it, and prm.eye is moved there too (the host
+does it in float64): the same lines, with origins near what they see, so a camera 1e8 box
+sizes away loses no digits in float32. A perspective ray's origin is eye + near (sx right +
+sy up), a thin lens's moves by (aperture - near lens_slope) q instead of aperture q, an
+orthographic ray's is as above.
 
 Every image is of radiance: a pixel is the mean radiance over its film area, with no weight
 for the solid angle a pixel spans (a panoramic pixel near a pole spans less than one at the

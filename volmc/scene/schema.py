@@ -699,6 +699,13 @@ def _environment(c, raw, p, file_dir):
                             rotation=rotation)
 
 
+def render_settings(raw, file):
+    """The validated ``[render]`` table of raw scene dict ``raw`` alone (no grid is read):
+    the settings a complete frame's files are made with (frames.py)."""
+    c = _Checker(file)
+    return _render(c, c.table(raw.get("render", {}), "render"))
+
+
 def _render(c, raw):
     p = "render."
     c.known(raw, RENDER_KEYS, p)

@@ -455,7 +455,7 @@ class _Blocks:
         self.leaf_origins, self.leaf_values = [], []  # lists of arrays
         self.tiles = []  # (origin xyz, size, value)
         self.tile_voxels = 0
-        self.fills = []  # (origins (k, 3) int64, size, values (k,) float32)
+        self.fills = []  # (boxes (k, 6) int64, values (k,) float32)
         self.n_fills = 0
 
     def add_tiles(self, origins, size, values, active):
@@ -479,7 +479,8 @@ class _Blocks:
             if self.n_fills > MAX_FILL_TILES:
                 raise self.cur.error(f"grid '{self.grid}': more than {MAX_FILL_TILES} "
                                      "inactive tiles")
-            self.fills.append((origins[keep], size, values[keep]))
+            o = origins[keep]
+            self.fills.append((np.concatenate([o, o + size], 1), values[keep]))
 
     def add_tile(self, origin, size, value):
         self.tile_voxels += size ** 3
@@ -516,13 +517,8 @@ class _Blocks:
             act_blocks.append(np.ones((2, 8, 8, 8), bool))
         bbox = _bbox_of_active(np.concatenate(act_origins), np.concatenate(act_blocks),
                                self.cur, self.grid)
-        if self.fills:
-            o = np.concatenate([f[0] for f in self.fills])
-            size = np.concatenate([np.full(len(f[0]), f[1], np.int64) for f in self.fills])
-            boxes = np.concatenate([o, o + size[:, None]], 1)
-            fill_values = np.concatenate([f[2] for f in self.fills])
-        else:
-            boxes, fill_values = np.zeros((0, 6), np.int64), np.zeros(0, np.float32)
+        boxes = np.concatenate([np.zeros((0, 6), np.int64)] + [f[0] for f in self.fills])
+        fill_values = np.concatenate([np.zeros(0, np.float32)] + [f[1] for f in self.fills])
         return VdbGrid(self.grid, linear, translation, bbox, background, origins, vals,
                        boxes, fill_values)
 
