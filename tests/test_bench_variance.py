@@ -52,6 +52,20 @@ def _report(rows):
             "results": results}
 
 
+@pytest.mark.parametrize("n_items,levels", [(2, 2), (2, 3), (3, 3), (3, 2), (4, 2)])
+def test_turn_order_gives_every_level_every_order(n_items, levels):
+    # Over n repetitions of n configurations, each spp level renders each configuration
+    # once in each place (the old turn per level alone gave a 2-level, 2-configuration
+    # ladder the same order at a level in every repetition).
+    from volmc.bench.convergence import turn_order
+    items = list("abcd"[:n_items])
+    for level in range(levels):
+        orders = [turn_order(items, rep, level) for rep in range(n_items)]
+        for place in range(n_items):
+            assert sorted(o[place] for o in orders) == items
+        assert all(sorted(o) == items for o in orders)
+
+
 def test_efficiency_arithmetic():
     # The switch halves the RMSE at the top level (MSE x 1/4) at twice the time per
     # sample: MSE x s is half the plain one, so it is 2x as efficient.

@@ -8,8 +8,9 @@ its RMSE is taken against a high-spp reference rendered by volmc with an indepen
 The reference's own noise adds its mean variance of the mean to every MSE; that known amount
 is subtracted (volmc.peers.compare.rmse_to_reference).
 
-Renders alternate: each spp level is rendered by every configuration in turn (the order
-rotates between repetitions), so drift of this shared machine hits all of them alike.
+Renders alternate: each spp level is rendered by every configuration in turn, in an order
+turned by one place per level and per repetition (turn_order), so drift of this shared
+machine hits all of them alike.
 
 Efficiency: for an unbiased renderer MSE = c / t, so c = MSE x t (geometric mean over the
 upper half of the spp ladder, where fixed per-launch costs no longer matter) is the time
@@ -242,6 +243,16 @@ class _PeerRunner:
             self.r.close()
 
 
+def turn_order(items, rep, level):
+    """The order in which ``items`` render spp level ``level`` in repetition ``rep``: turned
+    by one place per level and per repetition, so over n repetitions of n items every level
+    sees every item in every place (turned per level alone, a ladder of as many levels as
+    items gave each level the same order in every repetition)."""
+    items = list(items)
+    k = (rep + level) % len(items) if items else 0
+    return items[k:] + items[:k]
+
+
 def guard_totals(points):
     """{guard counter: total over the points}: paths cut by the step cap, dropped samples,
     lookups above the majorant (each nonzero one is a bias to report)."""
@@ -276,10 +287,9 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
     segments = {c.majorant: segments_per_camera_ray(scene, c.majorant) for c in configs
                 if c.backend not in NOT_VOLMC}
     points = {cfg: [] for cfg in configs}
-    order = list(configs)
     for rep in range(repeats):
-        for spp in spp_levels:
-            for cfg in order:
+        for level, spp in enumerate(spp_levels):
+            for cfg in turn_order(configs, rep, level):
                 mean, sec, counts = runners[cfg].render(spp)
                 e = rmse_to_reference(mean, ref_mean, ref_var)
                 points[cfg].append({"spp": spp, "seconds": sec, "rmse": e,
@@ -288,7 +298,6 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
                 sync = getattr(runners[cfg], "sync_seconds", None)
                 if sync is not None:
                     points[cfg][-1]["sync_seconds"] = sync
-            order = order[1:] + order[:1]
         log(f"  repetition {rep + 1}/{repeats} done")
 
     results = []

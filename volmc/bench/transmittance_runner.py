@@ -67,11 +67,24 @@ class NumbaEstimator:
 
     def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
             mnr=None, nodes=None):
+        return self.launch(self.prepare(med, grid, rays, bounds, n_per_ray, seed,
+                                        sample_offset, maj, mnr, nodes))
+
+    def prepare(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
+                mnr=None, nodes=None):
+        """``run``'s arguments in the form the estimates read: what a benchmark does before
+        it starts the clock (``launch`` is what it times)."""
         media = ray_media(med, grid, rays, None if maj is not None else bounds, np.float64)
         maj, mnr, nodes = _structure(maj, mnr, nodes, np.float64)
-        out, cnt = E.estimate_batch(self.id, media, np.asarray(grid, np.float64),
-                                    maj, mnr, nodes, np.asarray(rays, np.float64), n_per_ray,
-                                    np.uint64(seed), sample_offset, MAX_STEPS)
+        return (media, np.ascontiguousarray(grid, np.float64), maj, mnr, nodes,
+                np.ascontiguousarray(rays, np.float64), n_per_ray, np.uint64(seed),
+                sample_offset)
+
+    def launch(self, prepared):
+        """The estimates of a ``prepare``d batch: (estimates, counters), as ``run``."""
+        media, grid, maj, mnr, nodes, rays, n_per_ray, seed, offset = prepared
+        out, cnt = E.estimate_batch(self.id, media, grid, maj, mnr, nodes, rays, n_per_ray,
+                                    seed, offset, MAX_STEPS)
         return (out if self.chromatic else out[:, 0].copy()), cnt
 
 
@@ -105,17 +118,31 @@ class OpenCLEstimator:
 
     def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
             mnr=None, nodes=None):
+        return self.launch(self.prepare(med, grid, rays, bounds, n_per_ray, seed,
+                                        sample_offset, maj, mnr, nodes))
+
+    def prepare(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
+                mnr=None, nodes=None):
+        """The device buffers of a batch (NumbaEstimator.prepare): the records, the grid and
+        the rays copied to the device and the outputs allocated, before the clock starts."""
         clc = self.clc
         media = ray_media(med, grid, rays, None if maj is not None else bounds, np.float32)
         maj, mnr, nodes = _structure(maj, mnr, nodes, np.float32)
         n = len(rays) * n_per_ray
         out, ob = clc.output((n, 3) if self.chromatic else n, np.float32)
         cnt, cb = clc.output((n, N_COUNTERS), np.uint64)
-        clc.run_rays(self.kernel, len(rays), n_per_ray, self.lanes, clc.to_device(media),
-                     clc.to_device(grid, np.float32), clc.to_device(maj), clc.to_device(mnr),
-                     clc.to_device(nodes), clc.to_device(rays, np.float32), np.int32(n_per_ray),
-                     np.uint64(seed), np.uint32(sample_offset), np.int32(MAX_STEPS), ob, cb,
-                     outs=[(out, ob), (cnt, cb)])
+        args = (clc.to_device(media), clc.to_device(grid, np.float32), clc.to_device(maj),
+                clc.to_device(mnr), clc.to_device(nodes), clc.to_device(rays, np.float32),
+                np.int32(n_per_ray), np.uint64(seed), np.uint32(sample_offset),
+                np.int32(MAX_STEPS), ob, cb)
+        clc.queue.finish()   # the copies are done before the clock starts
+        return len(rays), n_per_ray, args, [(out, ob), (cnt, cb)]
+
+    def launch(self, prepared):
+        """Runs a ``prepare``d batch and reads its results back: (estimates, counters)."""
+        n_rays, n_per_ray, args, outs = prepared
+        out, cnt = self.clc.run_rays(self.kernel, n_rays, n_per_ray, self.lanes, *args,
+                                     outs=outs)
         return out.astype(np.float64), cnt.astype(np.int64)
 
 

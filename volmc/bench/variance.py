@@ -34,7 +34,7 @@ import numpy as np
 
 from ..backends import make_backend
 from ..peers.compare import rmse_to_reference
-from .convergence import guard_totals, mse_seconds, reference_image, timed_render
+from .convergence import guard_totals, mse_seconds, reference_image, timed_render, turn_order
 
 #: A row of the switch table: a label (the ``--switches`` name), the render keys it sets
 #: ({key: value}) and applicable(scene) -> bool (its docstring says what it needs).
@@ -165,11 +165,10 @@ def _measure(scene, configs, spp_levels, reference_spp, repeats, backend, device
     ref_mean, ref_var = reference_image(ref, reference_spp, device, log)
     base = scene.render.seed
     points = {label: [] for label, _ in configs}
-    order = list(configs)
     for rep in range(repeats):
         seed = (base + 1 + rep) % 2**64
-        for spp in spp_levels:
-            for label, keys in order:
+        for level, spp in enumerate(spp_levels):
+            for label, keys in turn_order(configs, rep, level):
                 s = scene.with_render(spp=spp, seed=seed, **keys)
                 be = make_backend(backend, s, device)
                 be.warm_up()
@@ -179,7 +178,6 @@ def _measure(scene, configs, spp_levels, reference_spp, repeats, backend, device
                 points[label].append({"spp": spp, "seed": seed, "seconds": sec,
                                       "rmse": rmse_to_reference(mean, ref_mean, ref_var),
                                       "counters": counts})
-            order = order[1:] + order[:1]
         log(f"  repetition {rep + 1}/{repeats} done")
     return points
 
