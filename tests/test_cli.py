@@ -195,6 +195,35 @@ def test_a_fifo_vdb_is_refused_not_waited_on(tmp_path):
         "regular file", r.stderr
 
 
+@pytest.mark.parametrize("kind", ["directory", "fifo"])
+def test_an_environment_map_that_is_no_file_is_refused(tmp_path, kind):
+    """A directory named like a map failed with a traceback, and a FIFO blocked the read
+    forever: one-line errors, as for grid files."""
+    import os
+    if kind == "fifo":
+        os.mkfifo(tmp_path / "sky.exr")
+    else:
+        (tmp_path / "sky.exr").mkdir()
+    raw = dict(TINY, lights=[{"type": "environment", "file": "sky.exr"}])
+    (tmp_path / "s.toml").write_text(dict_to_toml(raw))
+    r = run(["render", "s.toml", "-o", "o.exr"], tmp_path)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"volmc: error: s.toml: lights[0].file: not a regular file: {tmp_path / 'sky.exr'}"
+    ], r.stderr
+
+
+def test_a_section_that_is_not_a_table_is_the_files_error_with_spp(tmp_path):
+    # --spp and --seed reach the scene as overrides of render.spp and render.seed; the
+    # error is the file's `render`, not a -D the user never typed.
+    raw = dict(TINY)
+    del raw["render"]
+    (tmp_path / "s.toml").write_text("render = [1]\n" + dict_to_toml(raw))
+    for flags in ([], ["--spp", "1"], ["--seed", "3"]):
+        r = run(["render", "s.toml", "-o", "o.exr"] + flags, tmp_path)
+        assert r.returncode == 2 and r.stderr.strip() == \
+            "volmc: error: s.toml: render: expected a table, got list [1]", (flags, r.stderr)
+
+
 def test_bad_grid_via_cli(tmp_path):
     g = np.ones((3, 3, 3), np.float32)
     g[0, 0, 0] = np.nan

@@ -30,6 +30,20 @@ def test_check_output_refuses_what_cannot_be_written(tmp_path):
     assert set(os.listdir(tmp_path)) == {"pipe.exr", "dir.exr"}   # the probe is gone
 
 
+def test_check_output_follows_links_as_the_writers_do(tmp_path):
+    # The writers write where a link points, so a link into a missing or unwritable
+    # directory is refused before the render, not found when its image is ready.
+    cases = [("dangling.exr", tmp_path / "missing" / "out.exr", "directory does not exist"),
+             ("proc.exr", "/proc/version", "directory is not writable")]
+    for name, target, words in cases:
+        (tmp_path / name).symlink_to(target)
+        with pytest.raises(SceneError, match=words):
+            check_output(tmp_path / name, "-o")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "good.exr").symlink_to(tmp_path / "sub" / "new.exr")
+    check_output(tmp_path / "good.exr", "-o")
+
+
 def test_written_whole_keeps_the_old_file_when_writing_fails(tmp_path):
     path = tmp_path / "grid.vol"
     path.write_bytes(b"the earlier file")

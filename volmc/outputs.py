@@ -50,7 +50,8 @@ def check_output(path, key, where="command line"):
         raise SceneError(where, key, f"expected a file path, got {path!r}")
     if os.path.exists(path) and not os.path.isfile(path):
         raise SceneError(where, key, f"not a regular file: {path}")
-    d = os.path.dirname(os.path.abspath(path))
+    # The writers (write_atomically) write where a link points: probe that directory.
+    d = os.path.dirname(os.path.realpath(path))
     if not os.path.isdir(d):
         raise SceneError(where, key, f"directory does not exist: {d}")
     check_directory_writable(d, key, where)

@@ -10,6 +10,7 @@ same map.
 
 import contextlib
 import os
+import stat
 import struct
 import sys
 import tempfile
@@ -38,6 +39,8 @@ def read_env_map(path, scene_file, key):
         st = os.stat(path)
     except OSError as e:
         raise SceneError(scene_file, key, f"cannot read {path}: {e.strerror}") from None
+    if not stat.S_ISREG(st.st_mode):   # a directory fails late; a FIFO would block the read
+        raise SceneError(scene_file, key, f"not a regular file: {path}")
     tag = (str(path), st.st_size, st.st_mtime_ns)
     if tag not in _cache:
         _cache.clear()   # one map at a time: a scene has at most one

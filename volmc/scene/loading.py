@@ -21,7 +21,7 @@ from .bricks import BrickGrid
 from .transform import as_tuple
 from .grids import load_grid, load_peak_bytes, shape_text, validate_grid, value_problem
 from .schema import (FLOAT32_MAX, GENERATORS, ArrayDensity, ConstantDensity, FileDensity,
-                     GeneratedDensity, SceneSpec, check_box, check_placed_box,
+                     GeneratedDensity, SceneSpec, _show, check_box, check_placed_box,
                      validate)
 
 
@@ -153,8 +153,17 @@ def apply_overrides(raw, overrides, file):
     return raw
 
 
+#: The scene's sections that are tables: an override into one the file gives as something
+#: else is the file's error, reported as the schema reports it (not as the override's).
+_TABLE_SECTIONS = ("camera", "medium", "render")
+
+
 def _set_key(raw, parts, value, file, label):
     """Set the dotted key ``parts`` of ``raw`` to ``value``; errors name ``label``."""
+    top = parts[0]
+    if len(parts) > 1 and top in _TABLE_SECTIONS and isinstance(raw, dict) and top in raw \
+            and not isinstance(raw[top], dict):
+        raise SceneError(file, top, f"expected a table, got {_show(raw[top])}")
     node = raw
     for depth, part in enumerate(parts[:-1]):
         shown = ".".join(parts[:depth + 1])
