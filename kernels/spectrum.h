@@ -31,9 +31,12 @@ static inline spec spec_abs(spec a) { return v3(fabs(a.x), fabs(a.y), fabs(a.z))
 static inline spec spec_exp_neg(uspec k, lfloat s) {
     return v3(exp(-(k.x * s)), exp(-(k.y * s)), exp(-(k.z * s)));
 }
-/* 1 - k s per channel of k (one_minus3 in vec.py). */
-static inline spec spec_one_minus(uspec k, lfloat s) {
-    return v3(1.0f - k.x * s, 1.0f - k.y * s, 1.0f - k.z * s);
+/* a (1 - k s) per channel of k (mul_one_minus3 in vec.py), as a - a (k s) in one rounding:
+ * a ratio-tracking step. 1 - k s rounded to float32 errs by the same amount at every step
+ * through constant density, so over the 1e5 steps of a far too high majorant the error added
+ * up to a bias of 1 %; the fused step's rounding varies from step to step. */
+static inline spec spec_mul_one_minus(spec a, uspec k, lfloat s) {
+    return v3(fma(-a.x, k.x * s, a.x), fma(-a.y, k.y * s, a.y), fma(-a.z, k.z * s, a.z));
 }
 #else
 typedef lfloat spec;
@@ -51,7 +54,7 @@ static inline spec spec_scale(spec a, lfloat s) { return a * s; }
 static inline spec spec_sel(spec a, spec b, lmask m) { return select(a, b, m); }
 static inline spec spec_abs(spec a) { return fabs(a); }
 static inline spec spec_exp_neg(uspec k, lfloat s) { return exp(-(k * s)); }
-static inline spec spec_one_minus(uspec k, lfloat s) { return 1.0f - k * s; }
+static inline spec spec_mul_one_minus(spec a, uspec k, lfloat s) { return fma(-a, k * s, a); }
 #endif
 
 #endif

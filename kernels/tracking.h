@@ -400,7 +400,7 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
     if ((may & TRACK_BIT(TRACK_NEXT_FLIGHT)) && ANY(col & next)) {
         lmask nf = col & next;
         lfloat mu = extinction_in(med, WALK_MEDIA(wk), p, s_maj, counters, nf);
-        spec w = spec_mul(wk->w, spec_one_minus(k, mu / s_maj));
+        spec w = spec_mul_one_minus(wk->w, k, mu / s_maj);
         lmask alive = spec_roulette(&w, rng, nf);
         wk->w = spec_sel(wk->w, w, nf);
         /* The rest of this segment adds nothing: its estimate is acc, and the next segment
@@ -416,7 +416,7 @@ static inline WALK_STEP_ATTR lmask walk_step(Walk *wk, const MediumData *med,
     if (may_ratio && ANY(col & !wk->flight & !next)) {
         lmask ratio = col & !wk->flight & !next;
         lfloat mu = extinction_in(med, WALK_MEDIA(wk), p, s_maj, counters, ratio);
-        T = spec_sel(T, spec_mul(T, spec_one_minus(k, (mu - control) / wk->rate)), ratio);
+        T = spec_sel(T, spec_mul_one_minus(T, k, (mu - control) / wk->rate), ratio);
         lmask alive = spec_roulette(&T, rng, ratio);
         end = end | (ratio & !alive);
         go_on = go_on & !(ratio & !alive);

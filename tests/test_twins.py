@@ -26,7 +26,7 @@ C_ONLY = {"vec3", "vec3g", "dda_cell_index", "lerp_ab",
           # the reference always carries RGB tuples (vec.py), so it needs no conversions.
           "spec_first", "spec_max", "spec_rgb", "spec_s", "spec_u", "spec_add", "spec_sub",
           "spec_mul", "spec_div", "spec_scale", "spec_sel", "spec_abs", "spec_exp_neg",
-          "spec_one_minus", "rgb_times",
+          "spec_mul_one_minus", "rgb_times",
           # tracking.h: a walk as a record the lanes' one loop advances an event at a time;
           # track, the reference's twin, is walk_begin then walk_step until the walk ends.
           "walk_begin", "walk_step",

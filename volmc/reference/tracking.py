@@ -104,7 +104,7 @@ from .medium import (MediumData, emitted_radiance, extinction_in, has_medium,
 from .rng import rng_new, rng_next
 from .emitters import emitter_pdf
 from .sampling import mis_weight, sample_exponential
-from .vec import add3, exp_neg3, madd3, max3, mul3, one_minus3, scale3
+from .vec import add3, exp_neg3, madd3, max3, mul3, mul_one_minus3, scale3
 
 ZERO3 = (0.0, 0.0, 0.0)
 ONE3 = (1.0, 1.0, 1.0)
@@ -365,15 +365,15 @@ def track(med, o, d, t0, t1, technique, use_control, beta, hero, emis, rng, coun
                     return EVENT_SCATTER, t0 + t, ONE3 if technique == TRACK_FREE_FLIGHT \
                         else ZERO3, E
             elif technique == TRACK_NEXT_FLIGHT:
-                w = mul3(w, one_minus3(k, extinction_in(med, media, p, s_maj, counters) / s_maj))
+                w = mul_one_minus3(w, k, extinction_in(med, media, p, s_maj, counters) / s_maj)
                 alive, w = spec_roulette(w, rng)
                 if not alive:
                     budget = -1.0   # the next segment draws afresh
                     break   # the rest of this segment adds nothing; its estimate is acc
                 acc = add3(acc, scale3(w, math.exp(-s_maj * (tb - t))))
             else:
-                T = mul3(T, one_minus3(k, (extinction_in(med, media, p, s_maj, counters) - control)
-                                       / rate))
+                T = mul_one_minus3(T, k, (extinction_in(med, media, p, s_maj, counters) - control)
+                                   / rate)
                 alive, T = spec_roulette(T, rng)
                 if not alive:
                     return EVENT_ESCAPE, t1, T, E

@@ -48,6 +48,7 @@ def exp_neg3(k, s):
 
 
 @njit(cache=True, inline="always")
-def one_minus3(k, s):
-    """1 - k s per component of k, for a scalar s (a ratio-tracking factor per channel)."""
-    return (1.0 - k[0] * s, 1.0 - k[1] * s, 1.0 - k[2] * s)
+def mul_one_minus3(a, k, s):
+    """a (1 - k s) per component of a and k, for a scalar s (a ratio-tracking step per
+    channel), written a - a (k s) as the kernels' spec_mul_one_minus (spectrum.h) fuses it."""
+    return (a[0] - a[0] * (k[0] * s), a[1] - a[1] * (k[1] * s), a[2] - a[2] * (k[2] * s))
