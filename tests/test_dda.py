@@ -198,3 +198,38 @@ def test_decomposition_tracking_distribution():
         assert np.array_equal(t, t_delta)          # same decisions for the same numbers
         assert lk < 0.7 * lk_delta                 # the control saves lookups
         assert _distance_fit_pvalue(grid, scale, o, d, t0, t1, t) > a
+
+
+def test_kernel_tracking_over_a_non_cubic_majorant_grid_matches_reference():
+    """Ratio tracking over a majorant grid with a different number of cells on each axis,
+    (cz, cy, cx) = (4, 5, 6): the OpenCL walk (t_track, which looks each DDA cell's
+    majorant up by dda_cell_index) and the Numba twin, on the same rays and random streams,
+    count the same lookups and give the same estimate per walk (float32 may flip a rare
+    accept test). A flat index with the wrong row stride reads other cells' majorants: a
+    cubic grid cannot tell, as every stride is the same there. Deterministic."""
+    from volmc.constants import TRACK_RATIO
+    from volmc.reference.majorant import build_majorant_grid
+
+    rng = np.random.default_rng(12)
+    z, y, x = np.indices((8, 10, 12))        # (nz, ny, nx): a ramp, so that every cell
+    grid = (1 + x + 12 * y + 120 * z) / 960.0 * (0.5 + 0.5 * rng.random(z.shape))
+    grid[:, :, :2] = 0.0                     # has its own majorant, and some cells are empty
+    res = (4, 5, 6)                          # (cz, cy, cx)
+    maj, mnr = build_majorant_grid(grid, res)
+    assert len(set(maj.shape)) == 3 and np.unique(maj).size > maj.size // 2
+    rays = []
+    for _ in range(24):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        o = BMIN + rng.random(3) * (BMAX - BMIN)
+        t0, t1 = clip(o, d)
+        rays.append([*o, *d, t0, t1, 0.0])
+    rays = np.array(rays).astype(np.float32).astype(np.float64)
+    n_per = 256
+    media = grid_media(BMIN, BMAX, 6.0, grid, len(rays), maj_res=res)
+    out = {b: walks(b, TRACK_RATIO, False, media, grid, rays, n_per, 13, maj=maj, mnr=mnr)
+           for b in ("opencl", "numba")}
+    (_, T_cl, lk_cl), (_, T_nb, lk_nb) = out["opencl"], out["numba"]
+    assert lk_nb.mean() > 2.0                 # the walks do visit several cells
+    same = (lk_cl == lk_nb) & np.isclose(T_cl, T_nb, rtol=1e-3, atol=1e-5)
+    assert same.mean() > 0.995, same.mean()

@@ -436,3 +436,45 @@ def test_inside_a_sphere_light_every_pixel_is_its_radiance(backend):
     c = compare_images(r.film.mean()[..., :3], r.film.variance_of_mean()[..., :3], e,
                        np.zeros_like(e))
     assert c.passed, c.summary()
+
+
+def test_wide_sun_disc_has_the_radiance_of_its_irradiance(backend):
+    """The absolute radiance of a wide sun disc (apex 120 degrees: theta = 60), against a
+    closed form. A horizontal slab of thickness h (wide enough that every light path leaves
+    through its top), the sun overhead, an orthographic camera looking straight down,
+    single scattering (max_depth 1), isotropic phase, albedo 1. The disc's radiance is
+    L = E / (pi sin^2 theta) (E measured at right angles to the sun), so at depth s
+
+        L_pix = int_0^h sigma e^{-sigma s} / (4 pi) int_cone L e^{-sigma s / mu} dw ds
+              = L / 2 int_cos(theta)^1 (1 - e^{-tau (1 + 1/mu)}) / (1 + 1/mu) dmu,
+
+    tau = sigma h (Gauss-Legendre to machine precision). Without the attenuation the cone
+    integral of L is E 2 / (1 + cos theta): a radiance of E / (2 pi (1 - cos theta))
+    renders (1 + cos theta) / 2 = 0.75 of this. The image mean is z-tested against it with
+    the render's variance (pixels are independent), Sidak over the three channels."""
+    from volmc.check import ROUNDING_REL
+    from stats import z_bound
+    E, theta, sigma, h = 2.0, math.radians(60.0), 2.0, 0.5
+    sc = scene_from_dict({
+        "camera": {"type": "orthographic", "eye": [0.0, 2.0, 0.0], "target": [0, 0, 0],
+                   "up": [0.0, 0.0, -1.0], "size": 2.0, "resolution": [8, 8]},
+        "medium": {"bounds": [[-3.0, -h / 2, -3.0], [3.0, h / 2, 3.0]], "density": 1.0,
+                   "scale": sigma, "albedo": 1.0},
+        "lights": [{"type": "directional", "direction": [0.0, -1.0, 0.0], "irradiance": E,
+                    "angle": 2 * math.degrees(theta)}],
+        "render": {"spp": 1024, "seed": 3, "max_depth": 1}})
+    # The light paths leave through the top: h tan(theta) from x, z in [-1, 1] stays in
+    # the box's [-3, 3].
+    assert h * math.tan(theta) < 2.0
+    L = E / (math.pi * math.sin(theta) ** 2)
+    mu, w = np.polynomial.legendre.leggauss(64)
+    mu = math.cos(theta) + (1 - math.cos(theta)) * (mu + 1) / 2
+    k = 1 + 1 / mu
+    exp = L / 2 * (1 - math.cos(theta)) / 2 * np.sum(w * (1 - np.exp(-sigma * h * k)) / k)
+    r = render(sc, progress=False, backend=backend)
+    m, var = r.film.mean()[..., :3], r.film.variance_of_mean()[..., :3]
+    n = m.shape[0] * m.shape[1]
+    se = np.sqrt(var.sum(axis=(0, 1))) / n
+    z = (m.mean(axis=(0, 1)) - exp) / np.hypot(se, ROUNDING_REL * exp)
+    assert np.all(se < 0.01 * exp), (se, exp)           # the mutant radiance is 25 % off
+    assert np.all(np.abs(z) < z_bound(ALPHA, 3)), (m.mean(axis=(0, 1)), exp, z)

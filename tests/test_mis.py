@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from stats import ALPHA, z_bound
+from volmc.check import ROUNDING_REL
 from volmc.constants import MIS_BALANCE, MIS_POWER
 from volmc.reference.sampling import mis_balance, mis_power, mis_weight
 from volmc.render import render
@@ -31,14 +32,24 @@ def test_weights_of_a_pair_sum_to_one():
 @pytest.mark.parametrize("key", ["render.mis=power", "render.light_samples=3"])
 def test_white_furnace_stays_exact(backend, key):
     """The power heuristic, and splitting with the sample counts in the balance heuristic's
-    weights (N p_light against p_phase), keep the white furnace exact."""
+    weights (N p_light against p_phase), keep the white furnace exact: every pixel channel
+    and the image mean of each channel against 0.5 (z-tests with the render's variances of
+    the mean, the means' from the sum of the independent pixels' variances; Sidak over all
+    of them). One pixel's noise hides a bias the image mean does not: swapped light and
+    phase pdfs in the environment's weight gave 0.677 within the per-pixel bounds."""
     scene = load_scene(FURNACE, [key, "render.spp=256",
                                  "camera.resolution=[8, 8]", "medium.phase.g=0.9",
                                  "render.rr_depth=1000000"])
     res = render(scene, progress=False, backend=backend)
-    m, se = res.film.mean(), np.sqrt(res.film.variance_of_mean())
-    z = (m - 0.5) / np.where(se > 0, se, np.inf)
-    assert np.abs(z).max() < z_bound(ALPHA, z.size)
+    m, var = res.film.mean()[..., :3], res.film.variance_of_mean()[..., :3]
+    # Float32 rounding where a pixel is exact (zero variance).
+    var = var + (ROUNDING_REL * 0.5) ** 2
+    z = (m - 0.5) / np.sqrt(var)
+    n_pix = m.shape[0] * m.shape[1]
+    z_mean = (m.mean(axis=(0, 1)) - 0.5) / (np.sqrt(var.sum(axis=(0, 1))) / n_pix)
+    bound = z_bound(ALPHA, z.size + z_mean.size)
+    assert np.abs(z).max() < bound, np.abs(z).max()
+    assert np.abs(z_mean).max() < bound, (m.mean(axis=(0, 1)), z_mean)
 
 
 def test_power_and_balance_agree(backend):
