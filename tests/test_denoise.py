@@ -226,3 +226,27 @@ def test_normal_study_refuses_a_scene_without_a_grid(capsys):
     with pytest.raises(SystemExit) as e:
         main(["--help"])
     assert e.value.code == 0 and capsys.readouterr().out.startswith("usage:")
+
+
+@pytest.mark.parametrize("transparent", [False, True])
+def test_noise_free_pixels_keep_their_value(transparent):
+    """The sky seen past the slab (its left quarter) has no noise: the preview keeps it as
+    rendered. The filter moved it by up to a third next to the noisy slab with the AOV
+    (whose 0 there it reads as a dark surface), and gave an empty transparent background
+    colour. Without the variance (1 spp) nothing is known to be exact."""
+    pytest.importorskip("pyoidn")
+    from volmc.denoise import denoise, denoise_film, noise_free
+    sc = slab(spp=16)
+    if transparent:
+        sc = sc.with_render(transparent_background=True)
+    r = render(sc, progress=False, albedo=True)
+    m, var = r.film.mean(), r.film.variance_of_mean()
+    sky = noise_free(m, var)
+    assert sky[:, :4].all() and not sky[:, 4:].any()
+    assert np.all(m[:, :4] == (0.0 if transparent else np.array([0.3, 0.5, 0.7], np.float32)))
+    out = denoise_film(r.film)[..., :3]
+    assert np.array_equal(out[sky], m[sky].astype(np.float32))
+    assert not np.array_equal(out[~sky], m[~sky].astype(np.float32))   # the rest is filtered
+    assert not noise_free(m, np.full_like(var, np.inf)).any()
+    plain = denoise(m, r.film.albedo())
+    assert not np.array_equal(plain[sky], m[sky].astype(np.float32))   # what it guards

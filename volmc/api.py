@@ -506,7 +506,8 @@ class RenderedImage:
         otherwise. ``image`` is unchanged: the preview is biased (it is a filter) and is
         for looking at, not for measuring. Raises VolmcError without the extra."""
         from .denoise import denoise
-        return denoise(self.image, self.albedo, "RenderedImage.denoised()", "pyoidn")
+        return denoise(self.image, self.albedo, "RenderedImage.denoised()", "pyoidn",
+                       variance=self.variance)
 
     def stats(self):
         """samples, samples_per_second, mean_path_length, lookups_per_sample, ... (dict)."""

@@ -43,12 +43,30 @@ def oidn_version():
         return ""
 
 
-def denoise(image, albedo=None, file="command line", key="--denoise", normal=None):
+#: A pixel whose standard error is at most this fraction of its value has no noise a filter
+#: could remove (float32's own rounding is 6e-8): the preview keeps its unbiased value.
+NOISE_FREE_REL = 1e-6
+
+
+def noise_free(image, variance):
+    """Pixels [h, w] whose every channel's standard error (``variance`` of the mean, [h, w,
+    3]) is at most NOISE_FREE_REL of its value: the sky seen past the medium, an empty
+    transparent background. False everywhere when the variance is unknown (inf: 1 spp)."""
+    m = np.abs(np.asarray(image, np.float64))
+    v = np.asarray(variance, np.float64)
+    return np.all(np.isfinite(v) & (v <= (NOISE_FREE_REL * m) ** 2), axis=-1)
+
+
+def denoise(image, albedo=None, file="command line", key="--denoise", normal=None,
+            variance=None):
     """The denoised image, float32 [h, w, 3], of a linear HDR ``image`` [h, w, 3] guided by
     the mean ``albedo`` AOV [h, w, 3] (None: colour alone). Negative and non-finite values
     (signed samples, or an empty film) are clamped to 0 first: OIDN reads non-negative
-    radiance. ``normal`` [h, w, 3], a normal guide with the albedo, is for the measurement
-    that found none worth having (volmc/bench/denoise_normal.py)."""
+    radiance. Given the ``variance`` of the mean [h, w, 3], noise-free pixels (noise_free)
+    keep their value: the network moved a constant sky by up to a third next to a noisy
+    medium, and gave an empty transparent background colour. ``normal`` [h, w, 3], a
+    normal guide with the albedo, is for the measurement that found none worth having
+    (volmc/bench/denoise_normal.py)."""
     pyoidn = oidn(file, key)
     color = np.asarray(image, np.float64)
     color = np.ascontiguousarray(np.where(np.isfinite(color), np.maximum(color, 0.0), 0.0),
@@ -60,8 +78,12 @@ def denoise(image, albedo=None, file="command line", key="--denoise", normal=Non
                                      np.float32)
     if normal is not None:
         normal = np.ascontiguousarray(normal, np.float32)
-    return np.asarray(pyoidn.denoise(color, guide, normal, hdr=True, quality="high"),
-                      np.float32)
+    out = np.asarray(pyoidn.denoise(color, guide, normal, hdr=True, quality="high"),
+                     np.float32)
+    if variance is not None:
+        keep = noise_free(color, variance)
+        out[keep] = color[keep]
+    return out
 
 
 def denoised_metadata(meta, with_albedo, source=None):
@@ -86,7 +108,7 @@ def denoised_path(path):
 def denoise_film(film, file="command line", key="--denoise"):
     """The denoised RGBA image [h, w, 4] of a Film: its mean radiance denoised (guided by
     its albedo AOV when it has one) and its unbiased coverage as A."""
-    rgb = denoise(film.mean(), film.albedo(), file, key)
+    rgb = denoise(film.mean(), film.albedo(), file, key, variance=film.variance_of_mean())
     return np.concatenate([rgb, film.alpha()[..., None].astype(np.float32)], axis=-1)
 
 
