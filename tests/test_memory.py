@@ -271,8 +271,9 @@ def test_film_estimate_matches_what_numpy_allocates(tmp_path):
     factor 2 of the bytes numpy allocates for them (tracemalloc)."""
     w, h = 512, 384
     scene = scene_from_dict(TINY, overrides=[f"camera.resolution=[{w}, {h}]"])
-    estimated = memory.estimate(scene, "numba", film=True, scene_data=False).components[0]
-    assert estimated.key == "camera.resolution"
+    sums, outputs = memory.estimate(scene, "numba", film=True, scene_data=False).components[:2]
+    assert sums.key == outputs.key == "camera.resolution" and outputs.phase == "write"
+    estimated = memory.Component(sums.key, sums.what, host=sums.host + outputs.host)
     rng = np.random.default_rng(1)
     tracemalloc.start()
     film = Film(w, h)
@@ -335,3 +336,59 @@ def test_banded_render_equals_unbanded(backend):
     part = render(scene, backend=backend, progress=False, spp=3)
     assert np.array_equal(one_row.film.sum, part.film.sum)
     assert sample_counts(one_row.counters) == sample_counts(part.counters)
+
+
+_PEAK_SCRIPT = """
+import gc, json, sys
+from volmc.cli import main
+def status(key):
+    for line in open('/proc/self/status'):
+        if line.startswith(key):
+            return int(line.split()[1]) * 1024
+args = ['render', '--quiet', '--spp', '1', '-o', sys.argv[1], '-D', 'camera.resolution=[48, 48]']
+assert main(args + ['-D', 'medium.density.resolution=16']) == 0   # imports, JIT, kernels
+gc.collect()
+base = status('VmRSS:')
+with open('/proc/self/clear_refs', 'w') as f:   # resets VmHWM
+    f.write('5')
+assert main(args + ['-D', 'medium.density.resolution=192']) == 0
+print(json.dumps(status('VmHWM:') - base))
+"""
+
+
+def test_estimate_bounds_the_measured_peak(tmp_path):
+    """A grid-dominated volmc render (the cloud at 192^3, a 48x48 image): the peak RSS
+    growth over the same process after a tiny render (VmHWM, reset through
+    /proc/self/clear_refs) is at most the estimate, and the estimate at most 1.6x it."""
+    import json
+    import os
+    import subprocess
+    import sys
+    if not os.path.exists("/proc/self/clear_refs"):
+        pytest.skip("needs Linux's /proc/self/clear_refs")
+    run = subprocess.run([sys.executable, "-c", _PEAK_SCRIPT, str(tmp_path / "c.exr")],
+                         capture_output=True, text=True, timeout=300)
+    if run.returncode != 0 and "clear_refs" in run.stderr:
+        pytest.skip("/proc/self/clear_refs is not writable here")
+    assert run.returncode == 0, run.stderr
+    measured = json.loads(run.stdout.strip().splitlines()[-1])
+    scene = load_scene(default_scene(), ["medium.density.resolution=192",
+                                         "camera.resolution=[48, 48]"])
+    est = memory.estimate(scene, "opencl").host
+    assert measured <= est <= 1.6 * measured, (est, measured)
+
+
+def test_the_camera_check_packs_the_boxes_alone(cloud):
+    """volmc render's check that the camera sees a medium packed the whole scene in float64:
+    a float64 copy of the grid (8 bytes a voxel) and its majorant, the peak of a render's
+    memory that no estimate counted. It needs the boxes alone."""
+    import tracemalloc
+    from volmc.visibility import medium_in_view
+    medium_in_view(cloud)   # Numba's compilation is not the check's
+    tracemalloc.start()
+    try:
+        assert medium_in_view(cloud)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, peak          # the 128^3 grid alone is 8 MiB in float32

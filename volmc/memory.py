@@ -26,6 +26,8 @@ the same bit for bit however it is banded.
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from .scene.hostmem import ENV_VAR, fmt_bytes, host_available, parse_size  # noqa: F401
 from .film import ALBEDO_CHANNELS, CHANNELS
 from .params import N_COUNTERS, launch_spp
@@ -58,18 +60,41 @@ CL_ALBEDO_SAMPLE_BYTES = 8 * 4
 #: sample column).
 CL_TEMP_BYTES_PER_CHANNEL = 3 * 8
 CL_COUNTER_BYTES_PER_SAMPLE = 1
+#: glibc's largest dynamic mmap threshold (64-bit): smaller arrays may come from the heap,
+#: whose freed pages stay resident below a live allocation.
+MMAP_THRESHOLD_MAX = 32 << 20
 
 
 
 @dataclass
 class Component:
     """One thing a render allocates: the scene ``key`` responsible, a description, bytes on
-    the host and on the device, and the largest single device buffer."""
+    the host and on the device, and the largest single device buffer. ``phase``: None for
+    what is held through the whole render, else the step (PHASES) whose transient
+    allocation it is: only one step runs at a time."""
     key: str
     what: str
     host: int = 0
     device: int = 0
     buffer: int = 0
+    phase: str = None
+
+
+#: The steps of a render whose allocations do not coexist (``Component.phase``):
+#: "majorant", the backend's build of its majorant structure (the partial reductions);
+#: "render", the backend's buffers (its packed copies, the device buffers, the launch
+#: buffers); "write", writing the outputs at the end.
+PHASES = ("majorant", "render", "write")
+
+
+def _peak(components, side):
+    """Bytes of ``side(c)`` held at the peak: the held components plus the largest phase."""
+    held = sum(side(c) for c in components if c.phase is None)
+    phases = {}
+    for c in components:
+        if c.phase is not None:
+            phases[c.phase] = phases.get(c.phase, 0) + side(c)
+    return held + max(phases.values(), default=0)
 
 
 @dataclass
@@ -82,22 +107,27 @@ class Estimate:
 
     @property
     def host(self):
-        """Host bytes in all (with the device's on a CPU device)."""
-        return sum(c.host + (c.device if self.device_is_host else 0) for c in self.components)
+        """Host bytes at the peak (with the device's on a CPU device): what is held through
+        the render and the largest step's transients (``Component.phase``)."""
+        return _peak(self.components,
+                     lambda c: c.host + (c.device if self.device_is_host else 0))
 
     @property
     def device(self):
-        return sum(c.device for c in self.components)
+        return _peak(self.components, lambda c: c.device)
 
     def by_key(self):
-        """{key: Component with the bytes of every component of that key summed}."""
-        out = {}
+        """{key: Component with the bytes of every component of that key at its peak: the
+        held ones summed, plus its largest step}."""
+        out, groups = {}, {}
         for c in self.components:
             s = out.setdefault(c.key, Component(c.key, c.what))
             s.what = c.what   # the last: what the backend holds
-            s.host += c.host
-            s.device += c.device
             s.buffer = max(s.buffer, c.buffer)
+            groups.setdefault(c.key, []).append(c)
+        for key, cs in groups.items():
+            out[key].host = _peak(cs, lambda c: c.host)
+            out[key].device = _peak(cs, lambda c: c.device)
         return out
 
 
@@ -142,8 +172,71 @@ def band_rows(width, height, backend, available=None, max_alloc=None, albedo=Fal
     return int(max(1, min(height, pixels // max(width, 1))))
 
 
-def _density_components(scene, backend):
+def _reduction_bytes(shape_zyx, cells_zyx):
+    """Peak bytes of build_majorant_grid (reference/majorant.py) of a [nz, ny, nx] float32
+    grid into (cz, cy, cx) cells: one axis at a time, each step holding its input, the
+    per-cell parts and their concatenation (float32), the slab np.take copies for one
+    cell, and during the minima's pass the maxima (4 bytes a cell)."""
+    nz, ny, nx = shape_zyx
+    cz, cy, cx = cells_zyx
+    cells = cz * cy * cx
+    x = 8 * nz * ny * cx + 4 * nz * ny * (-(-nx // cx) + 2)
+    y = 4 * nz * ny * cx + 8 * nz * cy * cx + 4 * nz * (-(-ny // cy) + 2) * cx
+    z = 4 * nz * cy * cx + 8 * cells + 4 * (-(-nz // cz) + 2) * cy * cx
+    return 4 * cells + max(x, y, z)
+
+
+def _occupied_bricks(g, n_bricks):
+    """Non-empty 8^3 bricks of the dense grid ``g`` (one pass, no copy) when its sides are
+    multiples of 8, else ``n_bricks`` (every brick)."""
+    nz, ny, nx = g.shape
+    if nz % 8 or ny % 8 or nx % 8 or not g.flags.c_contiguous:
+        return n_bricks
+    b = np.asarray(g).reshape(nz // 8, 8, ny // 8, 8, nx // 8, 8)
+    return int(np.count_nonzero(b.max(axis=(1, 3, 5))))
+
+
+def _majorant_cells(scene, g):
+    """Cells of the finest level of ``scene``'s majorant structure (0 without one)."""
     from .reference.majorant import auto_resolution
+    from .reference.octree import octree_depth
+    if scene.render.majorant == "grid":
+        res = scene.render.majorant_resolution
+        return math.prod(tuple(reversed(res)) if res else auto_resolution(g.shape))
+    if scene.render.majorant == "octree":
+        return 8 ** octree_depth(g.shape)
+    return 0
+
+
+def _majorant_bytes(scene, g, real):
+    """(peak, held) host bytes of packing the majorant structure of ``scene`` (grid ``g``)
+    in reals of ``real`` bytes: the build (and the copies in that precision made while its
+    float32 result is held), then what the packed scene keeps; (0, 0) without one."""
+    from .reference.majorant import auto_resolution
+    from .reference.octree import octree_depth
+    m = scene.render.majorant
+    if m == "grid":
+        res = scene.render.majorant_resolution
+        cells_zyx = tuple(reversed(res)) if res else auto_resolution(g.shape)
+        cells = math.prod(cells_zyx)
+        build = _reduction_bytes(g.shape, cells_zyx)
+        # pack_majorant: float32 maxima and minima, then their copies in ``real``.
+        return max(build, 8 * cells + (2 * cells * real if real != 4 else 0)), 2 * cells * real
+    if m == "octree":
+        n = 2 ** octree_depth(g.shape)
+        cells = n ** 3
+        nodes = cells * 8 // 7 + 1
+        build = _reduction_bytes(g.shape, (n, n, n))
+        # build_octree, with the finest level held: its pyramid (8/7), per node the bounds
+        # and children of the lists, their concatenation and the casts (24 bytes), the
+        # frontier's int64 coordinates and float64 spread (32).
+        tree = 8 * cells + 8 * cells // 7 + nodes * (12 + 24 + 32)
+        held = nodes * (2 * real + 4)
+        return max(build, tree + held), held
+    return 0, 0
+
+
+def _density_components(scene, backend):
     from .reference.octree import octree_depth
     from .scene.bricks import BrickGrid, stores_bricks
     real = 8 if backend == "numba" else 4
@@ -156,46 +249,66 @@ def _density_components(scene, backend):
     voxels = nz * ny * nx
     held = g.nbytes if isinstance(g, BrickGrid) else g.size * g.itemsize
     out.append(Component("medium.density", "the loaded density grid", host=held))
+    # What density_storage makes for every pack, and the pack's density in reals of r bytes.
     if stores_bricks(scene):
         n_bricks = math.ceil(nx / 8) * math.ceil(ny / 8) * math.ceil(nz / 8)
         if isinstance(g, BrickGrid):
             slots, made = g.pool.shape[0], 0
-        else:   # from the dense grid in pack_scene: at most every brick occupied
-            slots = n_bricks + 1
+        else:   # from the dense grid: its non-empty bricks, and the index table
+            slots = _occupied_bricks(g, n_bricks) + 1
             made = 4 * n_bricks + slots * 512 * 4
-        pool = slots * 512 * real
-        out.append(Component("medium.density", "the density bricks",
-                             host=made + (pool if real == 8 else 0),
-                             device=(4 * n_bricks + pool) if cl else 0,
-                             buffer=pool if cl else 0))
+        table, pool32 = 4 * n_bricks, slots * 512 * 4
+
+        def packed(r):
+            return slots * 512 * r if r != 4 else 0   # the table is shared
+        what = "the density bricks"
+        dev = table + pool32
     else:
-        dense = voxels * real
-        copied = isinstance(g, BrickGrid) or real == 8   # float32 stays shared with OpenCL
-        out.append(Component("medium.density", "the density grid",
-                             host=dense if copied else 0, device=dense if cl else 0,
-                             buffer=dense if cl else 0))
-    m = scene.render.majorant
-    if m == "grid":
-        res = scene.render.majorant_resolution
-        cz, cy, cx = tuple(reversed(res)) if res else auto_resolution(g.shape)
-        cells = cz * cy * cx
-        # build_majorant_grid: float32 maxima and minima, the first axis's partial
-        # reduction (two [nz, ny, cx] arrays), the packed copies in the backend's precision.
-        build = 2 * cells * 4 + 2 * nz * ny * cx * 4 + (2 * cells * 8 if real == 8 else 0)
-        out.append(Component("render.majorant_resolution", "the majorant grid", host=build,
-                             device=2 * cells * 4 if cl else 0,
-                             buffer=cells * 4 if cl else 0))
-    elif m == "octree":
-        n = 2 ** octree_depth(g.shape)
-        cells = n ** 3
-        nodes = cells * 8 // 7 + 1
-        # Finest level, its pyramid (8/7), per-node bounds and children, the frontier's
-        # int64 coordinates, the packed copies; the first axis's partial reduction.
-        build = (2 * cells * 4 * 8 // 7 + nodes * (4 + 4 + 4 + 24) + 2 * nz * ny * n * 4
-                 + (2 * nodes * 8 if real == 8 else 0))
-        out.append(Component("render.majorant", "the majorant octree", host=build,
-                             device=nodes * 12 if cl else 0, buffer=nodes * 4 if cl else 0))
-    return out
+        made = voxels * 4 if isinstance(g, BrickGrid) else 0   # the dense array
+        copied = g.dtype != np.float32 or not g.flags.c_contiguous \
+            if not isinstance(g, BrickGrid) else False
+
+        def packed(r):   # float32 in C order stays shared with the scene
+            return voxels * r if (r != 4 or copied) else 0
+        what = "the density grid"
+        dev = voxels * 4
+    mpeak, mheld = _majorant_bytes(scene, g, real)
+    mkey = "render.majorant_resolution" if scene.render.majorant == "grid" else \
+        "render.majorant"
+    mwhat = "the majorant grid" if scene.render.majorant == "grid" else "the majorant octree"
+    # A build whose float32 result is small leaves its results on the heap above the
+    # partial reductions, so the allocator keeps those pages for the rest of the process
+    # (measured: 19 MiB after a 32^3 build of a 256^3 grid); later builds reuse them.
+    # A build with large results keeps up to the heap's share (measured: 30 MiB with
+    # 256^3 cells).
+    kept = (mpeak if _majorant_cells(scene, g) * 4 < MMAP_THRESHOLD_MAX
+            else min(mpeak, MMAP_THRESHOLD_MAX)) if mpeak else 0
+    small = kept == mpeak
+    if kept:
+        out.append(Component(mkey, f"{mwhat}'s build (pages the allocator keeps)",
+                             host=kept))
+    if mpeak and not small:
+        out.append(Component(mkey, f"{mwhat}'s build", host=made + mpeak, phase="majorant"))
+    if scene.render.majorant == "octree":
+        nodes = (2 ** (3 * octree_depth(g.shape))) * 8 // 7 + 1
+        mdev, mbuf = nodes * 12, nodes * 4
+    elif scene.render.majorant == "grid":
+        mdev, mbuf = mheld, mheld // 2
+    else:
+        mdev = mbuf = 0
+    # The backend's pack (OpenCL's until its buffers are made, Numba's through the render)
+    # and the device buffers.
+    out.append(Component(mkey, mwhat, host=mheld, device=mdev if cl else 0,
+                         buffer=mbuf if cl else 0, phase="render") if mpeak else None)
+    out.append(Component("medium.density", what,
+                         host=(made + packed(real)) if cl else (packed(real)
+                                                                + (table if what ==
+                                                                   "the density bricks"
+                                                                   else made)),
+                         device=dev if cl else 0,
+                         buffer=(pool32 if what == "the density bricks" else dev) if cl else 0,
+                         phase="render"))
+    return [c for c in out if c is not None]
 
 
 def _emission_components(scene, backend):
@@ -205,9 +318,12 @@ def _emission_components(scene, backend):
     real = 8 if backend == "numba" else 4
     cl = backend != "numba"
     key = _emission_key(scene)
-    return [Component(key, "the loaded emission grid", host=e.size * e.itemsize),
-            Component(key, "the emission grid", host=e.size * 8 if real == 8 else 0,
-                      device=e.size * 4 if cl else 0, buffer=e.size * 4 if cl else 0)]
+    out = [Component(key, "the loaded emission grid", host=e.size * e.itemsize)]
+    copied = real == 8 or e.dtype != np.float32
+    out.append(Component(key, "the emission grid", host=e.size * real if copied else 0,
+                         device=e.size * 4 if cl else 0, buffer=e.size * 4 if cl else 0,
+                         phase="render"))
+    return out
 
 
 def _env_components(scene, backend):
@@ -223,9 +339,10 @@ def _env_components(scene, backend):
             n = n[0] * n[1]
             real = 8 if backend == "numba" else 4
             cl = backend != "numba"
-            return [Component(key, "the environment map and its sampling density",
-                              host=n * 12 + n * 5 * 8 + n * 5 * real + (n * 20 if cl else 0),
-                              device=n * 20 if cl else 0, buffer=n * 20 if cl else 0)]
+            what = "the environment map and its sampling density"
+            return [Component(key, what, host=n * 12 + n * 5 * 8 + n * 5 * real
+                                    + (n * 20 if cl else 0), device=n * 20 if cl else 0,
+                                    buffer=n * 20 if cl else 0, phase="render")]
     return []
 
 
@@ -241,9 +358,11 @@ def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
     rows = max(1, min(int(rows), h))
     comps = []
     if film:
-        comps.append(Component("camera.resolution", f"a {w}x{h} film",
-                               host=w * h * (FILM_BYTES_PER_PIXEL + OUTPUT_BYTES_PER_PIXEL
-                                             + (FILM_ALBEDO_BYTES_PER_PIXEL if albedo else 0))))
+        what = f"a {w}x{h} film"
+        comps.append(Component("camera.resolution", what, host=w * h * (
+            FILM_BYTES_PER_PIXEL + (FILM_ALBEDO_BYTES_PER_PIXEL if albedo else 0))))
+        comps.append(Component("camera.resolution", what, host=w * h * OUTPUT_BYTES_PER_PIXEL,
+                               phase="write"))
     if scene_data:
         parts = scene.media_scenes
         for i, part in enumerate(parts):
@@ -253,14 +372,16 @@ def estimate(scene, backend="opencl", rows=None, available=None, max_alloc=None,
                     c.key = c.key.replace("medium.", f"media[{i}].")
                 if backend != "numba":   # pack.shared_buffers: every array once more
                     own.append(Component(f"media[{i}].density", "its share of the media's "
-                                         "shared buffers", host=sum(c.device for c in own)))
+                                         "shared buffers", host=sum(c.device for c in own),
+                                         phase="render"))
             comps += own
         comps += _env_components(scene, backend)
     host, device, buffer = launch_bytes_per_pixel(backend, w, h, albedo)
     px = rows * w
     comps.append(Component("camera.resolution",
                            f"the launch buffers of {rows} row{'s' if rows > 1 else ''}",
-                           host=px * host, device=px * device, buffer=px * buffer))
+                           host=px * host, device=px * device, buffer=px * buffer,
+                           phase="render"))
     return Estimate(comps, rows, h, device_is_host)
 
 
