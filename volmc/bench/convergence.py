@@ -286,6 +286,11 @@ def run(scene, configs, spp_levels, reference_spp, repeats=1, device=None, ceili
 
     segments = {c.majorant: segments_per_camera_ray(scene, c.majorant) for c in configs
                 if c.backend not in NOT_VOLMC}
+    # One untimed pass at the top level first: a runner's first renders of full-size launches
+    # were 1.2x to 1.9x slower than its later ones (buffers growing, first touches), and a
+    # baseline's worker process more so, which tilted short comparisons.
+    for cfg in configs:
+        runners[cfg].render(max(spp_levels))
     points = {cfg: [] for cfg in configs}
     for rep in range(repeats):
         for level, spp in enumerate(spp_levels):
