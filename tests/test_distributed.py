@@ -303,3 +303,288 @@ def test_ctrl_c_at_the_terminal_stops_a_local_cluster_render(tmp_path):
     assert "volmc: interrupted, partial image: x.exr" in text
     assert "Traceback" not in text and "WARNING" not in text, text
     assert read_exr(tmp_path / "x.exr")[1]["partial"] == 1
+
+
+# --- Robustness of cluster renders (an outside tester's reproductions): a cluster that fails
+# mid-render keeps the merged samples, Ctrl-C during --workers start-up is not lost, an
+# address that is not a scheduler and a scheduler without workers fail in bounded time.
+
+def _small_scene_file(tmp_path, spp):
+    from volmc.scene.serialize import to_toml
+    scene = load_scene(default_scene(), SMALL + [f"render.spp={spp}"])
+    (tmp_path / "s.toml").write_text(to_toml(scene.spec))
+    return scene
+
+
+def _thread_cluster(n_workers=1):
+    """A scheduler and ``n_workers`` thread workers in this process, on loopback TCP, Dask's
+    connect timeout 2 s for the client (its reconnection after losing the scheduler, the
+    wait for workers)."""
+    import dask
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        c = distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1,
+                                     processes=False, dashboard_address=None,
+                                     protocol="tcp", host="127.0.0.1")
+        return c, distributed.Client(c, set_as_default=False)
+
+
+def test_failed_task_keeps_the_merged_chunks(tmp_path, monkeypatch):
+    """A chunk whose task fails for good (here: every run of it raises; Dask's KilledWorker
+    is the same to the host) ends the render with volmc's ClusterError, a VolmcError: the
+    chunks merged before it are its .result (partial) and in the checkpoint, from which a
+    resume gives the uninterrupted image bit for bit. Found by an outside tester: Dask's
+    exception escaped the driver before the final save, losing the merged work."""
+    import dask
+    import volmc
+    import volmc.distributed as vd
+    scene = load_scene(default_scene(), SMALL)
+    spp = 1000
+    chunks = chunk_schedule(64 * 48, spp)
+    bad = chunks[2][0][0]   # chunks 0 and 1 merge, chunk 2 fails
+    real = vd._render_task
+
+    def failing(scene, token, backend, device, chunk, lanes, albedo):
+        if chunk[0][0] == bad:
+            raise RuntimeError("simulated worker failure")
+        return real(scene, token, backend, device, chunk, lanes, albedo)
+
+    monkeypatch.setattr(vd, "_render_task", failing)
+    ckpt = tmp_path / "c.npz"
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                      dashboard_address=None) as c, \
+                distributed.Client(c, set_as_default=False) as client:
+            with pytest.raises(volmc.VolmcError) as info:
+                volmc.render(scene, spp=spp, progress=False, client=client,
+                             checkpoint=str(ckpt))
+    e = info.value
+    assert type(e).__name__ == "ClusterError"
+    assert str(e).startswith("volmc.render(): client: the Dask cluster failed: a task of the "
+                             "render failed (RuntimeError: simulated worker failure)"), str(e)
+    assert f"resume='{ckpt}'" in str(e)
+    done = sum(n for c in chunks[:2] for _, n in c)
+    assert e.result.partial and e.result.spp == done
+    monkeypatch.setattr(vd, "_render_task", real)
+    whole = render(scene, backend="opencl", spp=spp, progress=False)
+    resumed = render(scene, backend="opencl", spp=spp, progress=False, resume=str(ckpt))
+    np.testing.assert_array_equal(resumed.film.sum, whole.film.sum)
+    assert resumed.counters == whole.counters
+
+
+def test_lost_scheduler_keeps_the_merged_chunks(tmp_path):
+    """The scheduler goes away mid-render (closed here; the tester killed a `dask scheduler`
+    with SIGKILL): the client's futures are cancelled, and the render ends with ClusterError
+    carrying the chunks merged so far, checkpointed, instead of Dask's FutureCancelledError
+    and nothing saved."""
+    from volmc.checkpoint import load
+    from volmc.scene.errors import VolmcError
+    scene = load_scene(default_scene(), SMALL)
+    ckpt = tmp_path / "c.npz"
+    c, client = _thread_cluster()
+
+    def close_scheduler_after_a_chunk():
+        t0 = time.monotonic()
+        while not ckpt.exists() and time.monotonic() - t0 < 60:
+            time.sleep(0.05)
+        c.sync(c.scheduler.close)
+
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(VolmcError, match="lost its connection to the Dask scheduler") \
+                as info:
+            render(scene, backend="opencl", spp=10**6, progress=False, client=client,
+                   checkpoint=str(ckpt), checkpoint_every=0,
+                   on_start=threading.Thread(target=close_scheduler_after_a_chunk).start)
+    finally:
+        client.close(timeout=5)
+        try:   # its scheduler is gone: closing it times out
+            c.close(timeout=2)
+        except TimeoutError:
+            pass
+    assert time.monotonic() - t0 < 30
+    res = info.value.result
+    assert res.partial and 0 < res.film.spp < 10**6
+    film = load(str(ckpt), scene, "opencl", res.techniques.get("lanes") and
+                int(res.techniques["lanes"]), False)[0]
+    assert film.spp == res.film.spp
+    np.testing.assert_array_equal(film.sum, res.film.sum)
+
+
+def _children(pid, pattern="spawn_main"):
+    r = subprocess.run(["pgrep", "-P", str(pid), "-f", pattern], capture_output=True,
+                       text=True)
+    return [int(p) for p in r.stdout.split()]
+
+
+def _popen_cli(args, cwd, **env_extra):
+    from cli_subprocess import volmc_cli, volmc_env
+    env = volmc_env()
+    env.update(env_extra)
+    return subprocess.Popen(volmc_cli(*args), cwd=cwd, env=env, stderr=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def test_cli_killed_worker_writes_the_partial_image_and_checkpoint(tmp_path):
+    """volmc render --workers 1 --checkpoint, and its worker killed with SIGKILL while it
+    renders (Dask allowed no failure here, so the first death is Dask's KilledWorker, as
+    repeated kills were for the tester): the partial EXR and the checkpoint are written and
+    the one-line error (exit status 2) says how to resume, with no traceback."""
+    _small_scene_file(tmp_path, 10**6)
+    p = _popen_cli(["render", "s.toml", "--quiet", "--workers", "1", "-o", "x.exr",
+                    "--checkpoint", "c.npz", "--checkpoint-every", "0"], tmp_path,
+                   DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES="0")
+    try:
+        t0 = time.monotonic()
+        while not (tmp_path / "c.npz").exists() and time.monotonic() - t0 < 60:
+            time.sleep(0.05)
+        for pid in _children(p.pid):
+            os.kill(pid, signal.SIGKILL)
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    lines = err.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1, err
+    assert lines[0].startswith("volmc: error: command line: --workers: the Dask cluster "
+                               "failed: the workers running a chunk of the render kept dying "
+                               "(Dask's KilledWorker"), err
+    assert lines[0].endswith("(marked partial) and c.npz: continue with --resume c.npz"), err
+    img, meta = read_exr(tmp_path / "x.exr")
+    assert meta["partial"] == 1 and 0 < meta["spp"] < 10**6
+    assert f"the {meta['spp']} spp rendered are in x.exr" in lines[0]
+
+
+def test_cli_ctrl_c_during_cluster_start_up_is_not_lost(tmp_path):
+    """A Ctrl-C (SIGINT to the process group) while --workers starts its cluster: volmc used
+    to ignore SIGINT then and rendered the whole image. It stops now, with exit status 130
+    and nothing rendered, and the workers, which still never see a Ctrl-C, print nothing."""
+    _small_scene_file(tmp_path, 64)
+    p = _popen_cli(["render", "s.toml", "--workers", "2", "-o", "x.exr"], tmp_path)
+    try:
+        t0 = time.monotonic()
+        while not _children(p.pid) and time.monotonic() - t0 < 60:
+            time.sleep(0.02)
+        assert _children(p.pid), "no worker process started"
+        os.killpg(p.pid, signal.SIGINT)   # the workers are starting: the cluster is not up
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    assert p.returncode == 130, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert "volmc: started" not in err and not (tmp_path / "x.exr").exists(), err
+
+
+class _FakeScheduler:
+    """A TCP listener on loopback that is not a Dask scheduler: it sends ``greeting`` to
+    whoever connects (or, None, stays silent) and keeps the connection open."""
+
+    def __init__(self, greeting):
+        import socket
+        self.greeting, self.conns = greeting, []
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen()
+        self.address = f"tcp://127.0.0.1:{self.sock.getsockname()[1]}"
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self):
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                return
+            self.conns.append(conn)
+            if self.greeting:
+                try:
+                    conn.sendall(self.greeting)
+                except OSError:
+                    pass
+
+    def close(self):
+        self.sock.close()
+        for conn in self.conns:
+            conn.close()
+
+
+@pytest.mark.parametrize("greeting", [
+    b"HTTP/1.0 200 OK\r\n\r\n" + b"x" * 100,   # frame count of exabytes: numpy MemoryError
+    b"\xff" * 64,                               # ValueError of the frame header
+    None,                                       # an accepting, silent listener
+], ids=["http", "garbage", "silent"])
+def test_address_that_is_not_a_scheduler(greeting):
+    """A --scheduler / client= address where something else listens: the one-line error
+    (SceneError) within Dask's connect timeout plus a margin, never a numpy traceback or
+    a hang (found by an outside tester: 'Unable to allocate 2.82 EiB', and for ever)."""
+    import dask
+    from volmc.distributed import connect
+    from volmc.scene.errors import SceneError
+    fake = _FakeScheduler(greeting)
+    t0 = time.monotonic()
+    try:
+        with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+            with pytest.raises(SceneError) as info:
+                connect(scheduler=fake.address)
+    finally:
+        fake.close()
+    assert time.monotonic() - t0 < 15
+    text = str(info.value)
+    assert text.startswith(f"command line: --scheduler: cannot reach the Dask scheduler "
+                           f"'{fake.address}': ") and "\n" not in text, text
+
+
+def test_scheduler_without_workers():
+    """A scheduler with no worker: the render waits Dask's connect timeout for one, then
+    fails with ClusterError (nothing rendered), where it waited for ever."""
+    import volmc
+    c, client = _thread_cluster(n_workers=0)
+    scene = load_scene(default_scene(), SMALL)
+    t0 = time.monotonic()
+    try:
+        import dask
+        with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+            with pytest.raises(volmc.VolmcError, match="no worker joined the Dask "
+                                                       "scheduler within 2 s") as info:
+                volmc.render(scene, spp=8, progress=False, client=client)
+    finally:
+        client.close()
+        c.close()
+    assert time.monotonic() - t0 < 15 and info.value.result is None
+
+
+def test_cli_ctrl_c_while_waiting_for_workers(tmp_path):
+    """--scheduler of a scheduler without workers: a first Ctrl-C stops the wait (exit
+    status 130, nothing rendered); with a short connect timeout, the wait ends in the
+    one-line error with exit status 2."""
+    _small_scene_file(tmp_path, 8)
+    c, client = _thread_cluster(n_workers=0)
+    try:
+        known = len(c.scheduler.clients)
+        p = _popen_cli(["render", "s.toml", "--scheduler", c.scheduler_address, "-o",
+                        "x.exr"], tmp_path, DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT="60s")
+        try:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and len(c.scheduler.clients) <= known:
+                time.sleep(0.05)
+            time.sleep(1.0)   # connected: waiting for a worker
+            os.kill(p.pid, signal.SIGINT)
+            _, err = p.communicate(timeout=20)
+        finally:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+        assert p.returncode == 130 and "Traceback" not in err, err
+        assert "volmc: started" not in err and not (tmp_path / "x.exr").exists()
+        r = _cli(["render", "s.toml", "--quiet", "--scheduler", c.scheduler_address, "-o",
+                  "x.exr"], tmp_path)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1, r.stderr
+        assert lines[0] == ("volmc: error: command line: --scheduler: the Dask cluster "
+                            "failed: no worker joined the Dask scheduler within 2 s "
+                            "(distributed.comm.timeouts.connect); start one with 'dask "
+                            "worker ADDRESS'"), r.stderr
+    finally:
+        client.close()
+        c.close()

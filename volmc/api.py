@@ -257,8 +257,12 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
     client: render on a Dask cluster (``volmc[dask]``): a ``distributed.Client``, or a
     scheduler address such as "tcp://10.0.0.1:8786" (a client is opened and closed here).
     The image is the single-process one bit for bit; a worker that dies has its chunks run
-    again. checkpoint: a path written atomically every ``checkpoint_every`` seconds and at
-    the end (also when interrupted); resume: a checkpoint of this scene, seed, sampler and
+    again. A cluster that fails (no worker within Dask's connect timeout, a task whose
+    workers kept dying, the scheduler gone) raises ``volmc.distributed.ClusterError``, a
+    VolmcError whose ``.result`` is the RenderedImage of the samples merged before (partial;
+    None if there were none), which the checkpoint also holds. checkpoint: a path written
+    atomically every ``checkpoint_every`` seconds and at the end (also when interrupted, or
+    when the cluster failed); resume: a checkpoint of this scene, seed, sampler and
     backend to continue from (another is refused with VolmcError), which is then also the
     checkpoint unless ``checkpoint`` names another. The result equals an uninterrupted
     render bit for bit.
@@ -290,12 +294,31 @@ def render(scene, spp=None, seed=None, backend="opencl", device=None, progress=T
                              client=client, checkpoint=checkpoint, checkpoint_every=every,
                              resume=resume, lanes=lanes, albedo=albedo)
         except VolmcError as e:
+            from .distributed import ClusterError
+            if isinstance(e, ClusterError):
+                raise _cluster_failed(e, where, scene, checkpoint) from e.__cause__
             if e.key != "--resume":
                 raise
             # The checkpoint's errors name the command line's option; here it is resume=.
             raise _error(e.file, "resume", e.message) from None
     _warn_guards(result)
     return RenderedImage(result, scene)
+
+
+def _cluster_failed(e, where, scene, checkpoint):
+    """The ClusterError ``volmc.render`` raises for the driver's ``e``: its message says what
+    failed and where the samples rendered before are (``.result``, a partial RenderedImage,
+    and the checkpoint, which ``resume=`` continues)."""
+    from .distributed import ClusterError
+    if e.result is None or e.result.film.spp == 0:
+        return ClusterError(e.reason, None, where, "client",
+                            f"the Dask cluster failed: {e.reason}; nothing was rendered")
+    image = RenderedImage(e.result, scene)
+    kept = f"the {image.spp} spp rendered are this error's .result (partial)"
+    if checkpoint is not None:
+        kept += f" and in {checkpoint}: resume={checkpoint!r} continues the render"
+    return ClusterError(e.reason, image, where, "client",
+                        f"the Dask cluster failed: {e.reason}; {kept}")
 
 
 def _render_keys(spp, seed, where):
@@ -408,16 +431,32 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     plan = seq.plan(output, name, png, variance, denoise)
 
     with _client(client, where) as client:
+        failed = []
+
         def render_one(frame_scene, label):
-            result = _render(frame_scene, backend=name, device=device,
-                             progress=bool(progress), client=client, lanes=lanes, label=label,
-                             albedo=bool(denoise))
+            from .distributed import ClusterError
+            try:
+                result = _render(frame_scene, backend=name, device=device,
+                                 progress=bool(progress), client=client, lanes=lanes,
+                                 label=label, albedo=bool(denoise))
+            except ClusterError as e:
+                err = _cluster_failed(e, where, frame_scene, None)
+                if err.result is None:
+                    raise err from e.__cause__
+                failed.append(err)   # the partial frame is written first, as after Ctrl-C
+                return err.result
             return RenderedImage(result, frame_scene)
         out = {}
         keys = {role: (where, role) for role in ("png", "variance", "denoise")}
         for done in render_sequence(seq, plan, render_one, png, variance, exposure, tonemap,
                                     bool(denoise), {**keys, "exr": (where, "output")}):
             out[done.frame] = done.exr if output else done.image
+            if failed:
+                err = failed[0]
+                if output:
+                    err.args = (f"{err.args[0]}; frame {done.frame} is written, marked "
+                                f"partial, to {done.exr}",)
+                raise err
             if done.image is not None:
                 _warn_guards(done.image.result, f"frame {done.frame}: ")
     return out

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .backends import make_backend
+from .distributed import ClusterError
 from .film import Film
 from .memory import check_memory
 from .params import BATCH_SAMPLES, COUNTER_NAMES, launch_spp  # noqa: F401 (re-exported)
@@ -286,10 +287,12 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
         return True
 
     last_save = time.monotonic()
+    failure = None
     with _StopFlag() as flag:
         if on_start is not None:
             on_start()
         t = time.perf_counter()
+        runner.stopping = lambda: flag.stop   # a cluster awaiting a chunk stops on Ctrl-C
         try:
             for n in runner:   # each chunk is in the film when the runner yields
                 film.spp += n
@@ -299,15 +302,25 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
                     last_save = time.monotonic()
                 if flag.stop:
                     break
+        except ClusterError as e:
+            # The cluster failed: the chunks merged so far are kept, saved as after Ctrl-C,
+            # and go out with the error (distributed.ClusterError.result).
+            failure = e
         finally:
             runner.close()
         elapsed += time.perf_counter() - t
-        stopped = flag.stop and film.spp < spp
+        stopped = (flag.stop or failure is not None) and film.spp < spp
     bar.close()
     if checkpoint is not None and save(elapsed):
         notes.clear()   # the last checkpoint holds all the work
-    return RenderResult(film, runner.name, elapsed, stopped, counters(), runner.techniques, spp,
-                        scene.render.seed, notes=notes + precision_notes(scene, runner.name))
+    result = RenderResult(film, runner.name, elapsed, stopped, counters(), runner.techniques,
+                          spp, scene.render.seed,
+                          notes=notes + precision_notes(scene, runner.name))
+    if failure is not None:
+        failure.result = result
+        raise failure
+    return result
+
 
 
 class LocalChunks:

@@ -242,10 +242,14 @@ def dask_session(args):
     if not (args.workers or args.scheduler):
         yield None
         return
-    from ..distributed import close, connect
+    from ..distributed import close, connect, quiet_logs
     client, cluster = connect(args.workers, args.scheduler, "command line",
                               "--workers" if args.workers else "--scheduler")
+    # Dask's own logs in this process (the client's lost connection, the local nannies'
+    # restarted workers) are tracebacks on the user's terminal; a cluster that fails is the
+    # one-line error (distributed.ClusterError), a worker that dies is retried quietly.
     try:
-        yield client
+        with quiet_logs():
+            yield client
     finally:
         close(client, cluster)

@@ -4,6 +4,7 @@ import os
 import sys
 import time
 
+from ..distributed import ClusterError
 from ..scene.errors import SceneError
 from .common import (EXIT_INTERRUPTED, add_cluster_options, add_defines_option,
                      add_lanes_option, add_scene_argument, check_opencl_choices, check_writable,
@@ -106,15 +107,24 @@ def cmd_render(args):
         print(f"volmc: rendering {scene_path} ({w}x{h}, {scene.render.spp} spp, "
               f"backend {args.backend})", file=sys.stderr, flush=True)
     _warn_out_of_view(scene, scene_path)
+    failure = None
     with dask_session(args) as client:
         # By name: the driver reads a --resume checkpoint (and refuses a wrong one) before
         # it builds and compiles the backend.
-        res = render(scene, backend=args.backend, progress=False if args.quiet else None,
-                     on_start=None if args.quiet else _announce_start, checkpoint=checkpoint,
-                     checkpoint_every=(60.0 if args.checkpoint_every is None
-                                       else args.checkpoint_every), resume=args.resume,
-                     client=client, device=args.device, lanes=args.lanes,
-                     albedo=args.denoise)
+        try:
+            res = render(scene, backend=args.backend, progress=False if args.quiet else None,
+                         on_start=None if args.quiet else _announce_start,
+                         checkpoint=checkpoint,
+                         checkpoint_every=(60.0 if args.checkpoint_every is None
+                                           else args.checkpoint_every), resume=args.resume,
+                         client=client, device=args.device, lanes=args.lanes,
+                         albedo=args.denoise)
+        except ClusterError as e:
+            # The samples merged before the cluster failed are written as after Ctrl-C (the
+            # checkpoint by the driver, the partial image below), then the one-line error.
+            if e.result is None:
+                raise _cluster_error(args, e.reason) from None
+            failure, res = e, e.result
     meta = res.metadata()
     meta["scene"] = os.path.abspath(scene_path)
     meta["scene_toml"] = to_toml(scene.spec)
@@ -134,6 +144,13 @@ def cmd_render(args):
         raise SceneError("command line", "-o", f"{out} is written, but not all of the files "
                          f"beside it: {e}") from None
 
+    if failure is not None:
+        kept = f"the {res.film.spp} spp rendered are in {out} (marked partial)"
+        if checkpoint:
+            kept += f" and {checkpoint}: continue with --resume {checkpoint}"
+        elif res.film.spp:
+            kept += " (--checkpoint FILE would keep them for --resume)"
+        raise _cluster_error(args, f"{failure.reason}; {kept}")
     if not args.quiet:
         if res.film.spp > scene.render.spp:
             print(f"volmc: note: {args.resume} held {res.film.spp} spp already, more than the "
@@ -144,6 +161,12 @@ def cmd_render(args):
             print(f"volmc: denoised preview: {' + '.join(denoised)}", file=sys.stderr)
     _report(args, res)
     return EXIT_INTERRUPTED if res.partial else 0
+
+
+def _cluster_error(args, reason):
+    """The one-line error of a Dask cluster that failed (distributed.ClusterError)."""
+    return SceneError("command line", "--workers" if args.workers else "--scheduler",
+                      f"the Dask cluster failed: {reason}")
 
 
 def _write_or_rescue(out, rgba, meta):
@@ -275,12 +298,20 @@ def cmd_render_frames(args, scene_path, out, png, defines):
             started.append(True)
             _announce_start()
 
+    failed = []
+
     def render_one(scene, label):
         _warn_out_of_view(scene, scene_path, label + ": ")
-        res = render(scene, backend=args.backend, progress=False if args.quiet else None,
-                     on_start=None if args.quiet else on_start, client=client,
-                     device=args.device, lanes=args.lanes, label=label,
-                     albedo=args.denoise)
+        try:
+            res = render(scene, backend=args.backend, progress=False if args.quiet else None,
+                         on_start=None if args.quiet else on_start, client=client,
+                         device=args.device, lanes=args.lanes, label=label,
+                         albedo=args.denoise)
+        except ClusterError as e:
+            if e.result is None:
+                raise _cluster_error(args, e.reason) from None
+            failed.append(e.reason)   # the frame is written marked partial, as after Ctrl-C
+            res = e.result
         return RenderedImage(res, scene)
 
     t = time.perf_counter()
@@ -296,6 +327,10 @@ def cmd_render_frames(args, scene_path, out, png, defines):
                 continue
             done += 1
             res = fr.image.result
+            if failed:
+                raise _cluster_error(args, f"{failed[0]}; frame {fr.frame} is written, marked "
+                                           f"partial, to {fr.exr} ({res.film.spp} spp); run "
+                                           "the command again to render it")
             if not args.quiet:
                 state = "interrupted, partial image" if res.partial else "done"
                 written = _summary(fr.exr, png and frame_path(png, fr.frame), res,
