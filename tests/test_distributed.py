@@ -588,3 +588,26 @@ def test_cli_ctrl_c_while_waiting_for_workers(tmp_path):
     finally:
         client.close()
         c.close()
+
+
+def test_a_worker_checks_its_own_memory(monkeypatch):
+    """A worker holds the scene and its backend, so it checks its own memory before it
+    builds them (the client checks only the film): a render that does not fit a worker is
+    the one-line SceneError naming the key, not a worker swapped or killed. Found by an
+    outside tester: a cluster render was never checked. The error crosses from the worker
+    pickled (VolmcError.__reduce__)."""
+    import volmc
+    from volmc.scene.errors import SceneError
+    scene = load_scene(default_scene(), ["medium.density.resolution=128",
+                                         "camera.resolution=[64, 48]"])
+    monkeypatch.setenv("VOLMC_MEMORY_LIMIT", "4M")   # the film fits; the 8 MiB grid does not
+    c, client = _thread_cluster()
+    try:
+        with pytest.raises(SceneError) as info:
+            volmc.render(scene, spp=4, progress=False, client=client)
+    finally:
+        client.close()
+        c.close()
+    e = info.value
+    assert e.key == "medium.density" and "on the Dask worker at " in e.message, str(e)
+    assert "VOLMC_MEMORY_LIMIT" in str(e)

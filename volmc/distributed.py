@@ -35,7 +35,7 @@ import warnings
 import numpy as np
 
 from .params import COUNTER_NAMES
-from .scene.errors import VolmcError
+from .scene.errors import SceneError, VolmcError
 
 #: Backends built in this (worker) process: {token: backend} of the render in progress.
 _WORKER_BACKENDS = {}
@@ -55,6 +55,9 @@ class ClusterError(VolmcError):
     def __init__(self, reason, result=None, file="dask", key="client", message=None):
         super().__init__(file, key, message or reason)
         self.reason, self.result = reason, result
+
+    def __reduce__(self):
+        return self.__class__, (self.reason, self.result, self.file, self.key, self.message)
 
 
 def worker_timeout():
@@ -88,6 +91,15 @@ def _render_task(scene, token, backend, device, chunk, lanes, albedo):
     be = _WORKER_BACKENDS.get(token)
     if be is None:
         _WORKER_BACKENDS.clear()   # one render at a time per worker process
+        # The worker holds the scene and its backend: its own memory is the one to check
+        # (the client checks the film alone).
+        from .memory import check_memory
+        try:
+            check_memory(scene, backend, device, albedo=albedo)
+        except SceneError as e:
+            import socket
+            raise SceneError(e.file, e.key, f"on the Dask worker at {socket.gethostname()}: "
+                                            f"{e.message}") from None
         be = make_backend(backend, scene, device, lanes=lanes, albedo=albedo)
         be.warm_up()
         _WORKER_BACKENDS[token] = be
@@ -155,7 +167,7 @@ class ClusterChunks:
                 if not self._await(fut):
                     return
                 s, sq, counts = fut.result()
-            except ClusterError:
+            except (ClusterError, SceneError):   # a worker's one-line error is the user's
                 raise
             except Exception as e:   # Dask's KilledWorker, CancelledError, CommClosedError...
                 raise ClusterError(_failure(e)) from e

@@ -227,8 +227,9 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
 
     Before any work, ``volmc.memory.check_memory`` raises SceneError (naming the key, the
     memory needed and the memory there is) when the render would not fit; given a backend
-    already made, or rendering on a cluster (whose workers hold the scene), only the film
-    is left to check here.
+    already made, or rendering on a cluster, only the film is left to check here (each
+    worker checks the scene and its backend against its own memory before it builds them,
+    distributed._render_task).
     """
     from tqdm import tqdm
     from . import checkpoint as ckpt

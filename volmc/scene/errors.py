@@ -19,6 +19,11 @@ class VolmcError(Exception):
         text = f"{self.file}: {key}: {message}" if key else f"{self.file}: {message}"
         super().__init__(_one_line(text))
 
+    def __reduce__(self):
+        # Pickled as its parts (a Dask worker's error reaches the client this way): the
+        # default, from the one-line text alone, cannot call __init__ again.
+        return self.__class__, (self.file, self.key, self.message)
+
 
 class VolmcWarning(UserWarning):
     """A render finished, but a guard fired (lookups above the majorant, walks cut by
