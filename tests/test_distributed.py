@@ -27,7 +27,7 @@ SMALL = ["medium.density.resolution=32", "camera.resolution=[64, 48]", "render.m
 def cluster():
     """A scheduler and 2 single-threaded worker processes on loopback."""
     c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                 dashboard_address=None, host="127.0.0.1")
+                                 dashboard_address=":0", host="127.0.0.1")
     client = distributed.Client(c)
     yield c, client
     client.close()
@@ -323,7 +323,7 @@ def _thread_cluster(n_workers=1):
     import dask
     with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
         c = distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1,
-                                     processes=False, dashboard_address=None,
+                                     processes=False, dashboard_address=":0",
                                      protocol="tcp", host="127.0.0.1")
         return c, distributed.Client(c, set_as_default=False)
 
@@ -352,7 +352,7 @@ def test_failed_task_keeps_the_merged_chunks(tmp_path, monkeypatch):
     ckpt = tmp_path / "c.npz"
     with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
         with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                      dashboard_address=None) as c, \
+                                      dashboard_address=":0") as c, \
                 distributed.Client(c, set_as_default=False) as client:
             with pytest.raises(volmc.VolmcError) as info:
                 volmc.render(scene, spp=spp, progress=False, client=client,
