@@ -546,7 +546,7 @@ class RenderedImage:
         for looking at, not for measuring. Raises VolmcError without the extra."""
         from .denoise import denoise
         return denoise(self.image, self.albedo, "RenderedImage.denoised()", "pyoidn",
-                       variance=self.variance)
+                       variance=self.variance, coverage=self.alpha)
 
     def stats(self):
         """samples, samples_per_second, mean_path_length, lookups_per_sample, ... (dict)."""

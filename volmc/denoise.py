@@ -48,22 +48,36 @@ def oidn_version():
 NOISE_FREE_REL = 1e-6
 
 
-def noise_free(image, variance):
-    """Pixels [h, w] whose every channel's standard error (``variance`` of the mean, [h, w,
-    3]) is at most NOISE_FREE_REL of its value: the sky seen past the medium, an empty
-    transparent background. False everywhere when the variance is unknown (inf: 1 spp)."""
-    m = np.abs(np.asarray(image, np.float64))
+def noise_free(image, variance, coverage=None):
+    """Pixels [h, w] the preview keeps as rendered: the sky seen past the medium, an empty
+    transparent background. A pixel's own samples cannot tell: at 2 spp, 70 of a cloud's
+    pixels had only zeros, and a thin haze lets a pixel's few samples all pass. So kept are
+    the pixels whose every channel is positive with a standard error (``variance`` of the
+    mean, [h, w, 3]) of at most NOISE_FREE_REL of its value, and whose 8 neighbours are so
+    too (a lone exact pixel inside a medium is luck), and given the ``coverage`` [h, w] (the
+    film's alpha), the zeros no sample of which met a medium (where the alpha is 0, the
+    premultiplied colour is 0). None where the variance is unknown (inf: 1 spp)."""
+    m = np.asarray(image, np.float64)
     v = np.asarray(variance, np.float64)
-    return np.all(np.isfinite(v) & (v <= (NOISE_FREE_REL * m) ** 2), axis=-1)
+    sky = np.all(np.isfinite(v) & (m > 0) & (v <= (NOISE_FREE_REL * m) ** 2), axis=-1)
+    h, w = sky.shape
+    pad = np.pad(sky, 1, constant_values=True)
+    for dy in range(3):
+        for dx in range(3):
+            sky &= pad[dy:dy + h, dx:dx + w]
+    if coverage is not None:
+        sky |= (np.asarray(coverage) == 0) & np.all(m == 0, axis=-1) & \
+            np.all(np.isfinite(v), axis=-1)
+    return sky
 
 
 def denoise(image, albedo=None, file="command line", key="--denoise", normal=None,
-            variance=None):
+            variance=None, coverage=None):
     """The denoised image, float32 [h, w, 3], of a linear HDR ``image`` [h, w, 3] guided by
     the mean ``albedo`` AOV [h, w, 3] (None: colour alone). Negative and non-finite values
     (signed samples, or an empty film) are clamped to 0 first: OIDN reads non-negative
-    radiance. Given the ``variance`` of the mean [h, w, 3], noise-free pixels (noise_free)
-    keep their value: the network moved a constant sky by up to a third next to a noisy
+    radiance. Given the ``variance`` of the mean [h, w, 3] (and the ``coverage``, the
+    film's alpha [h, w]), noise-free pixels (noise_free) keep their value: the network moved a constant sky by up to a third next to a noisy
     medium, and gave an empty transparent background colour. ``normal`` [h, w, 3], a
     normal guide with the albedo, is for the measurement that found none worth having
     (volmc/bench/denoise_normal.py)."""
@@ -81,7 +95,7 @@ def denoise(image, albedo=None, file="command line", key="--denoise", normal=Non
     out = np.asarray(pyoidn.denoise(color, guide, normal, hdr=True, quality="high"),
                      np.float32)
     if variance is not None:
-        keep = noise_free(color, variance)
+        keep = noise_free(color, variance, coverage)
         out[keep] = color[keep]
     return out
 
@@ -108,7 +122,8 @@ def denoised_path(path):
 def denoise_film(film, file="command line", key="--denoise"):
     """The denoised RGBA image [h, w, 4] of a Film: its mean radiance denoised (guided by
     its albedo AOV when it has one) and its unbiased coverage as A."""
-    rgb = denoise(film.mean(), film.albedo(), file, key, variance=film.variance_of_mean())
+    rgb = denoise(film.mean(), film.albedo(), file, key, variance=film.variance_of_mean(),
+                  coverage=film.alpha())
     return np.concatenate([rgb, film.alpha()[..., None].astype(np.float32)], axis=-1)
 
 

@@ -162,13 +162,19 @@ class ClusterChunks:
         ClusterError when a chunk's task failed (after its retries, or KilledWorker), the
         client lost the scheduler, or the cluster had no worker for ``worker_timeout()``
         seconds: the chunks merged before stay in the film."""
-        for fut, chunk in zip(self.futures, self.tasks):
+        for i, (fut, chunk) in enumerate(zip(self.futures, self.tasks)):
             try:
                 if not self._await(fut):
                     return
                 s, sq, counts = fut.result()
-            except (ClusterError, SceneError):   # a worker's one-line error is the user's
+            except ClusterError:
                 raise
+            except SceneError as e:
+                if i == 0:   # a worker's one-line error (its memory), before any work
+                    raise
+                # After merged chunks (a worker that joined later refused): the work is kept
+                # as for any failure of the cluster.
+                raise ClusterError(f"a worker refused a chunk ({e})") from e
             except Exception as e:   # Dask's KilledWorker, CancelledError, CommClosedError...
                 raise ClusterError(_failure(e)) from e
             fut.release()   # the merged chunk's arrays can go
