@@ -328,15 +328,19 @@ def _thread_cluster(n_workers=1):
         return c, distributed.Client(c, set_as_default=False)
 
 
-def test_failed_task_keeps_the_merged_chunks(tmp_path, monkeypatch):
+@pytest.mark.parametrize("refusal", [False, True])
+def test_failed_task_keeps_the_merged_chunks(tmp_path, monkeypatch, refusal):
     """A chunk whose task fails for good (here: every run of it raises; Dask's KilledWorker
     is the same to the host) ends the render with volmc's ClusterError, a VolmcError: the
     chunks merged before it are its .result (partial) and in the checkpoint, from which a
     resume gives the uninterrupted image bit for bit. Found by an outside tester: Dask's
-    exception escaped the driver before the final save, losing the merged work."""
+    exception escaped the driver before the final save, losing the merged work. So does a
+    worker's one-line SceneError (its memory check: a worker that joined later refused),
+    which went out bare, losing the work too (a review of that change)."""
     import dask
     import volmc
     import volmc.distributed as vd
+    from volmc.scene.errors import SceneError
     scene = load_scene(default_scene(), SMALL)
     spp = 1000
     chunks = chunk_schedule(64 * 48, spp)
@@ -345,6 +349,8 @@ def test_failed_task_keeps_the_merged_chunks(tmp_path, monkeypatch):
 
     def failing(scene, token, backend, device, chunk, lanes, albedo):
         if chunk[0][0] == bad:
+            if refusal:
+                raise SceneError("s.toml", "medium.density", "on the Dask worker at x: too big")
             raise RuntimeError("simulated worker failure")
         return real(scene, token, backend, device, chunk, lanes, albedo)
 
@@ -359,8 +365,9 @@ def test_failed_task_keeps_the_merged_chunks(tmp_path, monkeypatch):
                              checkpoint=str(ckpt))
     e = info.value
     assert type(e).__name__ == "ClusterError"
-    assert str(e).startswith("volmc.render(): client: the Dask cluster failed: a task of the "
-                             "render failed (RuntimeError: simulated worker failure)"), str(e)
+    why = "a worker refused a chunk (s.toml: medium.density:" if refusal else \
+        "a task of the render failed (RuntimeError: simulated worker failure)"
+    assert str(e).startswith(f"volmc.render(): client: the Dask cluster failed: {why}"), str(e)
     assert f"resume='{ckpt}'" in str(e)
     done = sum(n for c in chunks[:2] for _, n in c)
     assert e.result.partial and e.result.spp == done
@@ -611,38 +618,3 @@ def test_a_worker_checks_its_own_memory(monkeypatch):
     e = info.value
     assert e.key == "medium.density" and "on the Dask worker at " in e.message, str(e)
     assert "VOLMC_MEMORY_LIMIT" in str(e)
-
-
-def test_a_worker_refusing_after_merged_chunks_keeps_them(tmp_path, monkeypatch):
-    """A worker's one-line SceneError (its memory check) that comes after chunks were merged
-    (a worker that joined later refused) is a failure of the cluster like any other: the
-    merged chunks are the error's .result and in the checkpoint. (It went out as the bare
-    SceneError, and the merged work was lost: a review of this change.)"""
-    import dask
-    import volmc
-    import volmc.distributed as vd
-    from volmc.scene.errors import SceneError
-    scene = load_scene(default_scene(), SMALL)
-    spp = 1000
-    chunks = chunk_schedule(64 * 48, spp)
-    bad = chunks[2][0][0]
-    real = vd._render_task
-
-    def refusing(scene, token, backend, device, chunk, lanes, albedo):
-        if chunk[0][0] == bad:
-            raise SceneError("s.toml", "medium.density", "on the Dask worker at x: too big")
-        return real(scene, token, backend, device, chunk, lanes, albedo)
-
-    monkeypatch.setattr(vd, "_render_task", refusing)
-    ckpt = tmp_path / "c.npz"
-    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
-        with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                      dashboard_address=":0") as c, \
-                distributed.Client(c, set_as_default=False) as client:
-            with pytest.raises(volmc.VolmcError) as info:
-                volmc.render(scene, spp=spp, progress=False, client=client,
-                             checkpoint=str(ckpt))
-    e = info.value
-    assert type(e).__name__ == "ClusterError" and "a worker refused a chunk" in str(e), str(e)
-    assert e.result.partial and e.result.spp == sum(n for c in chunks[:2] for _, n in c)
-    assert ckpt.is_file()
