@@ -196,22 +196,24 @@ def _occupied_bricks(g, n_bricks):
     return int(np.count_nonzero(b.max(axis=(1, 3, 5))))
 
 
-def _majorant_cells(scene, g):
-    """Cells of the finest level of ``scene``'s majorant structure (0 without one)."""
-    from .reference.majorant import auto_resolution
-    from .reference.octree import octree_depth
-    if scene.render.majorant == "grid":
-        res = scene.render.majorant_resolution
-        return math.prod(tuple(reversed(res)) if res else auto_resolution(g.shape))
-    if scene.render.majorant == "octree":
-        return 8 ** octree_depth(g.shape)
-    return 0
+@dataclass
+class _Majorant:
+    """What packing a scene's majorant structure allocates (_majorant): its scene key, a
+    description, the host bytes at the build's peak and those the packed scene keeps, the
+    cells of its finest level, and its device bytes and largest buffer."""
+    key: str
+    what: str
+    peak: int
+    held: int
+    cells: int
+    device: int
+    buffer: int
 
 
-def _majorant_bytes(scene, g, real):
-    """(peak, held) host bytes of packing the majorant structure of ``scene`` (grid ``g``)
-    in reals of ``real`` bytes: the build (and the copies in that precision made while its
-    float32 result is held), then what the packed scene keeps; (0, 0) without one."""
+def _majorant(scene, g, real):
+    """The _Majorant of ``scene``'s majorant structure over grid ``g`` packed in reals of
+    ``real`` bytes: the build (and the copies in that precision made while its float32
+    result is held), then what the packed scene keeps; None without one (global)."""
     from .reference.majorant import auto_resolution
     from .reference.octree import octree_depth
     m = scene.render.majorant
@@ -221,7 +223,9 @@ def _majorant_bytes(scene, g, real):
         cells = math.prod(cells_zyx)
         build = _reduction_bytes(g.shape, cells_zyx)
         # pack_majorant: float32 maxima and minima, then their copies in ``real``.
-        return max(build, 8 * cells + (2 * cells * real if real != 4 else 0)), 2 * cells * real
+        peak = max(build, 8 * cells + (2 * cells * real if real != 4 else 0))
+        return _Majorant("render.majorant_resolution", "the majorant grid", peak,
+                         2 * cells * real, cells, 8 * cells, 4 * cells)
     if m == "octree":
         n = 2 ** octree_depth(g.shape)
         cells = n ** 3
@@ -232,12 +236,12 @@ def _majorant_bytes(scene, g, real):
         # frontier's int64 coordinates and float64 spread (32).
         tree = 8 * cells + 8 * cells // 7 + nodes * (12 + 24 + 32)
         held = nodes * (2 * real + 4)
-        return max(build, tree + held), held
-    return 0, 0
+        return _Majorant("render.majorant", "the majorant octree", max(build, tree + held),
+                         held, cells, nodes * 12, nodes * 4)
+    return None
 
 
 def _density_components(scene, backend):
-    from .reference.octree import octree_depth
     from .scene.bricks import BrickGrid, stores_bricks
     real = 8 if backend == "numba" else 4
     cl = backend != "numba"
@@ -249,7 +253,8 @@ def _density_components(scene, backend):
     voxels = nz * ny * nx
     held = g.nbytes if isinstance(g, BrickGrid) else g.size * g.itemsize
     out.append(Component("medium.density", "the loaded density grid", host=held))
-    # What density_storage makes for every pack, and the pack's density in reals of r bytes.
+    # What density_storage makes for every pack (made), the pack's density in the backend's
+    # reals beside it on the host, and the device buffers.
     if stores_bricks(scene):
         n_bricks = math.ceil(nx / 8) * math.ceil(ny / 8) * math.ceil(nz / 8)
         if isinstance(g, BrickGrid):
@@ -258,57 +263,37 @@ def _density_components(scene, backend):
             slots = _occupied_bricks(g, n_bricks) + 1
             made = 4 * n_bricks + slots * 512 * 4
         table, pool32 = 4 * n_bricks, slots * 512 * 4
-
-        def packed(r):
-            return slots * 512 * r if r != 4 else 0   # the table is shared
-        what = "the density bricks"
-        dev = table + pool32
+        packed = slots * 512 * real if real != 4 else 0   # the table is shared
+        what, dev, buf = "the density bricks", table + pool32, pool32
+        host = made + packed if cl else packed + table
     else:
         made = voxels * 4 if isinstance(g, BrickGrid) else 0   # the dense array
-        copied = g.dtype != np.float32 or not g.flags.c_contiguous \
-            if not isinstance(g, BrickGrid) else False
-
-        def packed(r):   # float32 in C order stays shared with the scene
-            return voxels * r if (r != 4 or copied) else 0
-        what = "the density grid"
-        dev = voxels * 4
-    mpeak, mheld = _majorant_bytes(scene, g, real)
-    mkey = "render.majorant_resolution" if scene.render.majorant == "grid" else \
-        "render.majorant"
-    mwhat = "the majorant grid" if scene.render.majorant == "grid" else "the majorant octree"
-    # A build whose float32 result is small leaves its results on the heap above the
-    # partial reductions, so the allocator keeps those pages for the rest of the process
-    # (measured: 19 MiB after a 32^3 build of a 256^3 grid); later builds reuse them.
-    # A build with large results keeps up to the heap's share (measured: 30 MiB with
-    # 256^3 cells).
-    kept = (mpeak if _majorant_cells(scene, g) * 4 < MMAP_THRESHOLD_MAX
-            else min(mpeak, MMAP_THRESHOLD_MAX)) if mpeak else 0
-    small = kept == mpeak
-    if kept:
-        out.append(Component(mkey, f"{mwhat}'s build (pages the allocator keeps)",
-                             host=kept))
-    if mpeak and not small:
-        out.append(Component(mkey, f"{mwhat}'s build", host=made + mpeak, phase="majorant"))
-    if scene.render.majorant == "octree":
-        nodes = (2 ** (3 * octree_depth(g.shape))) * 8 // 7 + 1
-        mdev, mbuf = nodes * 12, nodes * 4
-    elif scene.render.majorant == "grid":
-        mdev, mbuf = mheld, mheld // 2
-    else:
-        mdev = mbuf = 0
-    # The backend's pack (OpenCL's until its buffers are made, Numba's through the render)
-    # and the device buffers.
-    out.append(Component(mkey, mwhat, host=mheld, device=mdev if cl else 0,
-                         buffer=mbuf if cl else 0, phase="render") if mpeak else None)
-    out.append(Component("medium.density", what,
-                         host=(made + packed(real)) if cl else (packed(real)
-                                                                + (table if what ==
-                                                                   "the density bricks"
-                                                                   else made)),
-                         device=dev if cl else 0,
-                         buffer=(pool32 if what == "the density bricks" else dev) if cl else 0,
-                         phase="render"))
-    return [c for c in out if c is not None]
+        copied = not isinstance(g, BrickGrid) and (g.dtype != np.float32
+                                                    or not g.flags.c_contiguous)
+        # float32 in C order stays shared with the scene
+        packed = voxels * real if (real != 4 or copied) else 0
+        what, dev, buf = "the density grid", voxels * 4, voxels * 4
+        host = made + packed
+    maj = _majorant(scene, g, real)
+    if maj is not None:
+        # A build whose float32 result is small leaves its results on the heap above the
+        # partial reductions, so the allocator keeps those pages for the rest of the
+        # process (measured: 19 MiB after a 32^3 build of a 256^3 grid); later builds reuse
+        # them. A build with large results keeps up to the heap's share (measured: 30 MiB
+        # with 256^3 cells).
+        small = maj.cells * 4 < MMAP_THRESHOLD_MAX
+        out.append(Component(maj.key, f"{maj.what}'s build (pages the allocator keeps)",
+                             host=maj.peak if small else min(maj.peak, MMAP_THRESHOLD_MAX)))
+        if not small:
+            out.append(Component(maj.key, f"{maj.what}'s build", host=made + maj.peak,
+                                 phase="majorant"))
+        # The backend's pack (OpenCL's until its buffers are made, Numba's through the
+        # render) and the device buffers.
+        out.append(Component(maj.key, maj.what, host=maj.held, device=maj.device if cl else 0,
+                             buffer=maj.buffer if cl else 0, phase="render"))
+    out.append(Component("medium.density", what, host=host, device=dev if cl else 0,
+                         buffer=buf if cl else 0, phase="render"))
+    return out
 
 
 def _emission_components(scene, backend):
