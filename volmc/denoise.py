@@ -59,15 +59,15 @@ def noise_free(image, variance, coverage=None):
     premultiplied colour is 0). None where the variance is unknown (inf: 1 spp)."""
     m = np.asarray(image, np.float64)
     v = np.asarray(variance, np.float64)
-    sky = np.all(np.isfinite(v) & (m > 0) & (v <= (NOISE_FREE_REL * m) ** 2), axis=-1)
+    known = np.all(np.isfinite(v), axis=-1)
+    sky = known & np.all((m > 0) & (v <= (NOISE_FREE_REL * m) ** 2), axis=-1)
     h, w = sky.shape
     pad = np.pad(sky, 1, constant_values=True)
     for dy in range(3):
         for dx in range(3):
             sky &= pad[dy:dy + h, dx:dx + w]
     if coverage is not None:
-        sky |= (np.asarray(coverage) == 0) & np.all(m == 0, axis=-1) & \
-            np.all(np.isfinite(v), axis=-1)
+        sky |= known & (np.asarray(coverage) == 0) & np.all(m == 0, axis=-1)
     return sky
 
 
@@ -77,10 +77,10 @@ def denoise(image, albedo=None, file="command line", key="--denoise", normal=Non
     the mean ``albedo`` AOV [h, w, 3] (None: colour alone). Negative and non-finite values
     (signed samples, or an empty film) are clamped to 0 first: OIDN reads non-negative
     radiance. Given the ``variance`` of the mean [h, w, 3] (and the ``coverage``, the
-    film's alpha [h, w]), noise-free pixels (noise_free) keep their value: the network moved a constant sky by up to a third next to a noisy
-    medium, and gave an empty transparent background colour. ``normal`` [h, w, 3], a
-    normal guide with the albedo, is for the measurement that found none worth having
-    (volmc/bench/denoise_normal.py)."""
+    film's alpha [h, w]), noise-free pixels (noise_free) keep their value: the network
+    moved a constant sky by up to a third next to a noisy medium, and gave an empty
+    transparent background colour. ``normal`` [h, w, 3], a normal guide with the albedo,
+    is for the measurement that found none worth having (volmc/bench/denoise_normal.py)."""
     pyoidn = oidn(file, key)
     color = np.asarray(image, np.float64)
     color = np.ascontiguousarray(np.where(np.isfinite(color), np.maximum(color, 0.0), 0.0),
