@@ -55,7 +55,18 @@ def _structure(maj, mnr, nodes, real):
             np.ascontiguousarray(_NO_NODES if nodes is None else nodes, np.int32))
 
 
-class NumbaEstimator:
+class _Runner:
+    """What both runners share: ``run`` is ``prepare`` (records, copies, allocations: what a
+    benchmark does before it starts the clock) then ``launch`` (the estimates and their
+    read-back: what it times)."""
+
+    def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
+            mnr=None, nodes=None):
+        return self.launch(self.prepare(med, grid, rays, bounds, n_per_ray, seed,
+                                        sample_offset, maj, mnr, nodes))
+
+
+class NumbaEstimator(_Runner):
     """One estimator run by the Numba reference (``reference.estimators.estimate_batch``)."""
 
     backend = "numba"
@@ -64,11 +75,6 @@ class NumbaEstimator:
         self.est = ESTIMATORS[name]
         self.chromatic = chromatic
         self.id = self.est.shadow_estimator_id if shadow else self.est.id
-
-    def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
-            mnr=None, nodes=None):
-        return self.launch(self.prepare(med, grid, rays, bounds, n_per_ray, seed,
-                                        sample_offset, maj, mnr, nodes))
 
     def prepare(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
                 mnr=None, nodes=None):
@@ -98,7 +104,7 @@ def estimator_options(name, chromatic=False, shadow=False):
              "-DFEATURE_EMISSION=0"] + list(est.build_options))
 
 
-class OpenCLEstimator:
+class OpenCLEstimator(_Runner):
     """One estimator compiled into kernels/estimators.cl on the default (or given) device."""
 
     backend = "opencl"
@@ -115,11 +121,6 @@ class OpenCLEstimator:
                                            estimator_options(name, chromatic, shadow)
                                            + lane_options(self.lanes, gathers))
         self.kernel = self.clc.kernel(self.program, "estimate_batch")
-
-    def run(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
-            mnr=None, nodes=None):
-        return self.launch(self.prepare(med, grid, rays, bounds, n_per_ray, seed,
-                                        sample_offset, maj, mnr, nodes))
 
     def prepare(self, med, grid, rays, bounds, n_per_ray, seed=0, sample_offset=0, maj=None,
                 mnr=None, nodes=None):
