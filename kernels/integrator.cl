@@ -81,9 +81,9 @@ static inline lvec3 enter_medium(const Medium *m, lvec3 o, lvec3 d, lfloat *t0, 
 /* enter_medium for the scene's media (twin in integrator.py): the segment of o + t d from
  * where it enters the first box it meets to where it leaves the last; the origin moves (and
  * snaps) onto the box it enters first. Writes the media the ray comes near (media_near,
- * for the walk that follows: majorant_iter_init_near). */
-static inline lvec3 enter_media_near(const MediumData *med, lvec3 o, lvec3 d, lfloat *t0,
-                                     lfloat *t1, lfloat *shift, lint *near_out) {
+ * for the walk that follows: majorant_iter_init_near). Forced inline: see walk_begin. */
+static inline __attribute__((always_inline)) lvec3 enter_media_near(const MediumData *med,
+        lvec3 o, lvec3 d, lfloat *t0, lfloat *t1, lfloat *shift, lint *near_out) {
 #if MEDIA_COUNT == 1
     *near_out = (lint)(1);
     return enter_medium(&med->m[0], o, d, t0, t1, shift);
