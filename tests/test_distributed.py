@@ -618,3 +618,78 @@ def test_a_worker_checks_its_own_memory(monkeypatch):
     e = info.value
     assert e.key == "medium.density" and "on the Dask worker at " in e.message, str(e)
     assert "VOLMC_MEMORY_LIMIT" in str(e)
+
+
+@pytest.mark.parametrize("via", ["api", "cli"])
+def test_frame_sequence_cluster_failure_writes_the_partial_frame(tmp_path, monkeypatch,
+                                                                 capsys, via):
+    """A frame sequence whose cluster fails in its second frame: the first frame's EXR is
+    complete, the second's is written marked partial with the chunks merged before the
+    failure, and the error (``volmc.render_frames``: ClusterError; ``volmc render --frames``:
+    the one-line error, exit status 2) names it. Run again, the first frame is skipped and
+    the second renders to the image of its single render."""
+    import volmc
+    import volmc.distributed as vd
+    from volmc import cli
+    from volmc.scene.serialize import dict_to_toml
+    spp = 600
+    for f in (1, 2):   # frame f's density: a block of f / 2
+        g = np.zeros((8, 8, 8), np.float32)
+        g[1:7, 2:6, 1:7] = 0.5 * f
+        np.save(tmp_path / f"d_{f:04d}.npy", g)
+    (tmp_path / "s.toml").write_text(dict_to_toml({
+        "camera": {"eye": [0.0, 0.0, 4.0], "resolution": [64, 48]},
+        "medium": {"bounds": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]],
+                   "density": {"file": "d_{frame:04d}.npy"}, "scale": 3.0, "albedo": 0.8},
+        "lights": [{"type": "environment", "radiance": 1.0}],
+        "render": {"spp": spp, "seed": 3, "max_depth": 4}}))
+    chunks = chunk_schedule(64 * 48, spp)
+    assert len(chunks) >= 3
+    bad, seen = chunks[2][0][0], []
+    real = vd._render_task
+
+    def failing(scene, token, backend, device, chunk, lanes, albedo):
+        if chunk[0][0] == bad:
+            seen.append(bad)
+            if len(seen) > 1:   # the second frame's third chunk
+                raise RuntimeError("simulated worker failure")
+        return real(scene, token, backend, device, chunk, lanes, albedo)
+
+    monkeypatch.setattr(vd, "_render_task", failing)
+    monkeypatch.chdir(tmp_path)
+    c, client = _thread_cluster()
+    try:
+        why = "the Dask cluster failed: a task of the render failed (RuntimeError: " \
+              "simulated worker failure)"
+        if via == "api":
+            with pytest.raises(vd.ClusterError) as info:
+                volmc.render_frames("s.toml", "1-2", output="s.exr", progress=False,
+                                    client=client)
+            msg = str(info.value)
+            assert msg.startswith(f"volmc.render_frames(): client: {why}"), msg
+        else:
+            status = cli.main(["render", "s.toml", "--frames", "1-2", "-o", "s.exr",
+                               "--quiet", "--scheduler", c.scheduler_address])
+            lines = capsys.readouterr().err.strip().splitlines()
+            assert status == 2 and len(lines) == 1, lines
+            msg = lines[0]
+            assert msg.startswith(f"volmc: error: command line: --scheduler: {why}"), msg
+            assert msg.endswith("run the command again to render it"), msg
+        partial, meta2 = read_exr(tmp_path / "s.0002.exr", alpha=True)
+        assert "frame 2 is written, marked partial, to " in msg and "s.0002.exr" in msg
+        done = sum(n for chunk in chunks[:2] for _, n in chunk)
+        assert meta2["partial"] == 1 and meta2["frame"] == 2 and meta2["spp"] == done
+        first, meta1 = read_exr(tmp_path / "s.0001.exr", alpha=True)
+        assert meta1["partial"] == 0 and meta1["spp"] == spp
+        monkeypatch.setattr(vd, "_render_task", real)
+        mtime = (tmp_path / "s.0001.exr").stat().st_mtime_ns
+        volmc.render_frames("s.toml", "1-2", output="s.exr", progress=False, client=client)
+        assert (tmp_path / "s.0001.exr").stat().st_mtime_ns == mtime   # complete: skipped
+    finally:
+        client.close(timeout=5)
+        c.close(timeout=5)
+    for f in (1, 2):
+        one = volmc.render(volmc.load_scene("s.toml", frame=f), progress=False)
+        img, meta = read_exr(tmp_path / f"s.{f:04d}.exr", alpha=True)
+        np.testing.assert_array_equal(img[..., :3], one.image)
+        assert meta["partial"] == 0

@@ -431,7 +431,6 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     plan = seq.plan(output, name, png, variance, denoise)
 
     with _client(client, where) as client:
-        failed = []
 
         def render_one(frame_scene, label):
             from .distributed import ClusterError
@@ -439,24 +438,14 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
                 result = _render(frame_scene, backend=name, device=device,
                                  progress=bool(progress), client=client, lanes=lanes,
                                  label=label, albedo=bool(denoise))
-            except ClusterError as e:
-                err = _cluster_failed(e, where, frame_scene, None)
-                if err.result is None:
-                    raise err from e.__cause__
-                failed.append(err)   # the partial frame is written first, as after Ctrl-C
-                return err.result
+            except ClusterError as e:   # (render_sequence writes a partial frame, then raises)
+                raise _cluster_failed(e, where, frame_scene, None) from e.__cause__
             return RenderedImage(result, frame_scene)
         out = {}
         keys = {role: (where, role) for role in ("png", "variance", "denoise")}
         for done in render_sequence(seq, plan, render_one, png, variance, exposure, tonemap,
                                     bool(denoise), {**keys, "exr": (where, "output")}):
             out[done.frame] = done.exr if output else done.image
-            if failed:
-                err = failed[0]
-                if output:
-                    err.args = (f"{err.args[0]}; frame {done.frame} is written, marked "
-                                f"partial, to {done.exr}",)
-                raise err
             if done.image is not None:
                 _warn_guards(done.image.result, f"frame {done.frame}: ")
     return out

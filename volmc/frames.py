@@ -219,12 +219,17 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
     Frame f is written to its EXR (a PNG to ``frame_path(png, f)`` when ``png`` is a path,
     the variance beside the EXR) when the plan has one, and skipped when it is complete.
     ``render_one`` (scene, label) renders a scene into an api.RenderedImage. The sequence
-    stops after an interrupted (partial) frame, which is written marked partial.
+    stops after an interrupted (partial) frame, which is written marked partial. So it does
+    when ``render_one`` raises distributed.ClusterError with the frame's partial
+    RenderedImage as ``.result`` (the cluster failed during the frame): the frame is written,
+    then the error is raised again, its reason and message saying where the partial frame
+    is.
     ``denoise``: each frame's denoised preview is written beside its EXR and PNG
     (denoise.write_denoised; render_one then renders with the albedo AOV). Every file comes
     before the EXR that marks the frame complete. ``keys``: role -> (file, key) of the
     one-line error when a frame's file cannot be written (render_outputs' roles; default the
     command line's flags); the frame's image is then saved to the temporary directory."""
+    from .distributed import ClusterError
     from .film import rescue_exr, write_exr, write_png
     from .scene.schema import render_settings
     keys = {**CLI_KEYS, **(keys or {})}
@@ -238,7 +243,12 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
                                keys["png"])
             yield FrameDone(f, i, n, exr, None)
             continue
-        img = render_one(seq.scene(f), f"frame {i}/{n}")
+        try:
+            img, failure = render_one(seq.scene(f), f"frame {i}/{n}"), None
+        except ClusterError as e:
+            if e.result is None:
+                raise
+            img, failure = e.result, e
         if exr:
             img.result.extra.update(frame=f, frame_identity=ident)
             meta, rgba = img.metadata(), img.result.film.rgba()
@@ -264,6 +274,11 @@ def render_sequence(seq, plan, render_one, png=None, variance=False, exposure=0.
             except (OSError, RuntimeError) as e:
                 raise SceneError(*keys[role], rescue_exr(path, e, rgba, meta,
                                                          f"frame {f}'s image")) from None
+        if failure is not None:
+            where = f"; frame {f} is written, marked partial, to {exr} ({img.spp} spp)" \
+                if exr else ""
+            raise ClusterError(failure.reason + where, img, failure.file, failure.key,
+                               failure.message + where) from failure.__cause__
         yield FrameDone(f, i, n, exr, img)
         if img.partial:
             return

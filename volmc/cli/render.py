@@ -298,8 +298,6 @@ def cmd_render_frames(args, scene_path, out, png, defines):
             started.append(True)
             _announce_start()
 
-    failed = []
-
     def render_one(scene, label):
         _warn_out_of_view(scene, scene_path, label + ": ")
         try:
@@ -307,38 +305,37 @@ def cmd_render_frames(args, scene_path, out, png, defines):
                          on_start=None if args.quiet else on_start, client=client,
                          device=args.device, lanes=args.lanes, label=label,
                          albedo=args.denoise)
-        except ClusterError as e:
-            if e.result is None:
-                raise _cluster_error(args, e.reason) from None
-            failed.append(e.reason)   # the frame is written marked partial, as after Ctrl-C
-            res = e.result
+        except ClusterError as e:   # (render_sequence writes a partial frame, then raises)
+            raise ClusterError(e.reason, None if e.result is None else
+                               RenderedImage(e.result, scene)) from None
         return RenderedImage(res, scene)
 
     t = time.perf_counter()
     done = skipped = 0
     with dask_session(args) as client:
-        for fr in render_sequence(seq, plan, render_one, png, args.variance, args.exposure,
-                                  args.tonemap, args.denoise):
-            head = f"frame {fr.index}/{fr.count} ({fr.frame})"
-            if fr.image is None:
-                skipped += 1
+        try:
+            for fr in render_sequence(seq, plan, render_one, png, args.variance,
+                                      args.exposure, args.tonemap, args.denoise):
+                head = f"frame {fr.index}/{fr.count} ({fr.frame})"
+                if fr.image is None:
+                    skipped += 1
+                    if not args.quiet:
+                        print(f"volmc: {head}: {fr.exr} is complete, skipped",
+                              file=sys.stderr)
+                    continue
+                done += 1
+                res = fr.image.result
                 if not args.quiet:
-                    print(f"volmc: {head}: {fr.exr} is complete, skipped", file=sys.stderr)
-                continue
-            done += 1
-            res = fr.image.result
-            if failed:
-                raise _cluster_error(args, f"{failed[0]}; frame {fr.frame} is written, marked "
-                                           f"partial, to {fr.exr} ({res.film.spp} spp); run "
-                                           "the command again to render it")
-            if not args.quiet:
-                state = "interrupted, partial image" if res.partial else "done"
-                written = _summary(fr.exr, png and frame_path(png, fr.frame), res,
-                                   fr.image.scene)
-                print(f"volmc: {head}: {state}: {written}", file=sys.stderr, flush=True)
-            _report(args, res, f"frame {fr.frame}: ")
-            if res.partial:
-                return EXIT_INTERRUPTED
+                    state = "interrupted, partial image" if res.partial else "done"
+                    written = _summary(fr.exr, png and frame_path(png, fr.frame), res,
+                                       fr.image.scene)
+                    print(f"volmc: {head}: {state}: {written}", file=sys.stderr, flush=True)
+                _report(args, res, f"frame {fr.frame}: ")
+                if res.partial:
+                    return EXIT_INTERRUPTED
+        except ClusterError as e:
+            again = "" if e.result is None else "; run the command again to render it"
+            raise _cluster_error(args, e.reason + again) from None
     if not args.quiet:
         print(f"volmc: done: {len(seq.frames)} frames, {done} rendered, {skipped} complete "
               f"already ({time.perf_counter() - t:.2f} s)", file=sys.stderr)
