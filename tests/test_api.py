@@ -50,6 +50,15 @@ def test_render_stays_the_function():
     assert sys.modules["volmc.render"].batch_schedule is batch_schedule
 
 
+def test_checkpoint_interval_default_is_the_drivers():
+    """volmc.render's checkpoint_every default (a literal: ``import volmc`` stays light) is
+    the driver's CHECKPOINT_EVERY, which --checkpoint-every also defaults to."""
+    import inspect
+    from volmc.render import CHECKPOINT_EVERY
+    default = inspect.signature(volmc.api.render).parameters["checkpoint_every"].default
+    assert default == CHECKPOINT_EVERY
+
+
 def test_load_with_dict_and_list_overrides():
     a = volmc.load_scene(overrides=SMALL)
     b = volmc.load_scene(scenes_dir() / "cloud.toml",

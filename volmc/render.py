@@ -45,6 +45,10 @@ def batch_schedule(n_pixels, spp, start=0):
 #: (where a chunk is one task), so both add the same numbers in the same order.
 CHUNK_SAMPLES = 1 << 19
 
+#: Seconds between checkpoints unless the caller says otherwise (render, --checkpoint-every;
+#: volmc.render's default is the same number, tests/test_api.py).
+CHECKPOINT_EVERY = 60.0
+
 
 def chunk_schedule(n_pixels, spp, start=0, chunk_samples=CHUNK_SAMPLES):
     """The batches of [start, spp) grouped into chunks: a list of chunks, each a list of
@@ -204,7 +208,7 @@ class _StopFlag:
 
 
 def render(scene, backend="opencl", spp=None, progress=None, on_start=None, checkpoint=None,
-           checkpoint_every=60.0, resume=None, client=None, device=None,
+           checkpoint_every=CHECKPOINT_EVERY, resume=None, client=None, device=None,
            chunk_samples=CHUNK_SAMPLES, band_rows=None, lanes=None, label=None, albedo=False):
     """Render ``scene`` with ``backend``; returns a RenderResult (partial if interrupted).
 

@@ -14,6 +14,7 @@ from .common import (EXIT_INTERRUPTED, add_cluster_options, add_defines_option,
 def add_render_parser(sub):
     from ..backends import BACKENDS
     from ..film import TONE_OPERATORS
+    from ..render import CHECKPOINT_EVERY
     r = sub.add_parser("render", help="render a scene to EXR (and PNG)")
     add_scene_argument(r)
     r.add_argument("-o", "--output", help="EXR path (default: <scene name>.exr here)")
@@ -47,7 +48,8 @@ def add_render_parser(sub):
                    help="write the accumulated samples to FILE (atomically) every "
                         "--checkpoint-every seconds and at the end")
     r.add_argument("--checkpoint-every", type=nonnegative_seconds, default=None,
-                   metavar="SECONDS", help="checkpoint interval in seconds (default 60; "
+                   metavar="SECONDS", help=f"checkpoint interval in seconds (default "
+                                           f"{CHECKPOINT_EVERY:g}; "
                                            "with --checkpoint or --resume)")
     r.add_argument("--resume", metavar="FILE",
                    help="continue the render saved in checkpoint FILE to the requested spp "
@@ -68,7 +70,7 @@ def _announce_start():
 
 def cmd_render(args):
     from ..film import variance_path, write_exr, write_png
-    from ..render import render
+    from ..render import CHECKPOINT_EVERY, render
     from ..scene import load_scene
     from ..scene.serialize import to_toml
 
@@ -115,7 +117,7 @@ def cmd_render(args):
             res = render(scene, backend=args.backend, progress=False if args.quiet else None,
                          on_start=None if args.quiet else _announce_start,
                          checkpoint=checkpoint,
-                         checkpoint_every=(60.0 if args.checkpoint_every is None
+                         checkpoint_every=(CHECKPOINT_EVERY if args.checkpoint_every is None
                                            else args.checkpoint_every), resume=args.resume,
                          client=client, device=args.device, lanes=args.lanes,
                          albedo=args.denoise)
