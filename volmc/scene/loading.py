@@ -21,8 +21,8 @@ from .bricks import BrickGrid
 from .transform import as_tuple
 from .grids import load_grid, load_peak_bytes, shape_text, validate_grid, value_problem
 from .schema import (FLOAT32_MAX, GENERATORS, ArrayDensity, ConstantDensity, FileDensity,
-                     GeneratedDensity, SceneSpec, _show, check_box, check_placed_box,
-                     validate)
+                     GeneratedDensity, SceneSpec, TABLE_KEYS, _show, check_box,
+                     check_placed_box, validate)
 
 
 @dataclass(frozen=True)
@@ -153,15 +153,12 @@ def apply_overrides(raw, overrides, file):
     return raw
 
 
-#: The scene's sections that are tables: an override into one the file gives as something
-#: else is the file's error, reported as the schema reports it (not as the override's).
-_TABLE_SECTIONS = ("camera", "medium", "render")
-
-
 def _set_key(raw, parts, value, file, label):
     """Set the dotted key ``parts`` of ``raw`` to ``value``; errors name ``label``."""
     top = parts[0]
-    if len(parts) > 1 and top in _TABLE_SECTIONS and isinstance(raw, dict) and top in raw \
+    # An override into a table the file gives as something else is the file's error,
+    # reported as the schema reports it (not as the override's).
+    if len(parts) > 1 and top in TABLE_KEYS and isinstance(raw, dict) and top in raw \
             and not isinstance(raw[top], dict):
         raise SceneError(file, top, f"expected a table, got {_show(raw[top])}")
     node = raw

@@ -12,7 +12,7 @@ import math
 import re
 import struct
 import sys
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from typing import Optional, Union, get_args
 
 from ..constants import MAX_MEDIA
@@ -294,6 +294,9 @@ LIGHT_KEYS = {t: ("type",) + tuple(k for k in _keys(cls) if k != "type")
               for t, cls in LIGHT_CLASSES.items()}
 LIGHT_TYPES = tuple(LIGHT_CLASSES)
 TOP_KEYS = _keys(SceneSpec)
+#: The top-level keys that are one table each ([camera], [medium], [render]); the others are
+#: arrays of tables ([[lights]], [[media]]).
+TABLE_KEYS = tuple(f.name for f in fields(SceneSpec) if is_dataclass(f.type))
 FILE_DENSITY_KEYS = _keys(FileDensity)
 GENERATOR_KEYS = _keys(GeneratedDensity)
 
