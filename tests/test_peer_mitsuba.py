@@ -291,15 +291,24 @@ INSIDE = {"eye": [0.1, 0.2, 0.3], "target": [1.0, 0.0, -1.0]}   # 0.3 from the n
 @pytest.mark.parametrize("camera", [{"type": "panoramic"},
                                     {"type": "orthographic", "aperture": 0.1},
                                     {**INSIDE, "aperture": 0.35},
-                                    {"eye": [0.0, 0.0, 0.7], "aperture": 0.2}])
+                                    {"eye": [0.0, 0.0, 0.7], "aperture": 0.2},
+                                    {"type": "orthographic", "eye": [0.0, 1.3, 0.0],
+                                     "target": [1.0, 1.3, 0.0], "size": 3.0},
+                                    {**INSIDE, "type": "orthographic", "size": 3.0}])
 def test_cameras_mitsuba_lacks_are_refused(camera):
     """No equirectangular sensor, no orthographic thin lens, and one medium for all of a
     sensor's rays in Mitsuba 3: refused before Mitsuba is needed, never rendered with
-    another camera. A lens clear of the box's surface is translated."""
+    another camera. A lens clear of the box's surface is translated, and so is an
+    orthographic film wholly inside the box or wholly outside it. (An outside tester found
+    the films that reach across the box's top from outside it (Mitsuba: no medium at all)
+    and out of it from inside (the box's medium on rays that start outside it) rendered.)"""
     from volmc.peers.mitsuba import check_translatable
     with pytest.raises(PeerUnavailable, match="Mitsuba 3"):
         check_translatable(peer_scene(camera=camera))
-    for clear in ({**INSIDE, "aperture": 0.25}, {"eye": [0.0, 0.0, 0.7], "aperture": 0.05}):
+    for clear in ({**INSIDE, "aperture": 0.25}, {"eye": [0.0, 0.0, 0.7], "aperture": 0.05},
+                  {**INSIDE, "type": "orthographic", "size": 0.2},
+                  {"type": "orthographic", "eye": [0.0, 1.3, 0.0], "target": [1.0, 1.3, 0.0],
+                   "size": 0.5}):
         check_translatable(peer_scene(camera=clear))
 
 

@@ -190,6 +190,30 @@ def _lens_straddles(cam, medium):
     return (gap if gap > 0.0 else depth) < radius
 
 
+def _film_straddles(cam, medium):
+    """Whether an orthographic camera's film (where its rays start: a rectangle ``size``
+    high and ``size`` x width / height wide, centred on the eye and facing the target)
+    has points on both sides of the (placed) box's surface: it meets the box (touching
+    counts) without lying wholly inside it."""
+    from types import SimpleNamespace
+    w, h = cam.resolution
+    eye = np.asarray(cam.eye, float)
+    f = np.asarray(cam.target, float) - eye
+    f /= np.linalg.norm(f)
+    r = np.cross(f, np.asarray(cam.up, float))
+    r /= np.linalg.norm(r)
+    v = np.cross(r, f)
+    hw, hh = cam.size * w / h / 2.0, cam.size / 2.0
+    corners = [eye + a * hw * r + b * hh * v for a in (-1, 1) for b in (-1, 1)]
+    if all(_inside(c, medium) for c in corners):   # the box is convex
+        return False
+    place = np.eye(4)
+    place[:3, :3] = np.column_stack([r, v, f])
+    place[:3, 3] = eye
+    film = SimpleNamespace(bounds=((-hw, -hh, 0.0), (hw, hh, 0.0)), transform=place)
+    return boxes_overlap(film, medium)
+
+
 def _box_corners(medium):
     """(8 x 3 world corners, 3 x 3 world edge directions as rows) of the placed box."""
     lo, hi = medium.bounds
@@ -273,11 +297,11 @@ def _key(scene, i, key):
 def check_translatable(scene):
     """Raise PeerUnavailable when the scene has what Mitsuba 3 cannot render: an emissive
     medium (its media have no emission; neither ``volpath`` nor ``volpathmis`` adds any), a
-    panoramic camera (no equirectangular sensor), an orthographic thin lens, a lens reaching
-    across a medium box's surface (the sensor has one medium for all its rays, while volmc
-    starts each ray in the medium its lens point is in), or media whose placed boxes overlap
-    or touch (volmc adds overlapping media's coefficients; Mitsuba's ``volpath`` has one
-    medium at a time)."""
+    panoramic camera (no equirectangular sensor), an orthographic thin lens, a lens or an
+    orthographic film reaching across a medium box's surface (the sensor has one medium for
+    all its rays, while volmc starts each ray in the medium its start is in), or media whose
+    placed boxes overlap or touch (volmc adds overlapping media's coefficients; Mitsuba's
+    ``volpath`` has one medium at a time)."""
     media = scene.spec.media
     for i, med in enumerate(media):
         if getattr(med, "emission", None) is not None:
@@ -291,11 +315,15 @@ def check_translatable(scene):
         raise PeerUnavailable("Mitsuba 3's thin lens is perspective only, so it cannot render "
                               "an orthographic camera with camera.aperture > 0")
     for i, med in enumerate(media):
+        box = "medium box's" if len(media) == 1 else f"media[{i}] box's"
         if cam.aperture > 0.0 and _lens_straddles(cam, med):
-            box = "medium box's" if len(media) == 1 else f"media[{i}] box's"
             raise PeerUnavailable(f"the lens reaches across the {box} surface, and a "
                                   "Mitsuba 3 sensor has one medium for all its rays; move the "
                                   "camera or narrow camera.aperture")
+        if cam.type == "orthographic" and _film_straddles(cam, med):
+            raise PeerUnavailable(f"the orthographic camera's film reaches across the {box} "
+                                  "surface, and a Mitsuba 3 sensor has one medium for all "
+                                  "its rays; move the camera or shrink camera.size")
     for i, light in enumerate(scene.spec.lights):
         if light.type == "directional" and light.angle > 0.0:
             raise PeerUnavailable(f"Mitsuba 3's directional light is parallel, so it cannot "
