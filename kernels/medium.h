@@ -195,7 +195,8 @@ static inline __attribute__((always_inline)) lfloat extinction_in(const MediumDa
         if ((some >> i) & 1)
             mu += medium_extinction(med, i, p, counters, has_medium(media, i, active));
 #endif
-    counters[C_OVER_MAJORANT] += lane_ones(active & (mu > sigma_maj));
+    counters[C_OVER_MAJORANT] +=
+        lane_ones(active & (mu > sigma_maj * (1.0f + OVER_MAJORANT_SLACK)));
     return mu;
 }
 

@@ -56,7 +56,7 @@ from numba import njit
 from ..constants import (MAX_MEDIA, BLACKBODY_TABLE_SIZE, COMB_COUNT_LIMIT, DENSITY_BRICKS, DENSITY_CONSTANT, DENSITY_COSINE,
                          DENSITY_GAUSS_BUMP, DENSITY_GAUSS_HOLE, DENSITY_GRID, DENSITY_RAMP,
                          EMISSION_NONE, EMISSION_RADIANCE, MAJORANT_GLOBAL, MAJORANT_GRID, MAJORANT_OCTREE,
-                         TWO_PI)
+                         OVER_MAJORANT_SLACK, TWO_PI)
 from ..params import C_CAPPED, C_LOOKUPS, C_OVER_MAJORANT, medium_dtype
 from .dda import DDA_STATE_SIZE, dda_init, dda_next
 from .grid import grid_lookup
@@ -208,7 +208,7 @@ def extinction_in(med, media, p, sigma_maj, counters):
     own segments cover it, ``majorant_next``), so a lookup sums exactly the media the
     segment's majorant sums, and a medium the segment does not cover costs nothing. One
     medium ignores ``media``. A value above the majorant sigma_maj of the segment being
-    tracked is counted."""
+    tracked by more than OVER_MAJORANT_SLACK of it is counted."""
     if len(med) == 1:
         mu = medium_extinction(med, ZERO, p, counters)
     else:
@@ -216,7 +216,7 @@ def extinction_in(med, media, p, sigma_maj, counters):
         for i in range(len(med)):
             if has_medium(media, i):
                 mu += medium_extinction(med, i, p, counters)
-    if mu > sigma_maj:
+    if mu > sigma_maj * (1.0 + OVER_MAJORANT_SLACK):
         counters[C_OVER_MAJORANT] += 1
     return mu
 
