@@ -21,7 +21,11 @@ Conventions and how the translation matches them (each checked by tests/test_pee
   ``panorama_type = "EQUIRECTANGULAR"`` over its default 360 x 180 degrees (longitude and
   latitude ranges set explicitly): Cycles' middle column looks along the camera's view
   axis, with the same handedness as volmc's. Pixels are sampled uniformly with weight 1:
-  Cycles' box filter of width 1 pixel. The output is Cycles' linear scene-referred EXR
+  Cycles' box filter of width 1 pixel. Cycles starts a perspective or orthographic camera's
+  rays on the plane ``clip_start`` (1e-4) in front of the camera object, so the object sits
+  that far behind volmc's eye and the rays start on the plane through the eye (a
+  panorama's start on a sphere about the object: ``clip_start`` is Blender's smallest,
+  1e-6, there). The output is Cycles' linear scene-referred EXR
   (the view transform does not touch it; "Standard" is set all the same).
 - **Medium coefficients.** volmc: sigma_t = scale x density per channel,
   sigma_s = albedo sigma_t, sigma_a = (1 - albedo) sigma_t. Cycles' Volume Scatter gives
@@ -44,7 +48,10 @@ Conventions and how the translation matches them (each checked by tests/test_pee
 - **Placement.** ``medium.transform`` is the medium object's ``matrix_world`` (world = M x
   object coordinates, where the box and the grid live). Cycles evaluates the volume shader at
   object coordinates and integrates along world distances, as volmc does; its object
-  transforms handle a mirroring M (negative determinant) themselves. A volume object's
+  transforms handle a mirroring M (negative determinant) themselves. Blender keeps an
+  object's matrix as a location, a rotation and a scale, so a sheared M (columns not
+  orthogonal) is split by its singular values, M = T U S V^T: an empty at T U S, the
+  medium its child turned by V^T (the worker's ``_place``). A volume object's
   densities are per world unit only with its render space set to "WORLD" (Blender's
   default, "OBJECT", scales them with the object: a grid stretched by 1.3 along the view
   rendered 0.903 for the closed form's 0.926; random-scene sweep, Cycles case 506).

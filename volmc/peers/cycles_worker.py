@@ -47,9 +47,21 @@ def _along(direction):
     return (-d).to_track_quat("Z", "Y").to_matrix().to_4x4()
 
 
+#: Cycles starts a perspective or orthographic camera's rays on the plane ``clip_start`` in
+#: front of the camera object, a panorama's on the sphere of that radius about it; volmc's
+#: start at the eye. So the object sits CLIP behind the eye, and the rays start on the plane
+#: through the eye (a ray moves sideways by CLIP x tan(its angle to the axis), as good as
+#: not at all, and loses no medium; at 1e-4 in front of the eye, a camera inside a box of
+#: extinction 30 saw 0.3 % too bright). A panorama's sphere cannot be moved onto the eye:
+#: it takes Blender's smallest clip, PANORAMA_CLIP.
+CLIP = 1e-4
+PANORAMA_CLIP = 1e-6
+
+
 def _camera(bpy, sc, cam):
     """The camera: "fit" is the axis its field ("fov" degrees, or the orthographic "size")
     spans."""
+    from mathutils import Vector
     data = bpy.data.cameras.new("camera")
     data.sensor_fit = cam["fit"]
     if cam["type"] == "orthographic":
@@ -67,16 +79,20 @@ def _camera(bpy, sc, cam):
         # Cycles' lens radius from the f-stop (see cycles.py): solved for volmc's radius.
         dof = data.dof
         dof.use_dof = True
-        dof.focus_distance = cam["focus_distance"]
         dof.aperture_blades = 0
         dof.aperture_ratio = 1.0
         length = 1.0 if cam["type"] == "orthographic" else data.lens * 1e-3
         dof.aperture_fstop = length / (2.0 * cam["aperture"])
-    data.clip_start = 1e-4
+    back = 0.0 if cam["type"] == "panoramic" else CLIP
+    data.clip_start = back or PANORAMA_CLIP
     data.clip_end = 1e6
+    if cam["aperture"] > 0.0:
+        data.dof.focus_distance = cam["focus_distance"] + back   # from the moved object
     obj = bpy.data.objects.new("camera", data)
     sc.collection.objects.link(obj)
-    obj.matrix_world = _look_at(cam["eye"], cam["target"], cam["up"])
+    eye, target = (Vector(cam["eye"]), Vector(cam["target"]))
+    behind = back * (target - eye).normalized()
+    obj.matrix_world = _look_at(eye - behind, target - behind, cam["up"])
     sc.camera = obj
 
 
@@ -217,6 +233,36 @@ def _material(bpy, med, name="volmc_medium"):
     return mat
 
 
+def _place(bpy, sc, obj, m):
+    """Give ``obj`` the world matrix ``m`` (4 x 4). Blender keeps an object's matrix as a
+    location, a rotation and a scale, which lose a shear (a matrix whose columns are not
+    orthogonal). A sheared m = T U S V^T (its linear part's singular values S, with U and V
+    rotations after moving any mirroring into S) becomes an empty at T U S with ``obj`` as
+    its child, turned by V^T."""
+    import numpy as np
+    from mathutils import Matrix
+    m = np.asarray(m, float)
+    g = m[:3, :3].T @ m[:3, :3]
+    if np.abs(g - np.diag(np.diag(g))).max() <= 1e-12 * np.abs(g).max():
+        obj.matrix_world = Matrix(m.tolist())
+        return
+    u, s, vt = np.linalg.svd(m[:3, :3])
+    if np.linalg.det(u) < 0.0:
+        u[:, 2], s[2] = -u[:, 2], -s[2]
+    if np.linalg.det(vt) < 0.0:
+        vt[2], s[2] = -vt[2], -s[2]
+    outer = np.eye(4)
+    outer[:3, :3], outer[:3, 3] = u * s, m[:3, 3]
+    inner = np.eye(4)
+    inner[:3, :3] = vt
+    empty = bpy.data.objects.new(obj.name + "_shear", None)
+    sc.collection.objects.link(empty)
+    empty.matrix_world = Matrix(outer.tolist())
+    obj.parent = empty
+    obj.matrix_parent_inverse = Matrix.Identity(4)
+    obj.matrix_basis = Matrix(inner.tolist())
+
+
 def _medium(bpy, sc, med, folder, name="volmc_medium"):
     """The object of one medium, named ``name`` (its material and VDB file too)."""
     from mathutils import Matrix
@@ -228,7 +274,7 @@ def _medium(bpy, sc, med, folder, name="volmc_medium"):
         box = Matrix.Diagonal([(hi[i] - lo[i]) / 2 for i in range(3)] + [1.0])
         box.translation = [(lo[i] + hi[i]) / 2 for i in range(3)]
         obj.name = name
-        obj.matrix_world = place @ box
+        _place(bpy, sc, obj, place @ box)
         obj.data.materials.append(_material(bpy, med, name))
         return
     path = os.path.join(folder, f"{name}.vdb")
@@ -241,8 +287,8 @@ def _medium(bpy, sc, med, folder, name="volmc_medium"):
     # scales them with the object, so a stretched grid had other optical depths.
     vol.render.space = "WORLD"
     obj = bpy.data.objects.new(name, vol)
-    obj.matrix_world = place
     sc.collection.objects.link(obj)
+    _place(bpy, sc, obj, place)
     vol.grids.load()
     vol.materials.append(_material(bpy, med, name))
 
