@@ -68,11 +68,22 @@ def check_directory_writable(d, key, where="command line"):
         os.unlink(probe)
 
 
-def write_json(path, payload, indent=2, default=None):
-    """``payload`` as JSON at ``path``, written whole (reports of benchmarks and peers)."""
+def write_json(path, payload, indent=2, default=None, key="--json"):
+    """``payload`` as JSON at ``path``, written whole (reports of benchmarks and peers). The
+    path was checked before the work; should writing fail all the same (its folder removed
+    meanwhile), the report goes to the temporary directory and the one-line error names
+    ``key`` and the copy."""
     import json
-    with written_whole(path) as tmp, open(tmp, "w") as f:
-        json.dump(payload, f, indent=indent, default=default)
+    text = json.dumps(payload, indent=indent, default=default)
+    try:
+        with written_whole(path) as tmp, open(tmp, "w") as f:
+            f.write(text)
+    except OSError as e:
+        fd, copy = tempfile.mkstemp(prefix="volmc-report-", suffix=".json")
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        raise SceneError("command line", key, f"cannot write {path} ({e.strerror or e}); "
+                                              f"the report is in {copy}") from None
 
 
 def _copy_xattrs(src, dst):

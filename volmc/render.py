@@ -207,6 +207,16 @@ class _StopFlag:
         return False
 
 
+def whole(result):
+    """``result`` (render's RenderResult, or volmc.render's RenderedImage) when it is
+    complete; KeyboardInterrupt when it is partial. render turns Ctrl-C into a partial
+    result, which a benchmark or a comparison has no use for: it must stop, as Ctrl-C asks,
+    and not report a reference of fewer samples than it says."""
+    if result.partial:
+        raise KeyboardInterrupt
+    return result
+
+
 def render(scene, backend="opencl", spp=None, progress=None, on_start=None, checkpoint=None,
            checkpoint_every=CHECKPOINT_EVERY, resume=None, client=None, device=None,
            chunk_samples=CHUNK_SAMPLES, band_rows=None, lanes=None, label=None, albedo=False):

@@ -200,9 +200,9 @@ def reference_image(scene, reference_spp, device=None, log=print):
     log(f"reference: volmc opencl, {reference_spp} spp (independent seed)")
     t = time.perf_counter()
     sref = scene.with_render(seed=(scene.render.seed + REFERENCE_SEED_OFFSET) % 2**64)
-    from ..render import render
-    ref = render(sref, backend=make_backend("opencl", sref, device), spp=reference_spp,
-                 progress=False)
+    from ..render import render, whole
+    ref = whole(render(sref, backend=make_backend("opencl", sref, device), spp=reference_spp,
+                       progress=False))
     ref_mean, ref_var = ref.film.mean(), ref.film.variance_of_mean()
     log(f"  {time.perf_counter() - t:.1f} s; reference noise (RMS standard error) "
         f"{math.sqrt(float(np.mean(ref_var))):.2e}")

@@ -29,7 +29,8 @@ GALLERY = ("cloud.toml", "gallery/plume.toml", "gallery/fire.toml", "gallery/sun
            "gallery/spotlight.toml")
 
 
-def _scenes(paths):
+def scene_paths(paths):
+    """The scenes to measure: ``paths``, else the gallery's."""
     return [Path(p) for p in paths] if paths else [scenes_dir() / g for g in GALLERY]
 
 
@@ -45,12 +46,13 @@ def scene_and_reference(path, width, reference_spp=2048, lanes=None):
     the scene at ``path`` resized to ``width`` pixels across, and its reference render (a
     seed of its own, independent of the renders measured against it)."""
     from ..api import render
+    from ..render import whole
     from ..scene.loading import load_scene
     w0, h0 = load_scene(path).camera.resolution
     res = [int(width), max(1, round(width * h0 / w0))]
     scene = load_scene(path, {"camera.resolution": res})
     t = time.perf_counter()
-    ref = render(scene, spp=reference_spp, seed=1_000_003, progress=False, lanes=lanes)
+    ref = whole(render(scene, spp=reference_spp, seed=1_000_003, progress=False, lanes=lanes))
     return (scene, res, np.asarray(ref.image, np.float64), float(np.mean(ref.variance)),
             time.perf_counter() - t)
 
@@ -59,13 +61,14 @@ def measure(path, width=160, spp_levels=(4, 16, 64), reference_spp=2048, lanes=N
             log=print):
     """The rows of one scene (module docstring)."""
     from ..api import render
+    from ..render import whole
     from ..denoise import denoise
     scene, res, ref_img, ref_var, seconds = scene_and_reference(path, width, reference_spp,
                                                                 lanes)
     log(f"{Path(path).name}: reference {reference_spp} spp in {seconds:.0f} s")
     rows = []
     for spp in spp_levels:
-        img = render(scene, spp=spp, progress=False, lanes=lanes, albedo=True)
+        img = whole(render(scene, spp=spp, progress=False, lanes=lanes, albedo=True))
         t = time.perf_counter()
         with_albedo = img.denoised()
         seconds = time.perf_counter() - t
@@ -85,7 +88,7 @@ def measure(path, width=160, spp_levels=(4, 16, 64), reference_spp=2048, lanes=N
 def run(paths=(), width=160, spp_levels=(4, 16, 64), reference_spp=2048, lanes=None,
         log=print):
     return {"scenes": [measure(p, width, spp_levels, reference_spp, lanes, log)
-                       for p in _scenes(paths)]}
+                       for p in scene_paths(paths)]}
 
 
 def print_report(report, log=print):

@@ -46,7 +46,7 @@ def record_segments(scene, backend="opencl", spp=1, per_pixel=16, device=None, s
     from ..scene.loading import require_one_medium
     require_one_medium(scene, "recording transmittance segments")
     from ..pack import pack_scene
-    from ..render import render
+    from ..render import render, whole
     if scene.grid is None:
         raise ValueError("recording needs a density grid (a homogeneous medium has no "
                          "transmittance segments worth replaying)")
@@ -56,7 +56,7 @@ def record_segments(scene, backend="opencl", spp=1, per_pixel=16, device=None, s
         raise ValueError("recording needs a dense density grid (render.grid_storage = "
                          "\"dense\")")
     be = make_backend(backend, scene, device, record=per_pixel)
-    render(scene, backend=be, spp=spp, progress=False)
+    whole(render(scene, backend=be, spp=spp, progress=False))
     rec = be.segment_record()
     counts_total = rec[:, 0, 0].astype(np.int64)
     rows = rec[:, 1:, :]

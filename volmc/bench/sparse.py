@@ -259,8 +259,9 @@ def run(size=512, fill=0.03, lookups=1 << 22, per_item=64, repeats=5, backends=(
     g = blobs_grid(size, fill, seed)
     dims = (size, size, size)
     # Compile the Numba builders on a tiny grid so the timings below are of the build alone.
-    t_small, p_small = bricks_from_dense(g[:9, :9, :9])
-    majorant_from_bricks(t_small, p_small, (9, 9, 9))
+    small = np.zeros((9, 9, 9), np.float32)
+    t_small, p_small = bricks_from_dense(small)
+    majorant_from_bricks(t_small, p_small, small.shape)
     bricks_from_blocks((9, 9, 9), np.zeros((1, 3), int), np.ones((1, 8, 8, 8), np.float32))
     (table, pool), t_dense = _timed(lambda: bricks_from_dense(g))
     origins, values = offset_blocks(g, (3, 5, 1))

@@ -396,11 +396,11 @@ def compare_reference(scene, spp, lanes, seed_offset=0):
     """The Run of the OpenCL kernels at ``lanes`` against the Numba reference, rendered
     with another seed."""
     from ..check import compare_images
-    from ..render import render
+    from ..render import render, whole
     sa = scene.with_render(seed=(scene.render.seed + seed_offset) % 2**64)
     sb = scene.with_render(seed=(scene.render.seed + seed_offset + 1) % 2**64)
-    a = render(sa, backend="opencl", spp=spp, progress=False, lanes=lanes)
-    b = render(sb, backend="numba", spp=spp, progress=False)
+    a = whole(render(sa, backend="opencl", spp=spp, progress=False, lanes=lanes))
+    b = whole(render(sb, backend="numba", spp=spp, progress=False))
     c = compare_images(a.film.mean(), a.film.variance_of_mean(), b.film.mean(),
                        b.film.variance_of_mean(), dof_a=a.film.spp - 1, dof_b=b.film.spp - 1)
     capped = a.counters.get("capped", 0) + b.counters.get("capped", 0)

@@ -10,9 +10,9 @@ from ..scene.errors import SceneError
 from ..scene.hostmem import require_host
 from .common import (Parser, add_cluster_options, add_defines_option, add_device_option,
                      add_ladder_arguments, add_lanes_option, add_scene_argument,
-                     check_directory, check_figure_path, check_writable, comma_list,
-                     dask_session, finite_float, positive_int, scene_path, spp_count,
-                     spp_levels)
+                     check_directory, check_figure_path, check_outputs, check_writable,
+                     comma_list, dask_session, finite_float, positive_int,
+                     reference_spp_count, scene_path, spp_count, spp_levels)
 
 
 def add_bench_transmittance_parser(sub):
@@ -34,6 +34,12 @@ def add_bench_transmittance_parser(sub):
     return bt
 
 
+#: The files bench transmittance --figures writes into its folder.
+TRANSMITTANCE_FIGURES = ("estimators_heatmap.png", "estimators_variance_cost.png",
+                         "estimators_error_time.png", "estimators_segment_maps.png",
+                         "estimators_winner_map.png")
+
+
 def cmd_bench_transmittance(args):
     from ..bench import transmittance as bt
     from ..scene.bricks import stores_bricks
@@ -47,12 +53,13 @@ def cmd_bench_transmittance(args):
         if bad:
             raise SceneError("command line", "--estimators",
                              f"unknown estimator {bad[0]!r} (have {', '.join(ESTIMATORS)})")
-    if args.json:
-        check_writable(args.json, "--json")
-    if args.figures:
-        check_directory(args.figures, "--figures")
     paths = args.scenes or [str(default_scene()), str(scenes_dir() / "gallery" / "plume.toml"),
                             str(scenes_dir() / "gallery" / "scan.toml")]
+    if args.figures:
+        check_directory(args.figures, "--figures")
+    check_outputs({"--json": args.json,
+                   "--figures": args.figures and [os.path.join(args.figures, name)
+                                                  for name in TRANSMITTANCE_FIGURES]}, paths)
     # The recorded render is small; a -D of the caller's comes later and wins.
     w, h = bt.QUICK_RESOLUTION if args.quick else bt.RECORD_RESOLUTION
     scenes = []
@@ -74,13 +81,13 @@ def cmd_bench_transmittance(args):
         write_json(args.json, report, indent=1, default=float)
     if args.figures:
         from ..bench import plots
-        plots.heatmaps(report, os.path.join(args.figures, "estimators_heatmap.png"))
-        plots.convergence_plots(report, os.path.join(args.figures, "estimators_variance_cost.png"),
-                                os.path.join(args.figures, "estimators_error_time.png"))
+        heat, cost, error, maps, winner = (os.path.join(args.figures, name)
+                                           for name in TRANSMITTANCE_FIGURES)
+        plots.heatmaps(report, heat)
+        plots.convergence_plots(report, cost, error)
         if report.get("maps"):
-            plots.segment_maps(report, os.path.join(args.figures,
-                                                    "estimators_segment_maps.png"))
-            plots.winner_map(report, os.path.join(args.figures, "estimators_winner_map.png"))
+            plots.segment_maps(report, maps)
+            plots.winner_map(report, winner)
     print(f"\nvolmc bench transmittance: {report['seconds']:.0f} s", file=sys.stderr)
     return 0
 
@@ -129,10 +136,9 @@ def cmd_bench_render(args):
     majorants = comma_list(args.majorants, "--majorants", MAJORANTS)
     flights = comma_list(args.free_flights, "--free-flights", ("delta", "decomposition"))
     levels = spp_levels(args.spp_levels)
-    if args.json:
-        check_writable(args.json, "--json")
     if args.plot:
         check_figure_path(args.plot, "--plot")
+    check_outputs({"--json": args.json, "--plot": args.plot}, [scene_path(args)])
     from ..bench.baseline import check_checkout
     for b in args.baseline:
         check_checkout(b)
@@ -211,10 +217,9 @@ def cmd_bench_lanes(args):
     from ..scene import load_scene
     widths = [int(w) for w in comma_list(args.widths, "--widths", tuple(map(str, LANE_WIDTHS)))]
     levels = spp_levels(args.spp_levels)
-    if args.json:
-        check_writable(args.json, "--json")
     select_device(args.device)   # a bad --device fails before anything is rendered
     paths = args.scenes or [str(p) for p in lanes.default_scene_paths()]
+    check_outputs({"--json": args.json}, paths)
     scenes = [load_scene(p, args.defines) for p in paths]   # every bad scene fails now
     out = {"widths": widths, "scenes": {}}
     for path, scene in zip(paths, scenes):
@@ -254,15 +259,14 @@ def cmd_bench_variance(args):
     allowed = variance.switch_labels()
     labels = allowed if args.switches is None else comma_list(args.switches, "--switches", allowed)
     levels = spp_levels(args.spp_levels)
-    if args.json:
-        check_writable(args.json, "--json")
     if args.plot:
         check_figure_path(args.plot, "--plot")
+    paths = args.scenes or [str(p) for p in variance.default_scene_paths()]
+    check_outputs({"--json": args.json, "--plot": args.plot}, paths)
     from ..cl.device import select_device
     # The reference is an OpenCL render whatever --backend says: a bad --device fails now,
     # before anything is rendered.
     select_device(args.device)
-    paths = args.scenes or [str(p) for p in variance.default_scene_paths()]
     scenes = [load_scene(p, args.defines) for p in paths]
     t = time.perf_counter()
     report = variance.run(scenes, labels, levels, args.reference_spp, args.repeats,
@@ -298,11 +302,10 @@ def _samples_per_second(args, default_paths, measure):
     from ..bench import render as rb
     from ..scene import load_scene
     paths = args.scenes or default_paths()
-    if args.json:
-        check_writable(args.json, "--json")
+    check_outputs({"--json": args.json}, paths)
+    scenes = [load_scene(p, args.defines) for p in paths]   # every bad scene fails now
     report = {}
-    for path in paths:
-        scene = load_scene(path, args.defines)
+    for path, scene in zip(paths, scenes):
         w, h = scene.camera.resolution
         print(f"{path}: {w}x{h}, {args.spp} spp per batch, {args.repeats} repeats", flush=True)
         report[path] = measure(scene)
@@ -421,7 +424,7 @@ def add_bench_denoise_parser(sub):
                     help="image width; the height keeps the scene's aspect (default 160)")
     bd.add_argument("--spp-levels", default="4,16,64",
                     help="comma-separated spp of the noisy renders (default 4,16,64)")
-    bd.add_argument("--reference-spp", type=spp_count, default=2048,
+    bd.add_argument("--reference-spp", type=reference_spp_count, default=2048,
                     help="spp of the reference (default 2048)")
     add_lanes_option(bd)
     bd.add_argument("--json", help="also write the report to this JSON file")
@@ -433,8 +436,11 @@ def cmd_bench_denoise(args):
     from ..denoise import oidn
     oidn("command line", "volmc bench denoise")
     levels = spp_levels(args.spp_levels)
-    if args.json:
-        check_writable(args.json, "--json")
+    paths = [str(p) for p in bench.scene_paths(args.scenes)]
+    check_outputs({"--json": args.json}, paths)
+    from ..scene import load_scene
+    for p in paths:   # every bad scene fails now, not after the ones before it
+        load_scene(p)
     from ..bench import report_main
     report_main(lambda: bench.run(args.scenes, args.width, levels, args.reference_spp,
                                   args.lanes), bench.print_report, args.json)

@@ -180,6 +180,26 @@ def scene_path(args):
     return str(default_scene()) if args.scene is None else args.scene
 
 
+def check_outputs(outputs, inputs=()):
+    """Raise SceneError unless every output is writable (check_writable), none is one of the
+    ``inputs`` (the scene files: the output would overwrite it) and no two outputs are one
+    file (the later would overwrite the earlier). outputs: flag -> a path, a list of paths
+    (a folder's files) or None (not written)."""
+    ins = {os.path.realpath(p): p for p in inputs}
+    seen = {}
+    for flag, paths in outputs.items():
+        for path in [] if paths is None else [paths] if isinstance(paths, str) else paths:
+            check_writable(path, flag)
+            real = os.path.realpath(path)
+            if real in ins:
+                raise SceneError("command line", flag, f"{path} is the scene file "
+                                                       f"{ins[real]}: name another file")
+            if real in seen:
+                raise SceneError("command line", flag, f"{path} is also the file of "
+                                                       f"{seen[real]}: name another file")
+            seen[real] = flag
+
+
 def check_figure_path(path, flag):
     """Raise SceneError unless ``path`` is writable and names a format matplotlib writes
     (by its suffix), so that a figure cannot fail after the benchmark has run."""

@@ -5,8 +5,13 @@ import os
 
 from ..scene.errors import SceneError
 from .common import (add_defines_option, add_device_option, add_scene_argument,
-                     check_directory, check_writable, positive_int, scene_path,
-                     spp_count)
+                     check_directory, check_outputs, positive_int, reference_spp_count,
+                     scene_path, spp_count)
+
+
+def reference_spp_or_none(text):
+    """--reference-spp: 0 (agreement only), or a reference_spp_count."""
+    return 0 if text.strip() == "0" else reference_spp_count(text)
 
 
 def add_peer_parser(sub):
@@ -20,7 +25,7 @@ def add_peer_parser(sub):
     pe.add_argument("--passes", type=positive_int, default=16,
                     help="the peer renders in this many independent launches, whose spread "
                          "gives its per-pixel variance (default 16)")
-    pe.add_argument("--reference-spp", type=int, default=None,
+    pe.add_argument("--reference-spp", type=reference_spp_or_none, default=None,
                     help="samples per pixel of the volmc reference for RMSE (default 8 x spp; "
                          "0: agreement only)")
     add_device_option(pe)
@@ -35,15 +40,13 @@ def add_peer_parser(sub):
 def cmd_peer(args):
     from ..peers import PeerUnavailable, compare_with_peer
     from ..scene import load_scene
-    if args.reference_spp is not None and (args.reference_spp < 0 or args.reference_spp == 1):
-        raise SceneError("command line", "--reference-spp",
-                         f"must be 0 (agreement only) or at least 2 (the reference's own "
-                         f"noise is estimated from its samples), got {args.reference_spp}")
-    if args.json:
-        check_writable(args.json, "--json")
+    path = scene_path(args)
     if args.images:
         check_directory(args.images, "--images")
-    path = scene_path(args)
+    names = ("volmc", args.peer, "reference", "volmc.var", f"{args.peer}.var")
+    check_outputs({"--json": args.json,
+                   "--images": args.images and [os.path.join(args.images, f"{n}.exr")
+                                                for n in names]}, [path])
     scene = load_scene(path, args.defines)   # rejects a box of zero thickness
     print(f"volmc peer {args.peer}: {path}", flush=True)
     try:

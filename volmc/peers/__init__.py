@@ -55,7 +55,7 @@ def compare_with_peer(name, scene, spp=None, passes=16, reference_spp=None, devi
     reference_spp: samples per pixel of the volmc reference for RMSE (default 8 * spp; 0 skips
     the speed part)."""
     from ..backends import make_backend
-    from ..render import render
+    from ..render import render, whole
     from . import compare
 
     title = PEERS[name][0]
@@ -73,7 +73,7 @@ def compare_with_peer(name, scene, spp=None, passes=16, reference_spp=None, devi
         peer.warm_up()
         be = make_backend("opencl", scene, device)
         be.warm_up()
-        rv = render(scene, backend=be, spp=spp, progress=False)
+        rv = whole(render(scene, backend=be, spp=spp, progress=False))
         mean_v, var_v = rv.film.mean(), rv.film.variance_of_mean()
         log(f"  volmc: {rv.seconds:8.2f} s")
 
@@ -100,8 +100,8 @@ def compare_with_peer(name, scene, spp=None, passes=16, reference_spp=None, devi
 
         if reference_spp:
             sr = scene.with_render(seed=(seed + 2) % 2**64)
-            ref = render(sr, backend=make_backend("opencl", sr, device), spp=reference_spp,
-                         progress=False)
+            ref = whole(render(sr, backend=make_backend("opencl", sr, device),
+                               spp=reference_spp, progress=False))
             ref_mean, ref_var = ref.film.mean(), ref.film.variance_of_mean()
             images["reference"] = ref_mean
             # The peer's single-launch speed (its passes above include per-launch costs).
@@ -117,7 +117,8 @@ def compare_with_peer(name, scene, spp=None, passes=16, reference_spp=None, devi
                 f"(reference noise removed):")
             log(f"    volmc: {rv.seconds:8.2f} s, RMSE {e_v:.5f}")
             log(f"    {title}: {sec_s:8.2f} s, RMSE {e_p:.5f}")
-            log(f"    {title} needs {ratio:.2f}x volmc's time to reach the same RMSE")
+            log(f"    {title} needs {ratio:.2f}x volmc's time to reach the same RMSE"
+                if ratio is not None else "    volmc's image is exact (RMSE 0): no time ratio")
     finally:
         if hasattr(peer, "close"):
             peer.close()

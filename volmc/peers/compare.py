@@ -144,5 +144,8 @@ def rmse_to_reference(image, ref_mean, ref_var):
 
 
 def equal_error_time_ratio(t_a, rmse_a, t_b, rmse_b):
-    """How many times longer B needs than A to reach the same RMSE (MSE proportional to 1/t)."""
+    """How many times longer B needs than A to reach the same RMSE (MSE proportional to 1/t);
+    None when A's RMSE is 0 (an exact image, as an absorber's: no ratio is defined)."""
+    if rmse_a == 0.0:
+        return None
     return (t_b * rmse_b ** 2) / (t_a * rmse_a ** 2)
