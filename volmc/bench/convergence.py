@@ -411,7 +411,7 @@ def print_report(report, log=print):
             "--reference-spp, or the spp levels' lowest")
     for name, title in (("mitsuba", "Mitsuba 3"), ("cycles", "Cycles")):
         key = f"{name}_time_to_equal_error_vs_best_volmc"
-        if key in report:
+        if key in report and report["best_volmc"] is not None:
             log(f"{title} needs {report[key]:.2f}x the time of the best volmc configuration "
                 f"({report['best_volmc']}) to reach the same RMSE")
     for r in report["results"]:

@@ -380,13 +380,20 @@ def main(argv=None):
     ap.add_argument("--device", default=None)
     ap.add_argument("--json", default=None, help="also write the figures to this file")
     a = ap.parse_args(argv)
+    return report(a.size, a.fill, a.lookups, a.repeats, a.backends.split(","), a.device,
+                  a.json)
+
+
+def report(size, fill, lookups, repeats, backends, device=None, json_path=None):
+    """Run the benchmark, print its table (the log to stderr) and write ``json_path``;
+    returns the exit status 0. ``volmc bench sparse`` calls it with its checked options."""
     import sys
-    r = run(a.size, a.fill, a.lookups, repeats=a.repeats, backends=tuple(a.backends.split(",")),
-            device=a.device, log=lambda s: print(s, file=sys.stderr))
+    r = run(size, fill, lookups, repeats=repeats, backends=tuple(backends), device=device,
+            log=lambda s: print(s, file=sys.stderr))
     print(format_report(r))
-    if a.json:
+    if json_path:
         from ..outputs import write_json
-        write_json(a.json, r, indent=1)
+        write_json(json_path, r, indent=1)
     return 0
 
 

@@ -409,11 +409,8 @@ def cmd_bench_sparse(args):
     grid = sparse.least_bytes(args.size, 1, backends)   # the grids alone
     require_host(need, "command line", "--size" if 2 * grid >= need else "--lookups",
                  f"a {args.size}^3 grid and {args.lookups} lookups per launch")
-    argv = ["--size", str(args.size), "--fill", str(args.fill), "--lookups",
-            str(args.lookups), "--repeats", str(args.repeats), "--backends",
-            ",".join(backends)] + (["--device", args.device] if args.device else []) + \
-        (["--json", args.json] if args.json else [])
-    return sparse.main(argv)
+    return sparse.report(args.size, args.fill, args.lookups, args.repeats, backends,
+                         args.device, args.json)
 
 
 def add_bench_denoise_parser(sub):
