@@ -9,7 +9,7 @@ from .common import (add_defines_option, add_device_option, add_scene_argument,
                      scene_path, spp_count)
 
 
-def reference_spp_or_none(text):
+def reference_spp_or_zero(text):
     """--reference-spp: 0 (agreement only), or a reference_spp_count."""
     return 0 if text.strip() == "0" else reference_spp_count(text)
 
@@ -25,7 +25,7 @@ def add_peer_parser(sub):
     pe.add_argument("--passes", type=positive_int, default=16,
                     help="the peer renders in this many independent launches, whose spread "
                          "gives its per-pixel variance (default 16)")
-    pe.add_argument("--reference-spp", type=reference_spp_or_none, default=None,
+    pe.add_argument("--reference-spp", type=reference_spp_or_zero, default=None,
                     help="samples per pixel of the volmc reference for RMSE (default 8 x spp; "
                          "0: agreement only)")
     add_device_option(pe)
