@@ -60,5 +60,7 @@ def test_baseline_that_cannot_start_says_why(tmp_path):
     bad = tmp_path / "old"
     (bad / "volmc").mkdir(parents=True)
     (bad / "volmc" / "__init__.py").write_text("raise ImportError('this volmc is broken')\n")
+    (bad / "kernels").mkdir()   # a checkout's layout (check_checkout)
+    (bad / "pyproject.toml").write_text("")
     with pytest.raises(SceneError, match="could not render the scene.*this volmc is broken"):
         BaselineRunner(bad, tmp_path / "scene.toml")

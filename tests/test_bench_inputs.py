@@ -116,3 +116,23 @@ def test_a_report_whose_folder_went_away_is_kept(tmp_path):
     copy = str(info.value).rsplit("the report is in ", 1)[1]
     with open(copy) as f:
         assert json.load(f) == {"a": 1}
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["bench", "lanes", ABSORBER, "--widths", "4,4"], "--widths"),
+    (["bench", "render", ABSORBER, "--backends", "opencl,opencl"], "--backends"),
+    (["bench", "transmittance", ABSORBER, "--estimators", "ratio, ratio"], "--estimators"),
+    (["bench", "workgroup", ABSORBER, "--sizes", "driver,4,driver"], "--sizes")])
+def test_a_configuration_named_twice_is_refused(argv, flag, capsys):
+    """--widths 4,4 measured W = 4 twice, as two rows of one name."""
+    assert cli.main(argv) == 2
+    _one_line(capsys, f"{flag}: ", "is named twice")
+
+
+def test_a_baseline_without_kernels_is_refused_before_the_work(tmp_path, capsys):
+    """A folder with volmc/__init__.py but no kernels passed the check, and failed only when
+    its first render was due, after the reference."""
+    (tmp_path / "volmc").mkdir()
+    (tmp_path / "volmc" / "__init__.py").write_text("")
+    assert cli.main(["bench", "render", ABSORBER, "--baseline", str(tmp_path)]) == 2
+    _one_line(capsys, "--baseline: ", "no kernels/")

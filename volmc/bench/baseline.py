@@ -58,6 +58,11 @@ def check_checkout(path):
     if not (path / "volmc" / "__init__.py").is_file():
         raise SceneError("command line", "--baseline", f"{path} is not a volmc checkout "
                          "(no volmc/__init__.py)")
+    # Where the checkout's volmc looks for its kernels (resources._package_dir).
+    if not ((path / "volmc" / "kernels").is_dir() or
+            ((path / "kernels").is_dir() and (path / "pyproject.toml").is_file())):
+        raise SceneError("command line", "--baseline", f"{path} is not a volmc checkout "
+                         "(no kernels/ beside a pyproject.toml, nor volmc/kernels/)")
     return path
 
 

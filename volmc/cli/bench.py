@@ -48,11 +48,7 @@ def cmd_bench_transmittance(args):
     from ..scene import load_scene
     names = list(ESTIMATORS)
     if args.estimators:
-        names = [x.strip() for x in args.estimators.split(",")]
-        bad = [n for n in names if n not in ESTIMATORS]
-        if bad:
-            raise SceneError("command line", "--estimators",
-                             f"unknown estimator {bad[0]!r} (have {', '.join(ESTIMATORS)})")
+        names = comma_list(args.estimators, "--estimators", tuple(ESTIMATORS))
     paths = args.scenes or [str(default_scene()), str(scenes_dir() / "gallery" / "plume.toml"),
                             str(scenes_dir() / "gallery" / "scan.toml")]
     if args.figures:
@@ -379,6 +375,8 @@ def _workgroup_sizes(text):
             sizes.append(int(x))
         else:
             raise SceneError("command line", "--sizes", f"not a work-group size: {x!r}")
+        if sizes[-1] in sizes[:-1]:
+            raise SceneError("command line", "--sizes", f"{x!r} is named twice in {text!r}")
     return sizes
 
 

@@ -232,12 +232,16 @@ def check_directory(path, flag):
 
 
 def comma_list(text, flag, allowed):
-    """The items of a comma-separated flag value, each one of ``allowed``."""
+    """The items of a comma-separated flag value, each one of ``allowed``, none twice (a
+    configuration named twice would be measured twice, as two rows of one name)."""
     items = [x.strip() for x in text.split(",") if x.strip()]
     bad = [x for x in items if x not in allowed]
     if not items or bad:
         raise SceneError("command line", flag, f"expected a comma-separated list of "
                                                f"{', '.join(allowed)}, got {text!r}")
+    twice = [x for i, x in enumerate(items) if x in items[:i]]
+    if twice:
+        raise SceneError("command line", flag, f"{twice[0]!r} is named twice in {text!r}")
     return items
 
 
