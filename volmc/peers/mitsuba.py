@@ -196,13 +196,10 @@ def _film_straddles(cam, medium):
     has points on both sides of the (placed) box's surface: it meets the box (touching
     counts) without lying wholly inside it."""
     from types import SimpleNamespace
+    from ..pack import camera_basis
     w, h = cam.resolution
     eye = np.asarray(cam.eye, float)
-    f = np.asarray(cam.target, float) - eye
-    f /= np.linalg.norm(f)
-    r = np.cross(f, np.asarray(cam.up, float))
-    r /= np.linalg.norm(r)
-    v = np.cross(r, f)
+    f, r, v = (np.asarray(x, float) for x in camera_basis(cam))
     hw, hh = cam.size * w / h / 2.0, cam.size / 2.0
     corners = [eye + a * hw * r + b * hh * v for a in (-1, 1) for b in (-1, 1)]
     if all(_inside(c, medium) for c in corners):   # the box is convex
