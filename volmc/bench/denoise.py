@@ -47,8 +47,9 @@ def scene_and_reference(path, width, reference_spp=2048, lanes=None):
     seed of its own, independent of the renders measured against it)."""
     from ..api import render
     from ..render import whole
-    from ..scene.loading import load_scene
-    w0, h0 = load_scene(path).camera.resolution
+    from ..scene.loading import load_scene, read_raw
+    from ..scene.schema import validate
+    w0, h0 = validate(read_raw(path), str(path)).camera.resolution   # (no grid loaded)
     res = [int(width), max(1, round(width * h0 / w0))]
     scene = load_scene(path, {"camera.resolution": res})
     t = time.perf_counter()
