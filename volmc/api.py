@@ -431,7 +431,6 @@ def render_frames(scene, frames, output=None, spp=None, seed=None, backend="open
     plan = seq.plan(output, name, png, variance, denoise)
 
     with _client(client, where) as client:
-
         def render_one(frame_scene, label):
             from .distributed import ClusterError
             try:

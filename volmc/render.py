@@ -337,7 +337,6 @@ def render(scene, backend="opencl", spp=None, progress=None, on_start=None, chec
     return result
 
 
-
 class LocalChunks:
     """The chunks of a render run in this process: iterating renders each chunk's batches
     into an empty film, adds that film's sums to the render's film and yields the chunk's
